@@ -1,0 +1,26 @@
+"""Progress bars for long work (tqdm on stderr; silent under --quiet/--json or no tty)."""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Iterable, Iterator
+from typing import Any, TypeVar
+
+T = TypeVar("T")
+
+
+def progress(
+    iterable: Iterable[T], *, desc: str, total: int | None = None, args: Any = None
+) -> Iterator[T]:
+    """Wrap ``iterable`` in a progress bar unless the user asked for quiet output."""
+    quiet = bool(
+        args is not None and (getattr(args, "quiet", False) or getattr(args, "json", False))
+    )
+    if quiet:
+        yield from iterable
+        return
+    from tqdm import tqdm
+
+    yield from tqdm(
+        iterable, desc=desc, total=total, file=sys.stderr, leave=False, mininterval=0.5
+    )

@@ -1,0 +1,136 @@
+"""Entry point of the ``maglevid`` command: discovery, errors, ``--json`` output."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import logging
+import pkgutil
+import sys
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+import maglevid
+from maglevid.exceptions import MaglevidError
+
+__all__ = ["build_parser", "main"]
+
+DESCRIPTION = """\
+maglevid identifies the physical parameters of magnetic bearings and maglev
+plants (coil resistance and inductance, force factors, amplifier gains, mass)
+from data recorded while the feedback loop is closed, and says what changed.
+
+Typical use:
+  maglevid simulate amb --fault R1=1.2 --out rec.npz   # make a recording
+  maglevid identify rec.npz --json                      # physical parameters
+  maglevid COMMAND --help                               # options of a command
+"""
+
+
+def _commands() -> list[Any]:
+    import maglevid.cli as pkg
+
+    mods = []
+    for info in sorted(pkgutil.iter_modules(pkg.__path__), key=lambda i: i.name):
+        if info.name.startswith("_") or info.name == "main":
+            continue
+        mod = importlib.import_module(f"maglevid.cli.{info.name}")
+        if hasattr(mod, "COMMAND"):
+            mods.append(mod)
+    return mods
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="maglevid",
+        description=DESCRIPTION,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("--version", action="version", version=f"maglevid {maglevid.__version__}")
+    parser.add_argument(
+        "--json", action="store_true", help="print the result as JSON (for scripts and machines)"
+    )
+    parser.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
+    parser.add_argument("-v", "--verbose", action="store_true", help="log what is done")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for mod in _commands():
+        p = sub.add_parser(
+            mod.COMMAND,
+            help=mod.HELP,
+            description=getattr(mod, "DESCRIPTION", mod.HELP),
+            formatter_class=argparse.RawDescriptionHelpFormatter,
+        )
+        # --json / --quiet are accepted after the subcommand too.
+        p.add_argument(
+            "--json", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS
+        )
+        p.add_argument(
+            "-q", "--quiet", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS
+        )
+        mod.add_arguments(p)
+        p.set_defaults(_run=mod.run, _format=getattr(mod, "format_text", None))
+    return parser
+
+
+def _json_default(o: Any) -> Any:
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, complex):
+        return {"re": o.real, "im": o.imag}
+    if hasattr(o, "to_dict"):
+        return o.to_dict()
+    return str(o)
+
+
+def _default_text(result: dict[str, Any]) -> str:
+    lines = []
+    for k, v in result.items():
+        if isinstance(v, (dict, list)):
+            v = json.dumps(v, default=_json_default)
+        lines.append(f"{k}: {v}")
+    return "\n".join(lines)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command line; returns the exit code (0 ok, 1 error, 2 usage)."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(
+        level=logging.INFO if args.verbose else logging.WARNING,
+        format="%(levelname)s %(name)s: %(message)s",
+    )
+    if args.command is None:
+        parser.print_help()
+        return 2
+    try:
+        result = args._run(args)
+    except MaglevidError as exc:
+        msg = {"error": type(exc).__name__, "message": str(exc)}
+        if args.json:
+            print(json.dumps(msg))
+        else:
+            print(f"maglevid {args.command}: error: {exc}", file=sys.stderr)
+        return 1
+    except (FileNotFoundError, PermissionError, IsADirectoryError) as exc:
+        if args.json:
+            print(json.dumps({"error": type(exc).__name__, "message": str(exc)}))
+        else:
+            print(f"maglevid {args.command}: error: {exc}", file=sys.stderr)
+        return 1
+    if result is None:
+        return 0
+    if args.json:
+        print(json.dumps(result, default=_json_default, indent=2, allow_nan=True))
+    else:
+        fmt = args._format or _default_text
+        print(fmt(result))
+    return int(result.get("exit_code", 0)) if isinstance(result, dict) else 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

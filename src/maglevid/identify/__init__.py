@@ -1,0 +1,5 @@
+"""Identification methods. Every ``fit_*`` returns an :class:`IdentificationResult`."""
+
+from maglevid.identify.result import IdentificationResult
+
+__all__ = ["IdentificationResult"]

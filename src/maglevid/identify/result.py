@@ -1,0 +1,200 @@
+"""The one result type every identification method returns."""
+
+from __future__ import annotations
+
+import html
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from types import MappingProxyType
+from typing import Any
+
+import numpy as np
+from scipy import stats
+
+from maglevid.lti import StateSpace
+
+__all__ = ["RESULT_VERSION", "IdentificationResult", "propagate_covariance"]
+
+#: Version of the ``to_dict`` layout; bump on incompatible change.
+RESULT_VERSION = 1
+
+
+def _jsonable(v: Any) -> Any:
+    if isinstance(v, StateSpace):
+        return v.to_dict()
+    if isinstance(v, np.ndarray):
+        if np.iscomplexobj(v):
+            return {"re": v.real.tolist(), "im": v.imag.tolist()}
+        return v.tolist()
+    if isinstance(v, (np.generic,)):
+        return v.item()
+    if isinstance(v, complex):
+        return {"re": v.real, "im": v.imag}
+    if isinstance(v, Mapping):
+        return {str(k): _jsonable(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_jsonable(x) for x in v]
+    if isinstance(v, float) and not np.isfinite(v):
+        return None if np.isnan(v) else ("inf" if v > 0 else "-inf")
+    return v
+
+
+@dataclass(frozen=True, eq=False)
+class IdentificationResult:
+    """What an identification method found, and how.
+
+    Attributes
+    ----------
+    method : str
+        Method name as accepted by ``maglevid identify --method``.
+    model : StateSpace or None
+        Identified discrete-time model (in physical coordinates where the method
+        gives them).
+    continuous_model : StateSpace or None
+        The continuous-time model (eq. (8)) where it exists.
+    parameters : mapping of str -> float
+        Named estimates (e.g. ``v1..v9``, ``R1``, ``a1``), in a stable order.
+    covariance : ndarray or None
+        Covariance of ``parameters`` in that order; ``None`` when the method
+        has none (never zeros).
+    n_samples : int
+        Number of samples (control periods) used.
+    options : mapping
+        Every option the method used, defaults included.
+    residuals : ndarray or None
+        One-step prediction errors, time first.
+    fit : mapping of str -> float
+        Fit diagnostics, e.g. ``one_step_fit_percent`` (never an open-loop
+        simulation fit for an unstable model).
+    singular_values : ndarray or None
+        Singular values used for order selection.
+    notes : tuple of str
+        Anything assumed, changed or found marginal.
+    extras : mapping
+        Method-specific intermediate results (ARX coefficients, observer gain, ...).
+    """
+
+    method: str
+    model: StateSpace | None
+    parameters: Mapping[str, float]
+    covariance: np.ndarray | None = None
+    n_samples: int = 0
+    options: Mapping[str, Any] = field(default_factory=dict)
+    residuals: np.ndarray | None = None
+    fit: Mapping[str, float] = field(default_factory=dict)
+    singular_values: np.ndarray | None = None
+    notes: tuple[str, ...] = ()
+    continuous_model: StateSpace | None = None
+    extras: Mapping[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        params = {str(k): float(v) for k, v in dict(self.parameters).items()}
+        object.__setattr__(self, "parameters", MappingProxyType(params))
+        if self.covariance is not None:
+            cov = np.array(self.covariance, dtype=float)
+            if cov.shape != (len(params), len(params)):
+                raise ValueError(
+                    f"covariance has shape {cov.shape}; expected {(len(params), len(params))}"
+                )
+            cov.setflags(write=False)
+            object.__setattr__(self, "covariance", cov)
+        object.__setattr__(self, "options", MappingProxyType(dict(self.options)))
+        object.__setattr__(
+            self, "fit", MappingProxyType({k: float(v) for k, v in dict(self.fit).items()})
+        )
+        object.__setattr__(self, "extras", MappingProxyType(dict(self.extras)))
+        object.__setattr__(self, "notes", tuple(self.notes))
+
+    @property
+    def parameter_names(self) -> tuple[str, ...]:
+        return tuple(self.parameters)
+
+    def std_errors(self) -> dict[str, float]:
+        """Standard error of each parameter (NaN for all when there is no covariance)."""
+        if self.covariance is None:
+            return {k: float("nan") for k in self.parameters}
+        se = np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))
+        return dict(zip(self.parameters, se.tolist()))
+
+    def confidence_intervals(self, level: float = 0.95) -> dict[str, tuple[float, float]]:
+        """Two-sided normal-approximation intervals at ``level``."""
+        z = float(stats.norm.ppf(0.5 + level / 2))
+        se = self.std_errors()
+        return {k: (v - z * se[k], v + z * se[k]) for k, v in self.parameters.items()}
+
+    def summary(self) -> str:
+        """Plain-text table of the estimates with standard errors."""
+        se = self.std_errors()
+        lines = [
+            f"maglevid identification: method={self.method}, N={self.n_samples}",
+            f"{'parameter':>12} {'estimate':>14} {'std. error':>12}",
+        ]
+        for k, v in self.parameters.items():
+            lines.append(f"{k:>12} {v:>14.6g} {se[k]:>12.3g}")
+        for k, v in self.fit.items():
+            lines.append(f"fit {k}: {v:.6g}")
+        lines.extend(f"note: {n}" for n in self.notes)
+        return "\n".join(lines)
+
+    def _repr_html_(self) -> str:
+        se = self.std_errors()
+        rows = "".join(
+            f"<tr><td>{html.escape(k)}</td><td>{v:.6g}</td><td>{se[k]:.3g}</td></tr>"
+            for k, v in self.parameters.items()
+        )
+        notes = "".join(f"<li>{html.escape(n)}</li>" for n in self.notes)
+        return (
+            f"<div><b>maglevid identification</b>: {html.escape(self.method)}, "
+            f"N={self.n_samples}<table><tr><th>parameter</th><th>estimate</th>"
+            f"<th>std. error</th></tr>{rows}</table><ul>{notes}</ul></div>"
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-safe, versioned dictionary."""
+        return {
+            "format": "maglevid-identification",
+            "version": RESULT_VERSION,
+            "method": self.method,
+            "n_samples": self.n_samples,
+            "options": _jsonable(self.options),
+            "parameters": dict(self.parameters),
+            "std_errors": _jsonable(self.std_errors()),
+            "covariance": None if self.covariance is None else self.covariance.tolist(),
+            "model": None if self.model is None else self.model.to_dict(),
+            "continuous_model": None
+            if self.continuous_model is None
+            else self.continuous_model.to_dict(),
+            "poles": None if self.model is None else _jsonable(self.model.poles()),
+            "fit": dict(self.fit),
+            "singular_values": None
+            if self.singular_values is None
+            else np.asarray(self.singular_values).tolist(),
+            "notes": list(self.notes),
+        }
+
+
+def propagate_covariance(
+    f: Callable[[np.ndarray], np.ndarray],
+    theta: np.ndarray,
+    cov: np.ndarray,
+    *,
+    rel_step: float = 1e-6,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Delta method: value and covariance of ``f(theta)`` given ``cov(theta)``.
+
+    The Jacobian is taken by central differences with steps scaled to each
+    parameter (``rel_step * max(|theta_i|, sqrt(cov_ii), tiny)``).
+    """
+    theta = np.asarray(theta, dtype=float)
+    f0 = np.asarray(f(theta), dtype=float)
+    J = np.empty((f0.size, theta.size))
+    sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    for i in range(theta.size):
+        h = rel_step * max(abs(theta[i]), sd[i], 1e-300)
+        tp, tm = theta.copy(), theta.copy()
+        tp[i] += h
+        tm[i] -= h
+        J[:, i] = (np.asarray(f(tp), dtype=float) - np.asarray(f(tm), dtype=float)).ravel() / (
+            2 * h
+        )
+    return f0, J @ cov @ J.T

@@ -1,0 +1,1 @@
+"""The plants of the two papers: nonlinear equations and their linearisations."""
