@@ -3,10 +3,8 @@
 from __future__ import annotations
 
 import argparse
-import importlib
 import json
 import logging
-import pkgutil
 import sys
 from collections.abc import Sequence
 from typing import Any
@@ -14,6 +12,7 @@ from typing import Any
 import numpy as np
 
 import maglevid
+from maglevid._plugins import modules_with
 from maglevid.exceptions import MaglevidError
 
 __all__ = ["build_parser", "main"]
@@ -31,16 +30,7 @@ Typical use:
 
 
 def _commands() -> list[Any]:
-    import maglevid.cli as pkg
-
-    mods = []
-    for info in sorted(pkgutil.iter_modules(pkg.__path__), key=lambda i: i.name):
-        if info.name.startswith("_") or info.name == "main":
-            continue
-        mod = importlib.import_module(f"maglevid.cli.{info.name}")
-        if hasattr(mod, "COMMAND"):
-            mods.append(mod)
-    return mods
+    return modules_with("maglevid.cli", "COMMAND")
 
 
 def build_parser() -> argparse.ArgumentParser:

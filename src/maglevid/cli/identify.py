@@ -1,0 +1,91 @@
+"""``maglevid identify RECORDING``: identify a plant from a closed-loop recording."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from typing import Any
+
+from maglevid.identify.registry import available_methods, get_method
+
+COMMAND = "identify"
+HELP = "identify the plant (and its physical parameters) from a recording"
+DESCRIPTION = """\
+Identify the open-loop plant from a closed-loop recording and print the
+discrete and continuous models, the physical parameters with standard errors
+and the fit diagnostics (one-step prediction, never an open-loop simulation of
+an unstable model).
+
+  maglevid identify rec.npz --method deadbeat-arx --json
+"""
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("recording", help="recording file (.npz, .csv + .json, .mat, .parquet)")
+    parser.add_argument(
+        "--method",
+        default=None,
+        help="identification method (default: chosen from the recording); "
+        "`--method list` shows them",
+    )
+    parser.add_argument(
+        "--option",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="method option (VALUE parsed as JSON when possible); repeatable",
+    )
+
+
+def _parse_options(items: list[str]) -> dict[str, Any]:
+    from maglevid.exceptions import DataError
+
+    out: dict[str, Any] = {}
+    for item in items:
+        if "=" not in item:
+            raise DataError(f"--option {item!r}: expected KEY=VALUE")
+        k, v = item.split("=", 1)
+        try:
+            out[k] = json.loads(v)
+        except json.JSONDecodeError:
+            out[k] = v
+    return out
+
+
+def _default_method(data: Any) -> str:
+    if data.p > 1:
+        return "intersample"
+    return "deadbeat-arx"
+
+
+def run(args: argparse.Namespace) -> dict[str, Any]:
+    if args.method == "list":
+        return {"methods": sorted(available_methods())}
+    from maglevid.io import read_recording
+
+    data = read_recording(args.recording)
+    method = args.method or _default_method(data)
+    result = get_method(method)(data, **_parse_options(args.option))
+    out = result.to_dict()
+    out["recording"] = args.recording
+    return out
+
+
+def format_text(result: dict[str, Any]) -> str:
+    if "methods" in result:
+        return "methods: " + ", ".join(result["methods"])
+    lines = [f"recording: {result['recording']}", f"method: {result['method']}"]
+    lines.append(f"samples: {result['n_samples']}")
+    se = result.get("std_errors") or {}
+    lines.append(f"{'parameter':>14} {'estimate':>14} {'std. error':>12}")
+    for k, v in result["parameters"].items():
+        e = se.get(k)
+        lines.append(f"{k:>14} {v:>14.6g} {(e if e is not None else float('nan')):>12.3g}")
+    if result.get("poles") is not None:
+        p = result["poles"]
+        re, im = (p["re"], p["im"]) if isinstance(p, dict) else (p, [0.0] * len(p))
+        lines.append("discrete poles: " + ", ".join(f"{a:.6g}{b:+.3g}j" for a, b in zip(re, im)))
+    for k, v in (result.get("fit") or {}).items():
+        lines.append(f"fit {k}: {v:.6g}")
+    lines.extend(f"note: {n}" for n in result.get("notes", []))
+    return "\n".join(lines)

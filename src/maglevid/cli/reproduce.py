@@ -1,0 +1,29 @@
+"""``maglevid reproduce PAPER``: the papers' tables and figures beside ours.
+
+Reproductions are modules of :mod:`maglevid.experiments` that define ``PAPER``
+(name), ``PAPER_HELP``, ``add_paper_arguments(parser)`` and
+``run_reproduction(args) -> dict`` (which also writes figures under ``--out``).
+"""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+from maglevid._plugins import modules_with
+
+COMMAND = "reproduce"
+HELP = "reproduce a paper's tables and figures (gosiewski, sun)"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    sub = parser.add_subparsers(dest="paper", metavar="PAPER", required=True)
+    for mod in modules_with("maglevid.experiments", "PAPER"):
+        p = sub.add_parser(mod.PAPER, help=mod.PAPER_HELP, description=mod.PAPER_HELP)
+        p.add_argument("--out", default="reproduce-out", help="folder for figures (PNG)")
+        mod.add_paper_arguments(p)
+        p.set_defaults(_reproduce=mod.run_reproduction, _format=getattr(mod, "format_text", None))
+
+
+def run(args: argparse.Namespace) -> dict[str, Any]:
+    return args._reproduce(args)
