@@ -180,6 +180,10 @@ def fit_indirect(
             "no plant outputs: give `plant_outputs` or feed y channels to the controller"
         )
     pspec = [p.spec for p in pouts]
+    if intermediate is not None:
+        intermediate = resolve_channel(data, intermediate).spec
+        if intermediate not in pspec:
+            raise DataError(f"`intermediate` {intermediate!r} is not a plant output {pspec}")
     feedback = [pspec.index(c.spec) if c.spec in pspec else -1 for c in chans]
     if all(f >= 0 for f in feedback):
         raise DataError("the controller has no exogenous input: nothing drives the closed loop")
@@ -298,8 +302,6 @@ def fit_indirect(
     params.update(pv)
     jacs = [Jp]
     if intermediate is not None:
-        if intermediate not in pspec:
-            raise DataError(f"`intermediate` {intermediate!r} is not a plant output {pspec}")
         j = pspec.index(intermediate)
         sl = slice(n + j * n, n + (j + 1) * n)
 
