@@ -241,4 +241,5 @@ def factor_r(R: np.ndarray) -> np.ndarray:
 
 def lower_factor(F: np.ndarray) -> np.ndarray:
     """Lower-trapezoidal ``L`` with ``L L^T = F F^T`` (rows kept in ``F``'s order)."""
-    return sla.qr(F.T, mode="r", check_finite=False)[0].T
+    R = sla.qr(F.T, mode="r", check_finite=False)[0]
+    return R[: min(R.shape)].T

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import logging
 import math
+import warnings
 from dataclasses import dataclass
 from typing import Any
 
@@ -41,7 +42,12 @@ import numpy as np
 import scipy.linalg as sla
 
 from maglevid._validation import as_signal, check_positive
-from maglevid.exceptions import DataError, IdentificationError, ModelError
+from maglevid.exceptions import (
+    DataError,
+    IdentificationError,
+    IllConditionedWarning,
+    ModelError,
+)
 from maglevid.identify._hankel import (
     _HankelQR,
     _LagGram,
@@ -62,7 +68,7 @@ logger = logging.getLogger(__name__)
 DEFAULT_MAX_HORIZON = 40
 
 #: The automatic horizon keeps at least this many Hankel rows per column.
-_ROWS_PER_COLUMN_AUTO = 10
+_ROWS_PER_COLUMN_AUTO = 5
 #: Any horizon needs at least this many Hankel rows per column.
 _ROWS_PER_COLUMN_MIN = 2
 
@@ -79,6 +85,9 @@ _EPS = float(np.finfo(float).eps)
 _DEFAULT_RANK_TOL = {"gram": 1e-6, "qr": 1e-10}
 #: Relative rank threshold of the row-space projections, per factorisation.
 _PROJ_RCOND = {"gram": 1e-10, "qr": 1e-13}
+#: Below this ratio s_n / s_1 the weakest retained direction is not resolved
+#: reliably by the factorisation (Gram: errors ~ eps / ratio^2; QR: ~ eps / ratio).
+_ILL_RATIO = {"gram": 1e-5, "qr": 1e-10}
 #: Floor of ARX residual variances (channels scaled to unit RMS) in the horizon rule.
 _ARX_VAR_FLOOR = 1e-12
 #: The regression for B, D refuses a model that grows by more than this over the record.
@@ -119,7 +128,7 @@ class _Stats:
 
 
 def _auto_max_horizon(n_samples: int, m: int, cap: int) -> int:
-    # Largest i with j = N - 2i + 1 >= 10 * (2 i m) rows per column: i <= (N+1)/(2+20m).
+    # Largest i with j = N - 2i + 1 >= 5 * (2 i m) rows per column: i <= (N+1)/(2+10m).
     return int(min(cap, (n_samples + 1) // (2 + 2 * _ROWS_PER_COLUMN_AUTO * m)))
 
 
@@ -809,6 +818,17 @@ def _fit(
                 f"order choice is marginal (gap ratio {core.gap:.3g} < 10); inspect "
                 "`singular_values` and pass `order=` explicitly"
             )
+    ratio = float(core.s[n - 1] / core.s[0])
+    if ratio < _ILL_RATIO[st.factorization]:
+        msg = (
+            f"s_{n}/s_1 = {ratio:.2e} is below {_ILL_RATIO[st.factorization]:.0e}: the "
+            f"{st.factorization!r} factorisation does not resolve the weakest direction "
+            "reliably (data spanning many decades, e.g. an unstable open-loop record, or a "
+            "barely excited mode)"
+            + ("; use factorization='qr'" if st.factorization == "gram" else "")
+        )
+        warnings.warn(msg, IllConditionedWarning, stacklevel=4)
+        notes.append(msg)
     A, Cs = core.A, core.C
     if core.B is not None:
         Bs, Ds = core.B, core.D
@@ -1042,8 +1062,8 @@ def fit_moesp(
     Notes
     -----
     Automatic horizon: one pass collects the lagged products up to lag
-    ``2 i_max - 1`` with ``i_max = min(max_horizon, (N+1) // (2 + 20 m))`` (at
-    least 10 Hankel rows per column). ARX models of orders ``p = 1..i_max - 1``
+    ``2 i_max - 1`` with ``i_max = min(max_horizon, (N+1) // (2 + 10 m))`` (at
+    least 5 Hankel rows per column). ARX models of orders ``p = 1..i_max - 1``
     are fitted from the same factor, the order ``p*`` minimising AIC is taken as
     the memory the one-step predictor needs, and ``i = max(p* + 1, i_min)`` with
     ``(i_min - 1) ny >= order``. The Hankel rows are then ``0..N - 2 i_max`` for
