@@ -90,6 +90,8 @@ _PROJ_RCOND = {"gram": 1e-10, "qr": 1e-13}
 _ILL_RATIO = {"gram": 1e-5, "qr": 1e-10}
 #: Floor of ARX residual variances (channels scaled to unit RMS) in the horizon rule.
 _ARX_VAR_FLOOR = 1e-12
+#: Samples per chunk of the in-memory passes (a chunk of z stays in the L2/L3 cache).
+_CHUNK = 1 << 16
 #: The regression for B, D refuses a model that grows by more than this over the record.
 _MAX_GROWTH = 1e12
 
@@ -608,12 +610,21 @@ def _kalman_gain(
 def _predictor_residuals(
     model: StateSpace, K: np.ndarray, y: np.ndarray, u: np.ndarray
 ) -> np.ndarray:
-    """One-step prediction errors of the steady-state Kalman predictor, x_hat(0) = 0."""
+    """One-step prediction errors of the steady-state Kalman predictor, x_hat(0) = 0.
+
+    ``x_hat(t+1) = (A - K C) x_hat(t) + (B - K D) u(t) + K y(t)``,
+    ``e(t) = y(t) - C x_hat(t) - D u(t)``; in cache-sized chunks.
+    """
     A, B, C, D = model.A, model.B, model.C, model.D
     Fp = A - K @ C
-    W = u @ (B - K @ D).T + y @ K.T
-    X, _ = linear_recursion(Fp, W)
-    return y - X @ C.T - u @ D.T
+    Mu, My = (B - K @ D).T, K.T
+    e = np.empty_like(y)
+    x = np.zeros(A.shape[0])
+    for t0 in range(0, y.shape[0], _CHUNK):
+        t1 = min(y.shape[0], t0 + _CHUNK)
+        X, x = linear_recursion(Fp, u[t0:t1] @ Mu + y[t0:t1] @ My, x)
+        e[t0:t1] = y[t0:t1] - X @ C.T - u[t0:t1] @ D.T
+    return e
 
 
 def _bd_regression(
@@ -966,14 +977,13 @@ def _fit_in_memory(algorithm: str, y: Any, u: Any, kw: dict[str, Any]) -> Identi
     ny, nu = y.shape[1], u.shape[1]
     m = nu + ny
     i_rows = _plan_in_memory(N, m, ny, opt)
-    z = np.concatenate([u, y], axis=1)
     acc: _LagGram | _HankelQR
     if opt.factorization == "gram":
         acc = _LagGram(m, 2 * i_rows - 1)
     else:
         acc = _HankelQR(m, 2 * i_rows)
-    acc.update(z)
-    del z
+    for t0 in range(0, N, _CHUNK):  # the same accumulator a stream would use
+        acc.update(np.concatenate([u[t0 : t0 + _CHUNK], y[t0 : t0 + _CHUNK]], axis=1))
     return _fit(acc, nu, ny, opt, i_rows, (y, u))
 
 
