@@ -328,6 +328,7 @@ class _Core:
     gap: float
     order_auto: bool
     K_hat: np.ndarray | None = None  # robust N4SID: unconstrained coefficient on U_f
+    Z: tuple[np.ndarray, np.ndarray] | None = None  # (Z_i, Z_{i+1}) when already computed
 
 
 def _order_and_gamma(
@@ -486,7 +487,18 @@ def _n4sid_core(
     rhs = np.concatenate([_pinv_apply(Gam, Z_i), Uf])
     sol = _regress(lhs, rhs, rcond)
     A, C = sol[:n, :n], sol[n:, :n]
-    return _Core(A=A, C=C, B=None, D=None, s=s, n=n, gap=gap, order_auto=auto, K_hat=sol[:, n:])
+    return _Core(
+        A=A,
+        C=C,
+        B=None,
+        D=None,
+        s=s,
+        n=n,
+        gap=gap,
+        order_auto=auto,
+        K_hat=sol[:, n:],
+        Z=(Z_i, Z_n),
+    )
 
 
 def _z_projections(st: _Stats, i: int, rcond: float) -> tuple[np.ndarray, np.ndarray]:
@@ -558,6 +570,7 @@ def _innovation_stats(
     C: np.ndarray,
     D: np.ndarray,
     rcond: float,
+    Z: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Residual covariance of the state equations (scaled units) and output residual rows.
 
@@ -567,7 +580,7 @@ def _innovation_stats(
     measurement noise, the second block is the one-step prediction error.
     """
     ny = C.shape[0]
-    Z_i, Z_n = _z_projections(st, i, rcond)
+    Z_i, Z_n = _z_projections(st, i, rcond) if Z is None else Z
     Uf = st.rows(st.u_rows(i, 2 * i))
     Ufm = st.rows(st.u_rows(i + 1, 2 * i))
     h = _markov(A, B, C, D, i)
@@ -752,6 +765,7 @@ def _fit(
     opt: _Options,
     i_rows: int,
     data: tuple[np.ndarray, np.ndarray] | None,
+    stacklevel: int = 4,
 ) -> IdentificationResult:
     """Everything after the pass over the data (shared by both entry points)."""
     notes: list[str] = []
@@ -838,7 +852,7 @@ def _fit(
             "barely excited mode)"
             + ("; use factorization='qr'" if st.factorization == "gram" else "")
         )
-        warnings.warn(msg, IllConditionedWarning, stacklevel=4)
+        warnings.warn(msg, IllConditionedWarning, stacklevel=stacklevel)
         notes.append(msg)
     A, Cs = core.A, core.C
     if core.B is not None:
@@ -866,7 +880,7 @@ def _fit(
     model = StateSpace(A, B, C, D, opt.dt)
 
     # ---- noise model and fit (one-step-ahead; never an open-loop simulation)
-    cov, rho_v = _innovation_stats(st, i, A, Bs, Cs, Ds, rcond)
+    cov, rho_v = _innovation_stats(st, i, A, Bs, Cs, Ds, rcond, core.Z)
     y_rows = st.y_rows(i, i + 1)
     y2 = np.einsum("ij,ij->i", st.F[y_rows], st.F[y_rows])  # second moment, scaled
     var_y = np.maximum(y2 - st.mean[nu:] ** 2 / s_y**2, 0.0)
@@ -1342,13 +1356,18 @@ class SubspaceAccumulator:
             i_rows = self.horizon
         elif self.factorization == "gram":
             i_rows = _plan_in_memory(N, m, self.ny, opt)
+            if i_rows > self.max_horizon:
+                raise DataError(
+                    f"order={order} needs horizon >= {i_rows}, above this accumulator's "
+                    f"max_horizon={self.max_horizon}"
+                )
         else:
             assert self.max_horizon is not None
             _check_rows(N, self.max_horizon, m, f"max_horizon={self.max_horizon}")
             i_rows = self.max_horizon
         if isinstance(self._acc, _LagGram) and N < self._acc.min_samples():
             raise DataError(f"{N} samples are too few for the lags kept ({self._acc.L})")
-        return _fit(self._acc, self.nu, self.ny, opt, i_rows, None)
+        return _fit(self._acc, self.nu, self.ny, opt, i_rows, None, stacklevel=3)
 
 
 # --------------------------------------------------------------- registry
