@@ -478,3 +478,11 @@ def test_registered_for_the_cli(data):
     assert np.array_equal(res.model.A, direct.model.A)
     with pytest.raises(DataError, match="with_plant_input"):
         get_method("moesp")(ClosedLoopData(y=y, r=u, dt=0.25))
+
+
+def test_order_above_the_rank_of_the_instruments_is_an_error():
+    # PI-MOESP with one input and horizon 3: the instruments U_p have rank 3 < 4.
+    sys = make_system(STABLE, nu=1, ny=3, seed=30)
+    y, u = simulate(sys, 1000, seed=31)
+    with pytest.raises(IdentificationError, match="rank of the projected data"):
+        fit_moesp(y, u, order=4, horizon=3, weighting="pi")

@@ -339,6 +339,12 @@ def _order_and_gamma(
         auto = True
     else:
         n = order
+        if n > s.size or s[n - 1] <= 0.0:
+            raise IdentificationError(
+                f"order={n} exceeds the rank of the projected data "
+                f"({int(np.count_nonzero(s > 0))}); the instruments or the horizon are too "
+                "small for it (increase `horizon`, or use weighting='po')"
+            )
         gap = float(s[n - 1] / s[n]) if s.size > n and s[n] > 0 else float("inf")
         auto = False
     Gam = U[:, :n] * np.sqrt(s[:n])[None, :]
