@@ -61,11 +61,12 @@ def _default_method(data: Any) -> str:
 def run(args: argparse.Namespace) -> dict[str, Any]:
     if args.method == "list":
         return {"methods": sorted(available_methods())}
+    options = _parse_options(args.option)
     from maglevid.io import read_recording
 
     data = read_recording(args.recording)
     method = args.method or _default_method(data)
-    result = get_method(method)(data, **_parse_options(args.option))
+    result = get_method(method)(data, **options)
     out = result.to_dict()
     out["recording"] = args.recording
     return out
