@@ -115,7 +115,7 @@ class Diagnosis:
         return self.verdict_code != "cannot_diagnose"
 
     def estimates(self) -> dict[str, tuple[float, float]]:
-        """Identified parameters as ``{name: (value, std_error)}`` (empty without identification)."""
+        """Identified parameters as ``{name: (value, std_error)}`` (empty if none)."""
         if self.identification is None:
             return {}
         se = self.identification.std_errors()
