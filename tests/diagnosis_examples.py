@@ -94,9 +94,9 @@ def faulty_diagnosis(fault: dict[str, float] | None = None) -> Diagnosis:
         for c in sig
     ]
     reasons.append(
-        f"best single cause {', '.join(iso.best.parameters)}: chi2 = {iso.best.chi2:.1f} "
-        f"with {iso.best.dof} dof (p = {iso.best.p_value:.2f}); 'no change' rejected "
-        f"(chi2 = {iso.no_change.chi2:.3g})"
+        f"only {', '.join(iso.best.parameters)} changed fits all nine v_i: "
+        f"χ² = {iso.best.chi2:.1f} with {iso.best.dof} dof (p = {iso.best.p_value:.2f}); "
+        f"'nothing changed' is rejected (χ² = {iso.no_change.chi2:.0f}, {iso.no_change.dof} dof)"
     )
     what = iso.best.describe() if iso.explained else "significant changes, no single cause"
     return Diagnosis(
@@ -132,7 +132,7 @@ def faulty_diagnosis(fault: dict[str, float] | None = None) -> Diagnosis:
             "A_p": percentage_index(id_model.A, base_model.A),
             "B_p": percentage_index(id_model.B, base_model.B),
         },
-        machine="AMB-7 <test rig>",
+        machine="AMB-7 test rig, axis X",
         recording="rig7/2026-03-14T0926 faulty.npz",
         recording_hash="sha256:3f1c9a0e5b7d2c4a",
         dt=DT,
