@@ -44,9 +44,9 @@ from maglevid.exceptions import MaglevidError
 __all__ = [
     "Backend",
     "HistoryError",
+    "NotFoundError",
     "SchemaVersionError",
     "StoreBusyError",
-    "NotFoundError",
     "connect",
     "migrate",
     "redact_url",
@@ -103,8 +103,7 @@ def parse_target(target: str | os.PathLike[str]) -> tuple[str, str]:
         return "sqlite", os.fspath(target)
     if not isinstance(target, str) or not target:
         raise HistoryError(
-            f"store location must be a path or URL string; got {type(target).__name__} "
-            f"{target!r}"
+            f"store location must be a path or URL string; got {type(target).__name__} {target!r}"
         )
     lower = target.lower()
     for scheme in ("postgresql://", "postgres://", "postgresql+psycopg://"):
@@ -282,8 +281,7 @@ class Backend:
     def user_tables(self, tx: Tx) -> set[str]:
         if self.dialect == "sqlite":
             rows = tx.all(
-                "SELECT name FROM sqlite_master WHERE type = 'table' "
-                "AND name NOT LIKE 'sqlite_%'"
+                "SELECT name FROM sqlite_master WHERE type = 'table' AND name NOT LIKE 'sqlite_%'"
             )
         else:
             rows = tx.all(
@@ -388,7 +386,9 @@ def _connect_postgres(url: str, *, timeout: float, schema: str | None) -> Backen
     except psycopg.Error as exc:
         conn.close()
         raise HistoryError(f"{shown}: {exc}") from exc
-    return Backend(conn, "postgresql", f"{shown} (schema {schema})", timeout=timeout, schema=schema)
+    return Backend(
+        conn, "postgresql", f"{shown} (schema {schema})", timeout=timeout, schema=schema
+    )
 
 
 def connect(
@@ -448,7 +448,9 @@ def migrate(backend: Backend, migrations: Sequence[Migration] = MIGRATIONS) -> t
             ),
             write=False,
         )
-        current = backend.run(lambda tx: _schema_version(backend, tx), write=False) if exists else None
+        current = (
+            backend.run(lambda tx: _schema_version(backend, tx), write=False) if exists else None
+        )
     else:
         current = backend.run(lambda tx: _schema_version(backend, tx), write=False)
     if current is not None and current > latest:
@@ -459,7 +461,9 @@ def migrate(backend: Backend, migrations: Sequence[Migration] = MIGRATIONS) -> t
     def work(tx: Tx) -> int:
         if backend.dialect == "postgresql":
             # Serialise concurrent first openings of the same schema.
-            tx.execute("SELECT pg_advisory_xact_lock(hashtext(?))", (f"maglevid:{backend.schema}",))
+            tx.execute(
+                "SELECT pg_advisory_xact_lock(hashtext(?))", (f"maglevid:{backend.schema}",)
+            )
             tx.execute(f'CREATE SCHEMA IF NOT EXISTS "{backend.schema}"')
         found = _schema_version(backend, tx)  # again, under the writer lock
         found = 0 if found is None else found
@@ -472,11 +476,14 @@ def migrate(backend: Backend, migrations: Sequence[Migration] = MIGRATIONS) -> t
         for m in migrations:
             if m.version <= found:
                 continue
-            logger.info("%s: migrating to schema %d (%s)", backend.description, m.version, m.description)
+            logger.info(
+                "%s: migrating to schema %d (%s)", backend.description, m.version, m.description
+            )
             for statement in m.statements:
                 tx.execute(render(statement, backend.dialect))
             tx.execute(
-                "INSERT INTO schema_migrations (version, description, applied_at) VALUES (?, ?, ?)",
+                "INSERT INTO schema_migrations (version, description, applied_at) "
+                "VALUES (?, ?, ?)",
                 (m.version, m.description, now),
             )
         return found

@@ -315,7 +315,9 @@ def _text(name: str, v: Any, *, optional: bool = False) -> str | None:
     return v
 
 
-def _opt_float(name: str, v: Any, *, nonnegative: bool = False, finite: bool = True) -> float | None:
+def _opt_float(
+    name: str, v: Any, *, nonnegative: bool = False, finite: bool = True
+) -> float | None:
     if v is None:
         return None
     try:
@@ -550,7 +552,9 @@ class HistoryStore:
     @property
     def schema_version(self) -> int:
         """The schema version of the store (equal to :data:`SCHEMA_VERSION` once open)."""
-        return int(self._run(lambda tx: tx.one("SELECT MAX(version) FROM schema_migrations"), write=False))
+        return int(
+            self._run(lambda tx: tx.one("SELECT MAX(version) FROM schema_migrations"), write=False)
+        )
 
     # -- writing --------------------------------------------------------------
     @staticmethod
@@ -666,7 +670,9 @@ class HistoryStore:
         if dt_v is not None and dt_v <= 0:
             raise DataError(f"`dt` = {dt_v}; expected seconds > 0")
         if n_samples is not None and (
-            isinstance(n_samples, bool) or not isinstance(n_samples, (int, np.integer)) or n_samples < 0
+            isinstance(n_samples, bool)
+            or not isinstance(n_samples, (int, np.integer))
+            or n_samples < 0
         ):
             raise DataError(f"`n_samples` = {n_samples!r}; expected an int >= 0")
         rec_path = None if recording_path is None else os.fspath(recording_path)
@@ -805,7 +811,7 @@ class HistoryStore:
     )
 
     def diagnoses(self, machine: str, *, method: str | None = None) -> list[DiagnosisRecord]:
-        """Every diagnosis of ``machine`` (optionally of one ``method``), oldest recording first."""
+        """Every diagnosis of ``machine`` (optionally of one ``method``), oldest first."""
 
         def work(tx: Tx) -> list[DiagnosisRecord]:
             mid = self._machine_id(tx, machine)
@@ -1026,9 +1032,7 @@ class HistoryStore:
                 ok = [r[0] for r in tx.all("PRAGMA integrity_check")]
                 if ok != ["ok"]:
                     problems += [f"integrity_check: {m}" for m in ok]
-                problems += [
-                    f"foreign_key_check: {r}" for r in tx.all("PRAGMA foreign_key_check")
-                ]
+                problems += [f"foreign_key_check: {r}" for r in tx.all("PRAGMA foreign_key_check")]
             for did, want, got in tx.all(
                 "SELECT d.id, d.n_estimates, COUNT(e.id) FROM diagnoses d "
                 "LEFT JOIN estimates e ON e.diagnosis_id = d.id "
