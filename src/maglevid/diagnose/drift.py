@@ -326,7 +326,9 @@ def detect_drift(
         raise DataError(f"`baseline` = {baseline!r}; expected a finite value")
     min_n = 3 if method == "wls" else 4
     if n < min_n:
-        raise DataError(f"{n} points; a {method} drift test needs at least {min_n}")
+        raise DataError(
+            f"{n} point{'' if n == 1 else 's'}; a {method} drift test needs at least {min_n}"
+        )
     if np.ptp(t) == 0.0:
         raise DataError("all `times` are equal; a trend needs at least two distinct times")
     notes: list[str] = []
