@@ -23,7 +23,7 @@ _maglevid_pg_fail() {
 }
 
 _maglevid_pg_bindir() {
-    ls -d /usr/lib/postgresql/*/bin 2>/dev/null | sort -V | tail -n 1
+    { ls -d /usr/lib/postgresql/*/bin 2>/dev/null || true; } | sort -V | tail -n 1
 }
 
 _maglevid_pg_start() {
@@ -36,6 +36,9 @@ _maglevid_pg_start() {
         fi
         echo "postgres.sh: installing postgresql with apt-get" >&2
         export DEBIAN_FRONTEND=noninteractive
+        # We start our own cluster: the package need not create (and start) "main".
+        mkdir -p /etc/postgresql-common/createcluster.d
+        echo "create_main_cluster = false" >/etc/postgresql-common/createcluster.d/maglevid-ci.conf
         apt-get update -qq >/dev/null \
             || { _maglevid_pg_fail "apt-get update failed"; return 1; }
         apt-get install -y -qq --no-install-recommends postgresql >/dev/null \

@@ -256,6 +256,8 @@ def test_trend_refuses_mixed_units(store):
     record(store, 1, estimates={"R1": (2100.0, 20.0, None, None, "mohm")})
     with pytest.raises(HistoryError, match="different units"):
         store.trend("pump-7", "R1")
+    record(store, 2, estimates={"Ls1": (0.03, 0.001)})  # no unit: compatible with "H"
+    assert store.trend("pump-7", "Ls1").unit == "H"
 
 
 def test_latest_estimates_is_the_latest_recording(store):
@@ -402,6 +404,15 @@ def test_bad_locations(tmp_path):
         conn.execute("CREATE TABLE machines (serial TEXT)")
     with pytest.raises(SchemaVersionError, match="not a maglevid history store"):
         open_history(other)
+    foreign = tmp_path / "foreign.sqlite"
+    with sqlite3.connect(foreign) as conn:
+        conn.execute("PRAGMA application_id = 123")
+    with pytest.raises(SchemaVersionError, match="another application"):
+        open_history(foreign)
+    with open_history(tmp_path / "ours.sqlite"):
+        pass
+    with sqlite3.connect(tmp_path / "ours.sqlite") as conn:  # "MLVH": ours, recognisable
+        assert conn.execute("PRAGMA application_id").fetchone() == (_sql.APPLICATION_ID,)
 
 
 def test_unreachable_postgres_names_the_url_without_password():

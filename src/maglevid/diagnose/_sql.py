@@ -440,19 +440,15 @@ def migrate(backend: Backend, migrations: Sequence[Migration] = MIGRATIONS) -> t
             f"this maglevid understands ({latest}); upgrade maglevid to open it"
         )
 
-    if backend.dialect == "postgresql":
-        exists = backend.run(
-            lambda tx: tx.one(
-                "SELECT count(*) FROM information_schema.schemata WHERE schema_name = ?",
-                (backend.schema,),
-            ),
-            write=False,
-        )
-        current = (
-            backend.run(lambda tx: _schema_version(backend, tx), write=False) if exists else None
-        )
-    else:
-        current = backend.run(lambda tx: _schema_version(backend, tx), write=False)
+    def read_version(tx: Tx) -> int | None:
+        if backend.dialect == "postgresql" and not tx.one(
+            "SELECT count(*) FROM information_schema.schemata WHERE schema_name = ?",
+            (backend.schema,),
+        ):
+            return None
+        return _schema_version(backend, tx)
+
+    current = backend.run(read_version, write=False)
     if current is not None and current > latest:
         raise too_new(current)
     if current == latest:

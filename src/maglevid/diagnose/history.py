@@ -58,7 +58,7 @@ import math
 import os
 import socket
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from datetime import datetime, timezone
 from types import MappingProxyType
 from typing import Any, NamedTuple
@@ -240,7 +240,8 @@ class Trend:
     ----------
     machine, parameter : str
     unit : str or None
-        The unit shared by every point (mixed units raise when the trend is read).
+        The unit shared by every point that gives one (different units raise
+        when the trend is read).
     time : ndarray, shape (n,)
         Recording times in seconds since 1970-01-01 UTC (``float64``).
     value, std_error, ci_low, ci_high, baseline : ndarray, shape (n,)
@@ -260,7 +261,6 @@ class Trend:
     baseline: np.ndarray
     method: np.ndarray
     diagnosis_id: np.ndarray
-    notes: tuple[str, ...] = field(default=())
 
     def __len__(self) -> int:
         return int(self.time.shape[0])
@@ -954,11 +954,11 @@ class HistoryStore:
                 + (f" by method {method!r}" if method is not None else "")
                 + f"; parameters: {', '.join(known) if known else 'none'}"
             )
-        units = {r[8] for r in rows}
+        units = {r[8] for r in rows if r[8] is not None}  # no unit given is no conflict
         if len(units) > 1:
             raise HistoryError(
                 f"{parameter!r} of machine {machine!r} is stored in different units "
-                f"{sorted(map(str, units))}; a trend needs one unit"
+                f"{sorted(units)}; a trend needs one unit (filter by method?)"
             )
 
         def col(i: int) -> list[float]:
@@ -967,7 +967,7 @@ class HistoryStore:
         return Trend(
             machine=machine,
             parameter=parameter,
-            unit=units.pop(),
+            unit=units.pop() if units else None,
             time=_readonly([r[1].timestamp() for r in rows], np.float64),
             value=_readonly(col(4), np.float64),
             std_error=_readonly(col(5), np.float64),
