@@ -27,7 +27,7 @@ def store_path(tmp_path, rng):
                 recorded_at=T0 + timedelta(days=7 * i),
                 method="deadbeat-arx",
                 verdict="healthy",
-                verdict_code=0,
+                verdict_code="no_change",
                 estimates={
                     "R1": (
                         2.0 + 0.002 * 7 * i + 0.01 * rng.standard_normal(),
@@ -47,7 +47,7 @@ def store_path(tmp_path, rng):
                 recorded_at=T0,
                 method=m,
                 verdict="healthy",
-                verdict_code=0,
+                verdict_code="no_change",
                 estimates={"R1": (1.0 + i, None)},
             )
     return path

@@ -92,7 +92,7 @@ def record(store, i=0, *, machine="pump-7", method="deadbeat-arx", **kw):
         "recorded_at": T0 + timedelta(days=i),
         "method": method,
         "verdict": "healthy",
-        "verdict_code": 0,
+        "verdict_code": "no_change",
         "estimates": {
             "R1": Estimate(2.0 + 0.01 * i, 0.02, 1.96 + 0.01 * i, 2.04 + 0.01 * i, "ohm", 2.0),
             "Ls1": (0.031, 0.0004, None, None, "H"),
@@ -106,14 +106,20 @@ def record(store, i=0, *, machine="pump-7", method="deadbeat-arx", **kw):
 
 
 def test_round_trip_of_every_field(store):
-    summary = {"max_deviation": np.float64(3.5), "flags": np.array([1, 2]), "nan": float("nan")}
+    summary = {
+        "max_deviation": np.float64(3.5),
+        "flags": np.array([1, 2]),
+        "nan": float("nan"),
+        "pole": np.complex128(0.9 + 0.1j),
+        "limit": -np.inf,
+    }
     rec = store.record_diagnosis(
         "pump-7",
         recording_hash="abc",
         recorded_at="2026-01-05T09:00:00+01:00",
         method="deadbeat-arx",
         verdict="degraded",
-        verdict_code=2,
+        verdict_code="fault",
         estimates={
             "R1": {"value": 2.5, "std_error": 0.1, "unit": "ohm", "baseline": 2.0},
             "ki1": 17.0,
@@ -133,10 +139,16 @@ def test_round_trip_of_every_field(store):
     assert d.machine == "pump-7" and d.recording_hash == "abc"
     assert d.recorded_at == T0  # 09:00+01:00 is 08:00 UTC, returned aware in UTC
     assert d.recorded_at.tzinfo is not None
-    assert (d.method, d.verdict, d.verdict_code) == ("deadbeat-arx", "degraded", 2)
+    assert (d.method, d.verdict, d.verdict_code) == ("deadbeat-arx", "degraded", "fault")
     assert dict(d.options) == {"order": 4, "rho": 1e-3}
     assert d.options_hash == hash_options({"rho": 1e-3, "order": 4})
-    assert dict(d.summary) == {"max_deviation": 3.5, "flags": [1, 2], "nan": None}
+    assert dict(d.summary) == {
+        "max_deviation": 3.5,
+        "flags": [1, 2],
+        "nan": None,
+        "pole": {"re": 0.9, "im": 0.1},
+        "limit": "-inf",
+    }
     assert (d.recording_path, d.dt, d.n_samples) == ("rec/2026-01-05.npz", 2e-4, 5000)
     assert d.report_path == "out/report.html"
     assert list(d.estimates) == ["R1", "ki1", "Ls1"]  # the caller's order
@@ -330,7 +342,7 @@ def test_estimates_table_is_a_pandas_free_long_table(store):
         ({"estimates": {"R1": {"value": 2.0, "sigma": 0.1}}}, "keys"),
         ({"estimates": {"R1": (1, 2, 3, 4, 5, 6, 7)}}, "7 items"),
         ({"summary": {"x": object()}}, "JSON-like"),
-        ({"verdict_code": "0"}, "int"),
+        ({"verdict_code": 0}, "verdict_code"),
         ({"verdict": ""}, "non-empty"),
         ({"dt": -1.0}, "dt"),
         ({"n_samples": 1.5}, "n_samples"),

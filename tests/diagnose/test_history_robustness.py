@@ -90,7 +90,7 @@ def _writer(location, kwargs, worker, barrier, queue):
                     recorded_at=T0 + timedelta(hours=worker, minutes=i),
                     method="deadbeat-arx",
                     verdict="healthy",
-                    verdict_code=0,
+                    verdict_code="no_change",
                     estimates=_estimates(1000.0 * worker + i, N_PARAMS),
                 )
                 own.append((i, r.id, r.created))
@@ -102,7 +102,7 @@ def _writer(location, kwargs, worker, barrier, queue):
                         recorded_at=T0 + timedelta(days=j),
                         method="deadbeat-arx",
                         verdict="healthy",
-                        verdict_code=0,
+                        verdict_code="no_change",
                         estimates=_estimates(-float(j), N_PARAMS),
                     )
                     shared.append((j, r.id, r.created))
@@ -176,7 +176,7 @@ _KILLED_CHILD = textwrap.dedent(
     def put(i, n, tag):
         return store.record_diagnosis(
             "rig", recording_hash=f"{tag}-{i}", recorded_at=t0 + timedelta(days=i),
-            method="deadbeat-arx", verdict="healthy", verdict_code=0,
+            method="deadbeat-arx", verdict="healthy", verdict_code="no_change",
             estimates={f"p{k}": (i + k / 1e4, 0.1) for k in range(n)},
         )
 
@@ -263,7 +263,7 @@ def test_writer_killed_mid_transaction_loses_nothing_committed(where, tmp_path):
             recorded_at=T0 + timedelta(days=n_committed),
             method="deadbeat-arx",
             verdict="healthy",
-            verdict_code=0,
+            verdict_code="no_change",
             estimates={f"p{k}": (float(k), 0.1) for k in range(n_big)},
         )
         assert r.created
@@ -303,7 +303,7 @@ def _one(store, i):
         recorded_at=T0,
         method="m",
         verdict="healthy",
-        verdict_code=0,
+        verdict_code="no_change",
         estimates={"R1": 2.0},
     )
 
@@ -371,7 +371,7 @@ def test_old_store_is_migrated_with_its_data(where):
             "INSERT INTO diagnoses (machine_id, recording_id, method, options_hash, options, "
             "created_at, verdict, verdict_code, summary, n_estimates) "
             "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
-            (mid, rid, "deadbeat-arx", "o", "{}", now, "healthy", 0, "{}", 1),
+            (mid, rid, "deadbeat-arx", "o", "{}", now, "healthy", "no_change", "{}", 1),
         )
         did = tx.one("SELECT id FROM diagnoses")
         tx.execute(
@@ -393,7 +393,7 @@ def test_old_store_is_migrated_with_its_data(where):
             recorded_at=T0 + timedelta(days=1),
             method="deadbeat-arx",
             verdict="healthy",
-            verdict_code=0,
+            verdict_code="no_change",
             estimates={"R1": (2.1, 0.01)},
         )
         assert store.diagnosis(r.id).software_version.startswith("maglevid")

@@ -104,7 +104,7 @@ MIGRATIONS: tuple[Migration, ...] = (
                 options {json} NOT NULL,
                 created_at {ts} NOT NULL,
                 verdict TEXT NOT NULL,
-                verdict_code INTEGER NOT NULL,
+                verdict_code TEXT NOT NULL,
                 summary {json} NOT NULL,
                 report_path TEXT,
                 n_estimates INTEGER NOT NULL,

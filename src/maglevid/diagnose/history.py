@@ -30,7 +30,7 @@ Examples
 ...         recorded_at="2026-01-05T08:00:00+00:00",
 ...         method="deadbeat-arx",
 ...         verdict="healthy",
-...         verdict_code=0,
+...         verdict_code="no_change",
 ...         estimates={"R1": (2.01, 0.02), "Ls1": {"value": 0.031, "unit": "H"}},
 ...     )
 ...     again = store.record_diagnosis(
@@ -39,7 +39,7 @@ Examples
 ...         recorded_at="2026-01-05T08:00:00+00:00",
 ...         method="deadbeat-arx",
 ...         verdict="healthy",
-...         verdict_code=0,
+...         verdict_code="no_change",
 ...         estimates={"R1": (2.01, 0.02)},
 ...     )
 ...     (rec.created, again.created, again.id == rec.id)
@@ -196,7 +196,7 @@ class DiagnosisRecord:
     options_hash: str
     options: Mapping[str, Any]
     verdict: str
-    verdict_code: int
+    verdict_code: str
     summary: Mapping[str, Any]
     report_path: str | None
     estimates: Mapping[str, Estimate]
@@ -376,7 +376,7 @@ def _as_estimate(name: str, v: Any) -> Estimate:
 
 
 def _jsonable(v: Any, where: str) -> Any:
-    """JSON-safe copy: NumPy scalars/arrays to Python, NaN to None, +-inf to "inf"/"-inf"."""
+    """JSON-safe copy: NumPy to Python, NaN to None, +-inf to "inf"/"-inf", complex to re/im."""
     if isinstance(v, np.ndarray):
         return _jsonable(v.tolist(), where)
     if isinstance(v, np.generic):
@@ -389,6 +389,8 @@ def _jsonable(v: Any, where: str) -> Any:
         return v
     if v is None or isinstance(v, (bool, int, str)):
         return v
+    if isinstance(v, complex):
+        return {"re": _jsonable(v.real, where), "im": _jsonable(v.imag, where)}
     if isinstance(v, datetime):
         return v.isoformat()
     if isinstance(v, Mapping):
@@ -589,7 +591,7 @@ class HistoryStore:
         recorded_at: datetime | str | float,
         method: str,
         verdict: str,
-        verdict_code: int,
+        verdict_code: str,
         estimates: Mapping[str, Any],
         summary: Mapping[str, Any] | None = None,
         options: Mapping[str, Any] | None = None,
@@ -615,8 +617,10 @@ class HistoryStore:
             Diagnosis/identification method name.
         verdict : str
             Human verdict, e.g. ``"healthy"``.
-        verdict_code : int
-            Machine-readable verdict (the diagnosis module defines the codes).
+        verdict_code : str
+            Machine-readable verdict, e.g. one of
+            ``maglevid.diagnose.diagnosis.VERDICT_CODES`` (``"no_change"``,
+            ``"fault"``, ...); stored as given.
         estimates : mapping of str -> estimate
             Per parameter: an :class:`Estimate`, a number (value only), a tuple
             ``(value, std_error, ci_low, ci_high, unit, baseline)`` with trailing
@@ -653,8 +657,7 @@ class HistoryStore:
         recording_hash = _text("recording_hash", recording_hash)
         method = _text("method", method)
         verdict = _text("verdict", verdict)
-        if isinstance(verdict_code, bool) or not isinstance(verdict_code, (int, np.integer)):
-            raise DataError(f"`verdict_code` = {verdict_code!r}; expected an int")
+        verdict_code = _text("verdict_code", verdict_code)
         t_rec = _as_utc("recorded_at", recorded_at)
         if not isinstance(estimates, Mapping):
             raise DataError(f"`estimates` is {type(estimates).__name__}; expected a mapping")
@@ -712,7 +715,7 @@ class HistoryStore:
                     options_json,
                     now,
                     verdict,
-                    int(verdict_code),
+                    verdict_code,
                     summary_json,
                     rep_path,
                     len(est),
@@ -877,7 +880,7 @@ class HistoryStore:
             options_hash=r[8],
             options=MappingProxyType(_loads(r[9])),
             verdict=r[10],
-            verdict_code=int(r[11]),
+            verdict_code=r[11],
             summary=MappingProxyType(_loads(r[12])),
             report_path=r[13],
             estimates=MappingProxyType(dict(estimates)),
