@@ -223,6 +223,7 @@ def test_trends_table_and_crossing_date():
             "std_error": [0.05, 0.05],
             "drift": {
                 "drifting": True, "p_value": 1e-6, "slope": 0.5 / (30 * 86400),
+                "t_ref": 1767225600.0, "value_at_ref": 17.5,  # 2026-01-01 UTC
                 "projected_crossing_time": 1777593600.0,  # 2026-05-01 UTC
             },
         }

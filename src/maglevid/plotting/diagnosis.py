@@ -31,6 +31,9 @@ from maglevid.lti import StateSpace, discretize
 
 __all__ = [
     "COLORS",
+    "TIME_UNITS",
+    "drift_crossing",
+    "drift_line",
     "figure_to_png",
     "figure_to_svg",
     "impulse_horizon",
@@ -697,6 +700,59 @@ def _plot_times(t: np.ndarray, dated: bool) -> np.ndarray:
     return (np.asarray(t) * 1e6).round().astype("datetime64[us]") if dated else t
 
 
+#: Seconds per time unit a drift result may use (``DriftResult`` slopes are per
+#: the unit of the times it was given; ``maglevid history`` tests in days).
+TIME_UNITS = {"s": 1.0, "min": 60.0, "h": 3600.0, "day": 86400.0, "d": 86400.0,
+              "week": 604800.0}  # fmt: skip
+
+
+def _epoch_seconds(v: Any, scale: float) -> float | None:
+    """A time from a drift result: ISO 8601 string, or a number in the drift's unit."""
+    if isinstance(v, str):
+        try:
+            t = datetime.fromisoformat(v.replace("Z", "+00:00") if v.endswith("Z") else v)
+        except ValueError:
+            return None
+        return (t if t.tzinfo else t.replace(tzinfo=timezone.utc)).timestamp()
+    if isinstance(v, (int, float)) and math.isfinite(v):
+        return float(v) * scale
+    return None
+
+
+def drift_line(
+    drift: Mapping[str, Any], *, dated: bool = True
+) -> tuple[float, float, float] | None:
+    """The fitted drift line as ``(slope per second, t_ref, value at t_ref)``.
+
+    Reads ``slope``, ``t_ref`` and ``value_at_ref`` of a drift result (the
+    ``to_dict()`` of :class:`maglevid.diagnose.drift.DriftResult`, or an entry of
+    ``maglevid history --json``), with ``time_unit`` (``"s"`` by default,
+    ``"day"`` for the history command; see :data:`TIME_UNITS`). ``t_ref`` is an
+    ISO 8601 time or a number in that unit since 1970 (dated histories). For an
+    undated history (``dated=False``) times are used as they are. ``None`` when
+    the line is not given or the unit is unknown.
+    """
+    unit = str(drift.get("time_unit", "s"))
+    scale = TIME_UNITS.get(unit) if dated else 1.0
+    slope, v_ref = drift.get("slope"), drift.get("value_at_ref")
+    if scale is None or not isinstance(slope, (int, float)) or not isinstance(v_ref, (int, float)):
+        return None
+    t_ref = _epoch_seconds(drift.get("t_ref"), scale)
+    if t_ref is None or not math.isfinite(slope):
+        return None
+    return float(slope) / scale, t_ref, float(v_ref)
+
+
+def drift_crossing(drift: Mapping[str, Any]) -> float | None:
+    """When the drift line leaves the tolerance band, seconds since 1970 (or ``None``)."""
+    if isinstance(drift.get("projected_crossing_at"), str):
+        return _epoch_seconds(drift["projected_crossing_at"], 1.0)
+    scale = TIME_UNITS.get(str(drift.get("time_unit", "s")))
+    if scale is None:
+        return None
+    return _epoch_seconds(drift.get("projected_crossing_time"), scale)
+
+
 def _drift_text(drift: Mapping[str, Any]) -> tuple[str, bool]:
     drifting = drift.get("drifting")
     verdict = drift.get("verdict")
@@ -800,11 +856,11 @@ def plot_trends(
             label=f"estimate ± {100 * level:.0f} % CI",
             zorder=3,
         )
-        if all(k in drift for k in ("slope", "t_ref", "value_at_ref")) and t.size >= 2:
+        fitted = drift_line(drift, dated=dated)
+        if fitted is not None and t.size >= 2:
+            slope, t_ref, v_ref = fitted
             tt = np.linspace(float(t.min()), float(t.max()), 50)
-            line = float(drift["value_at_ref"]) + float(drift["slope"]) * (
-                tt - float(drift["t_ref"])
-            )
+            line = v_ref + slope * (tt - t_ref)
             xx = _plot_times(tt, dated)
             ax.plot(
                 xx,

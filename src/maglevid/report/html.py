@@ -701,12 +701,15 @@ def _trend_rate(
     name: str, entry: Mapping[str, Any], drift: Mapping[str, Any], baseline: float | None
 ) -> str:
     """The fitted slope in words: per day (and % of baseline per 30 days) for dated series."""
-    slope = drift.get("slope")
-    if not isinstance(slope, (int, float)) or not math.isfinite(slope):
-        return "—"
-    unit = PARAMETER_INFO.get(name, ("", ""))[1]
+    from maglevid.plotting.diagnosis import drift_crossing, drift_line
+
+    unit = PARAMETER_INFO.get(name, ("", ""))[1] or str(entry.get("unit") or "")
     times = list(entry.get("time", ()))
     dated = bool(times) and all(isinstance(t, (str, datetime)) for t in times)
+    fitted = drift_line(drift, dated=dated)
+    if fitted is None:
+        return "—"
+    slope = fitted[0]
     if not dated:
         per = _e(entry.get("time_unit", "time unit"))
         return f"{_num(slope, 3)} {_e(unit)}/{per}"
@@ -714,8 +717,8 @@ def _trend_rate(
     base = entry.get("baseline", baseline)
     if isinstance(base, (int, float)) and base:
         text += f" ({_pct(100.0 * slope * 30 * 86400.0 / base)} of baseline per 30 days)"
-    cross = drift.get("projected_crossing_time")
-    if isinstance(cross, (int, float)) and math.isfinite(cross) and drift.get("drifting"):
+    cross = drift_crossing(drift)
+    if cross is not None and math.isfinite(cross) and drift.get("drifting"):
         when = datetime.fromtimestamp(cross, tz=timezone.utc).strftime("%Y-%m-%d")
         text += f"; leaves the tolerance band around {when}"
     return text
