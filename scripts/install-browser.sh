@@ -31,5 +31,6 @@ fi
 
 export DEBIAN_FRONTEND=noninteractive
 $SUDO apt-get update -qq
-$SUDO apt-get install -y -qq --no-install-recommends chromium >/dev/null
+# DejaVu: a font for the page text on minimal images (chromium only recommends fonts).
+$SUDO apt-get install -y -qq --no-install-recommends chromium fonts-dejavu-core >/dev/null
 echo "install-browser: installed $("$CHROMIUM" --version 2>/dev/null || echo chromium)"

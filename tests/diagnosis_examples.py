@@ -164,22 +164,32 @@ def blocked_diagnosis() -> Diagnosis:
     )
 
 
-def example_controller() -> dict[str, np.ndarray]:
-    """Observer + state feedback for the nominal bearing at 10 kHz (eqs. (16)-(17)).
+def example_controller() -> dict[str, dict]:
+    """The loop of a recording: observer + integral state feedback (eqs. (39)-(43)).
 
-    Both gains are discrete LQR/Kalman designs (``solve_discrete_are``): stable by
-    construction, no pole-placement iterations.
+    Designed on the nominal bearing at 10 kHz with ``solve_discrete_are`` (stable
+    by construction): LQR on the extended model of eq. (41) (integral of the
+    displacement, ``E = [[1, 0, 0]]``) gives ``u = -K [x; e]``, ``K = [F, -Fe]``;
+    a Kalman-type gain gives the prediction observer's ``G = -L``. Laid out as
+    ``ClosedLoopData.loop`` (the simulator's layout).
     """
     sys = amb_state_space(NOMINAL, dt=DT)
     A, B, C = sys.A, sys.B, sys.C
-    Q = np.diag([1e10, 1e3, 1.0, 1.0])
-    R = np.eye(2)
-    P = sla.solve_discrete_are(A, B, Q, R)
-    F = np.linalg.solve(R + B.T @ P @ B, B.T @ P @ A)
+    E = np.array([[1.0, 0.0, 0.0]])
+    Ae = np.block([[A, np.zeros((4, 1))], [-E @ C @ A, np.eye(1)]])  # eq. (41)
+    Be = np.vstack([B, -E @ C @ B])
+    Q, R = np.diag([1e10, 1e3, 1.0, 1.0, 1e9]), np.eye(2)
+    P = sla.solve_discrete_are(Ae, Be, Q, R)
+    K = np.linalg.solve(R + Be.T @ P @ Be, Be.T @ P @ Ae)
     W, V = np.diag([1e-12, 1e-6, 1e-4, 1e-4]), np.diag([1e-12, 1e-6, 1e-6])
     Pe = sla.solve_discrete_are(A.T, C.T, W, V)
     L = np.linalg.solve(C @ Pe @ C.T + V, C @ Pe @ A.T).T
-    return {"F": F, "G": -L}
+    return {
+        "controller": {"type": "state_feedback_integral", "F": K[:, :4], "Fe": -K[:, 4:],
+                       "E": E},
+        "observer": {"type": "prediction", "A": A, "B": B, "C": C, "G": -L},
+        "extended": {"A": Ae, "B": Be, "K": K},
+    }  # fmt: skip
 
 
 def example_trends() -> dict[str, dict]:

@@ -200,7 +200,7 @@ def test_without_controller_open_loop_only_and_it_says_so(fault_diagnosis):
 
 
 def test_controller_is_found_in_the_baseline(fault_diagnosis):
-    base = dict(fault_diagnosis.baseline, controller=example_controller())
+    base = dict(fault_diagnosis.baseline, loop=example_controller())
     d = Diagnosis(
         verdict="x", verdict_code="fault", baseline=base,
         baseline_model=fault_diagnosis.baseline_model,
@@ -211,7 +211,8 @@ def test_controller_is_found_in_the_baseline(fault_diagnosis):
 
 
 def test_bad_controller_is_reported_not_raised(fault_diagnosis):
-    loops, note = _closed_loops(fault_diagnosis, {"F": np.zeros((3, 3)), "G": np.zeros((4, 3))})
+    bad = {"controller": {"F": np.zeros((3, 3))}, "observer": {"G": np.zeros((4, 3))}}
+    loops, note = _closed_loops(fault_diagnosis, bad)
     assert loops is None and note.startswith("Closed loop not shown") and "'F'" in note
 
 

@@ -16,29 +16,46 @@ def _sorted(p):
     return np.sort_complex(np.round(p, 12))
 
 
-def test_observer_controller_on_its_own_model_separates():
-    # Separation principle: plant = the observer's model gives the poles of
-    # A - B F (state feedback) and A + G C (observer, eq. (17)), nothing else.
+def test_observer_and_integral_feedback_on_its_own_model_separate():
+    # Separation principle: plant = the observer's model gives the poles of the
+    # integral state feedback on the extended model (eq. (41)), eig(Ae - Be K),
+    # and those of the observer, eig(A + G C) (eq. (43)), and nothing else.
     plant = amb_state_space(NOMINAL, dt=DT)
-    c = example_controller()
-    loop = close_loop(plant, controller_state_space(c, plant=plant))
-    A, B, C = plant.A, plant.B, plant.C
-    expect = np.concatenate([np.linalg.eigvals(A - B @ c["F"]), np.linalg.eigvals(A + c["G"] @ C)])
-    # Eigenvalues of an 8x8 non-normal matrix vs two 4x4 ones: agreement to ~1e-9.
+    loop_spec = example_controller()
+    loop = close_loop(plant, controller_state_space(loop_spec, plant=plant))
+    ext, obs = loop_spec["extended"], loop_spec["observer"]
+    expect = np.concatenate(
+        [
+            np.linalg.eigvals(ext["A"] - ext["B"] @ ext["K"]),
+            np.linalg.eigvals(obs["A"] + obs["G"] @ obs["C"]),
+        ]
+    )
+    # Eigenvalues of a 9x9 non-normal matrix vs a 5x5 and a 4x4: agreement to ~1e-9.
     np.testing.assert_allclose(_sorted(loop.poles()), _sorted(expect), atol=1e-9)
-    assert loop.is_stable()
+    assert loop.nx == 9 and loop.is_stable()
     assert loop.input_names == ("r1", "r2")
 
 
-def test_integral_part_adds_its_states():
+def test_integral_action_removes_the_static_error():
+    # With eq. (39) integrating x, a constant excitation leaves no steady
+    # displacement: the closed loop's DC gain from r to x is zero.
     plant = amb_state_space(NOMINAL, dt=DT)
-    c = example_controller()
-    spec = {**c, "Fi": np.zeros((2, 1)), "Ci": [[1.0, 0.0, 0.0]]}
+    loop = close_loop(plant, controller_state_space(example_controller(), plant=plant))
+    dc = loop.C @ np.linalg.solve(np.eye(loop.nx) - loop.A, loop.B)
+    assert np.max(np.abs(dc[0])) < 1e-12 * np.max(np.abs(loop.markov(50)[:, 0, :]))
+
+
+def test_plain_state_feedback_and_observer_without_model():
+    # No Fe/E: 4 controller states; an observer without A, B, C runs on `plant`.
+    plant = amb_state_space(NOMINAL, dt=DT)
+    spec = example_controller()
+    spec = {
+        "controller": {"F": spec["controller"]["F"]},
+        "observer": {"G": spec["observer"]["G"]},
+    }
     K = controller_state_space(spec, plant=plant)
-    assert K.nx == 5 and K.nu == 5 and K.ny == 2
-    # A zero integral gain leaves the integrator decoupled: one extra pole at z = 1.
-    poles = close_loop(plant, K).poles()
-    assert np.min(np.abs(poles - 1.0)) < 1e-12
+    assert K.nx == 4 and K.nu == 5 and K.ny == 2
+    np.testing.assert_allclose(K.A, plant.A + spec["observer"]["G"] @ plant.C, rtol=1e-15)
 
 
 def test_scalar_loop_with_algebraic_feedthrough():
@@ -59,28 +76,32 @@ def test_controller_from_a_dict_with_y_input_only():
     assert _sorted(loop.poles())[-1] == pytest.approx(0.5, abs=1e-14)
 
 
-def test_model_inside_the_spec_wins_over_the_plant_argument():
-    plant = amb_state_space(NOMINAL, dt=DT)
-    c = example_controller()
+def test_model_inside_the_loop_wins_over_the_plant_argument():
+    # The observer runs on its stated model even when another plant is passed.
+    spec = example_controller()
     other = amb_state_space(NOMINAL.with_fault(R1=1.5), dt=DT)
-    K = controller_state_space({**c, "model": other.to_dict()}, plant=plant)
-    np.testing.assert_allclose(K.A[:4, :4], other.A + c["G"] @ other.C, rtol=1e-12)
+    K = controller_state_space(spec, plant=other)
+    obs = spec["observer"]
+    np.testing.assert_allclose(K.A[:4, :4], obs["A"] + obs["G"] @ obs["C"], rtol=1e-15)
 
 
 def test_errors_name_the_problem():
     plant = amb_state_space(NOMINAL, dt=DT)
-    c = example_controller()
-    with pytest.raises(DataError, match="'F' and 'G'"):
-        controller_state_space({"K": 1})
-    with pytest.raises(DataError, match="no 'model'"):
-        controller_state_space(c)
-    with pytest.raises(DataError, match=r"controller\['F'\]"):
-        controller_state_space({"F": np.zeros((3, 4)), "G": c["G"]}, plant=plant)
+    spec = example_controller()
+    with pytest.raises(DataError, match="recording's loop"):
+        controller_state_space({"F": 1, "G": 2})
+    with pytest.raises(DataError, match="states no model"):
+        controller_state_space({"controller": spec["controller"], "observer": {"G": 0}})
+    with pytest.raises(DataError, match="'kalman_filter' is not supported"):
+        controller_state_space({**spec, "observer": {**spec["observer"], "type": "kalman_filter"}})
+    with pytest.raises(DataError, match=r"loop\['controller'\]\['F'\]"):
+        bad = {**spec, "controller": {"F": np.zeros((3, 4))}}
+        controller_state_space(bad, plant=plant)
     with pytest.raises(ModelError, match="discrete"):
         controller_state_space(amb_state_space(NOMINAL))
-    K = controller_state_space(c, plant=plant)
+    K = controller_state_space(spec, plant=plant)
     with pytest.raises(ModelError, match="differ"):
         close_loop(amb_state_space(NOMINAL, dt=2 * DT), K)
-    bad = StateSpace(np.eye(1), np.zeros((1, 4)), np.zeros((2, 1)), None, DT)
+    bad_k = StateSpace(np.eye(1), np.zeros((1, 4)), np.zeros((2, 1)), None, DT)
     with pytest.raises(DataError, match="4 inputs"):
-        close_loop(plant, bad)
+        close_loop(plant, bad_k)

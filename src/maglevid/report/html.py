@@ -217,12 +217,15 @@ def _as_discrete(model: StateSpace, dt: float) -> StateSpace:
 
 
 def _find_controller(d: Diagnosis, controller: Any) -> Any:
+    """The explicit controller, else a ``loop``/``controller`` kept with the diagnosis."""
     if controller is not None:
         return controller
-    if isinstance(d.baseline, Mapping) and d.baseline.get("controller") is not None:
-        return d.baseline["controller"]
-    if d.identification is not None:
-        return d.identification.extras.get("controller")
+    places = [d.baseline] + ([d.identification.extras] if d.identification is not None else [])
+    for place in places:
+        if isinstance(place, Mapping):
+            for key in ("loop", "controller"):
+                if place.get(key) is not None:
+                    return place[key]
     return None
 
 
@@ -234,8 +237,8 @@ def _closed_loops(
     if spec is None:
         return None, (
             "The diagnosis carries no controller, so only the open loop is shown "
-            "(pass the controller to the report, or keep it in the baseline as "
-            "baseline['controller'], to see the closed-loop poles)."
+            "(pass the recording's loop to the report, or keep it with the baseline as "
+            "baseline['loop'], to see the closed-loop poles and responses)."
         )
     if d.baseline_model is None or d.identified_model is None:
         return None, "Closed loop not shown: a plant model is missing."
@@ -1009,12 +1012,13 @@ def render_report(
         :func:`maglevid.plotting.diagnosis.plot_trends`.
     title : str, optional
         Page title (default from the machine and recording names).
-    controller : StateSpace or mapping, optional
-        The loop's controller, for the closed-loop poles and responses; see
+    controller : mapping or StateSpace, optional
+        The loop's controller, for the closed-loop poles and responses: normally
+        the recording's ``loop`` (``ClosedLoopData.loop``); see
         :mod:`maglevid.report.loop` for the accepted forms. Default: the
-        diagnosis' ``baseline["controller"]``, then its identification's
-        ``extras["controller"]``; without one the report shows the open loop only
-        and says so.
+        diagnosis' ``baseline["loop"]`` (or ``["controller"]``), then its
+        identification's ``extras`` under the same keys; without one the report
+        shows the open loop only and says so.
     generated_at : datetime, optional
         Creation time printed in the footer (default: now, UTC).
 

@@ -1,26 +1,26 @@
 """The closed loop seen by the report: plant + observer + controller.
 
-The controller of Gosiewski & Paszowski is an observer with state feedback
-(eqs. (16)-(17))::
+The controller of Gosiewski & Paszowski is an observer with state feedback and
+integral action (eqs. (39)-(43)), as a recording's ``loop`` states it::
 
-    x^(k+1) = (A + G C) x^(k) + B u(k) - G y(k)        (17)
-    u(k) = u_f(k) + r(k),   u_f(k) = -F x^(k)           (16)
+    x^(k+1) = (A + G C) x^(k) + B u(k) - G y(k)         (43), observer "prediction"
+    e(k+1) = e(k) - E y(k+1)                             (39)
+    u(k) = u_f(k) + r(k),   u_f(k) = -F x^(k) + Fe e(k)  (42)
 
-optionally with an integral part ``q(k+1) = q(k) + C_i y(k)``,
-``u_f(k) = -F x^(k) - F_i q(k)``. The observer runs on the controller's *own*
-model (the nominal bearing), which does not change when the bearing does; so
-the closed loop of the *identified* plant with the same controller shows what a
-fault does to the running machine.
+with ``loop = {"controller": {"F", "Fe", "E"}, "observer": {"A", "B", "C", "G"}}``
+(``Fe``/``E`` absent for plain state feedback). The observer runs on the
+controller's *own* model (the nominal bearing), which does not change when the
+bearing does; so the closed loop of the *identified* plant with the same
+controller shows what a fault does to the running machine.
 
 A controller is given to :func:`controller_state_space` in one of two forms:
 
+* that ``loop`` mapping (a :class:`~maglevid.data.ClosedLoopData`'s ``loop``);
+  an observer without ``A``, ``B``, ``C`` runs on the ``plant`` argument
+  (normally the baseline plant sampled at the control period);
 * a discrete :class:`~maglevid.lti.StateSpace` (or its ``to_dict`` mapping)
-  whose output is ``u_f`` and whose input is either ``y`` (``ny`` inputs) or
-  ``v = [u; y]`` (``nu + ny`` inputs, the order of eq. (18));
-* a mapping ``{"F": ..., "G": ...}`` (and optionally ``"Fi"``, ``"Ci"``) of the
-  observer form above; its model ``{A, B, C}`` is the ``"model"`` entry
-  (a discrete ``StateSpace`` or mapping) or the baseline plant sampled at
-  ``dt``.
+  whose output is ``u_f`` and whose input is ``y`` (``ny`` inputs) or
+  ``v = [u; y]`` (``nu + ny`` inputs, the order of eq. (18)).
 
 :func:`close_loop` connects a discrete plant (``D = 0``) with such a
 controller and returns the closed loop from ``r`` to ``y``.
@@ -60,60 +60,81 @@ def controller_state_space(spec: Any, *, plant: StateSpace | None = None) -> Sta
 
     Parameters
     ----------
-    spec : StateSpace or mapping
-        See the module notes: a state-space controller, or the observer form
-        ``{"F", "G"[, "Fi", "Ci", "model"]}`` of eqs. (16)-(17).
+    spec : mapping or StateSpace
+        A recording's ``loop`` (``{"controller": {"F"[, "Fe", "E"]}, "observer":
+        {"G"[, "A", "B", "C"]}}``, eqs. (39)-(43)), or a state-space controller;
+        see the module notes.
     plant : StateSpace, optional
-        Discrete model the observer runs on when ``spec`` has no ``"model"``
-        (normally the baseline plant sampled at the control period).
+        Discrete model the observer runs on when the ``loop`` states none.
 
     Returns
     -------
     StateSpace
-        Discrete; inputs ``[u; y]`` for the observer form.
+        Discrete; inputs ``[u; y]`` for the ``loop`` form.
 
     Raises
     ------
     DataError
-        Unknown form, or gains whose shapes do not fit the model.
+        Unknown form or observer type, or gains whose shapes do not fit.
+
+    Notes
+    -----
+    With ``z(k) = e(k-1)`` as the integrator's state (``e(k)`` needs ``y(k)``),
+    eqs. (39), (42), (43) become ``x^+ = (A + G C) x^ + B u - G y``,
+    ``z+ = z - E y`` and ``u_f = -F x^ + Fe z - Fe E y``: states ``[x^; z]``,
+    inputs ``[u; y]``.
     """
     if isinstance(spec, StateSpace) or (isinstance(spec, Mapping) and "A" in spec):
         return _as_discrete_ss(spec, "controller")
-    if not (isinstance(spec, Mapping) and {"F", "G"} <= set(spec)):
+    if not (
+        isinstance(spec, Mapping)
+        and isinstance(spec.get("controller"), Mapping)
+        and isinstance(spec.get("observer"), Mapping)
+    ):
         raise DataError(
-            "`controller` must be a discrete StateSpace (input y or [u; y], output u_f) or "
-            "a mapping with the observer gains 'F' and 'G'; got "
+            "`controller` must be a recording's loop {'controller': {F, Fe, E}, 'observer': "
+            "{A, B, C, G}} or a discrete StateSpace (input y or [u; y], output u_f); got "
             + (str(sorted(spec)) if isinstance(spec, Mapping) else type(spec).__name__)
         )
-    model = spec.get("model")
-    model = _as_discrete_ss(model, "controller['model']") if model is not None else plant
-    if model is None:
+    ctrl, obs = spec["controller"], spec["observer"]
+    if obs.get("type", "prediction") != "prediction":
         raise DataError(
-            "the observer-form controller has no 'model' and no discrete baseline plant was "
-            "given for its observer"
+            f"observer type {obs.get('type')!r} is not supported; expected 'prediction' "
+            "(x^(k+1) = (A + G C) x^(k) + B u(k) - G y(k), eq. (43))"
         )
-    A, B, C = model.A, model.B, model.C
-    nx, nu, ny = model.nx, model.nu, model.ny
-    F = as_matrix(spec["F"], "controller['F']", (nu, nx))
-    G = as_matrix(spec["G"], "controller['G']", (nx, ny))
-    if "Fi" in spec:
-        Fi = as_matrix(spec["Fi"], "controller['Fi']", (nu, None))
-        ni = Fi.shape[1]
-        Ci = as_matrix(spec.get("Ci", np.eye(ni, ny)), "controller['Ci']", (ni, ny))
+    if {"A", "B", "C"} <= set(obs):
+        A = as_matrix(obs["A"], "loop['observer']['A']")
+        B = as_matrix(obs["B"], "loop['observer']['B']", (A.shape[0], None))
+        C = as_matrix(obs["C"], "loop['observer']['C']", (None, A.shape[0]))
+        dt = spec.get("dt", plant.dt if plant is not None else None)
+    elif plant is not None:
+        A, B, C, dt = plant.A, plant.B, plant.C, plant.dt
     else:
-        ni = 0
-        Fi = np.zeros((nu, 0))
-        Ci = np.zeros((0, ny))
-    # States [x^, q]; inputs v = [u; y]; output u_f (eqs. (16)-(17)).
-    Ak = np.zeros((nx + ni, nx + ni))
-    Ak[:nx, :nx] = A + G @ C  # eq. (17)
-    Ak[nx:, nx:] = np.eye(ni)
-    Bk = np.zeros((nx + ni, nu + ny))
+        raise DataError(
+            "the loop's observer states no model (A, B, C) and no discrete baseline plant "
+            "was given for it"
+        )
+    if dt is None:
+        raise DataError("the control period is unknown: give the discrete plant")
+    nx, nu, ny = A.shape[0], B.shape[1], C.shape[0]
+    F = as_matrix(ctrl["F"], "loop['controller']['F']", (nu, nx))
+    G = as_matrix(obs["G"], "loop['observer']['G']", (nx, ny))
+    if "Fe" in ctrl or "E" in ctrl:
+        E = as_matrix(ctrl["E"], "loop['controller']['E']", (None, ny))
+        Fe = as_matrix(ctrl["Fe"], "loop['controller']['Fe']", (nu, E.shape[0]))
+    else:
+        E, Fe = np.zeros((0, ny)), np.zeros((nu, 0))
+    ne = E.shape[0]
+    Ak = np.zeros((nx + ne, nx + ne))
+    Ak[:nx, :nx] = A + G @ C  # eq. (43)
+    Ak[nx:, nx:] = np.eye(ne)  # eq. (39)
+    Bk = np.zeros((nx + ne, nu + ny))
     Bk[:nx, :nu] = B
-    Bk[:nx, nu:] = -G  # eq. (17)
-    Bk[nx:, nu:] = Ci
-    Ck = np.hstack([-F, -Fi])  # eq. (16)
-    return StateSpace(Ak, Bk, Ck, None, model.dt)
+    Bk[:nx, nu:] = -G  # eq. (43)
+    Bk[nx:, nu:] = -E  # eq. (39)
+    Ck = np.hstack([-F, Fe])  # eq. (42)
+    Dk = np.hstack([np.zeros((nu, nu)), -Fe @ E])  # e(k) = z(k) - E y(k) in eq. (42)
+    return StateSpace(Ak, Bk, Ck, Dk, dt)
 
 
 def close_loop(plant: StateSpace, controller: StateSpace) -> StateSpace:
