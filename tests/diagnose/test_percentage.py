@@ -93,3 +93,18 @@ def test_structural_zeros_are_nan_even_when_the_estimate_is_not_zero():
 def test_bad_input_is_a_clear_error(est, ref, match):
     with pytest.raises(DataError, match=match):
         percentage_index(est, ref)
+
+
+def test_zero_tolerance_restores_structural_zeros_after_a_round_trip():
+    # undiscretize(discretize(.)) leaves ~1e-12 round-off at the zeros of eq. (4).
+    from maglevid.lti import discretize, undiscretize
+    from maglevid.physics.amb import amb_state_space
+
+    base = amb_state_space(AMBParameters.nominal())
+    back = undiscretize(discretize(base, 1e-4))
+    exact = np.isnan(percentage_index(base.A, base.A))
+    assert not np.array_equal(np.isnan(percentage_index(back.A, back.A)), exact)
+    got = percentage_index(back.A, back.A, zero_tol=1e-10)
+    np.testing.assert_array_equal(np.isnan(got), exact)
+    with pytest.raises(DataError, match="zero_tol"):
+        percentage_index(back.A, back.A, zero_tol=-1.0)

@@ -265,3 +265,23 @@ def test_percentage_index_is_computed_when_the_diagnosis_has_none():
     html = _percentage_section(d)
     # Example III of the paper: kw1 +20 % moves v8 by exactly +20 %.
     assert '<span class="vtag">v8</span>+20.0000' in html
+
+
+def test_discrete_models_give_the_same_evidence(fault_diagnosis):
+    # A diagnosis may carry the sampled models: A_p, B_p come from their
+    # continuous equivalents (eq. (8)), equal to the continuous ones to ~1e-9.
+    from maglevid.lti import discretize
+    from maglevid.report.html import _percentage, _poles_section
+
+    d = Diagnosis(
+        verdict="x", verdict_code="fault", dt=DT,
+        baseline_model=discretize(fault_diagnosis.baseline_model, DT),
+        identified_model=discretize(fault_diagnosis.identified_model, DT),
+    )  # fmt: skip
+    Ap, Bp = _percentage(d)
+    ref = fault_diagnosis.percentage_index
+    np.testing.assert_allclose(Ap, ref["A_p"], atol=1e-6, equal_nan=True)
+    np.testing.assert_allclose(Bp, ref["B_p"], atol=1e-6, equal_nan=True)
+    html = _poles_section(d, None, "")
+    assert "<img" in html and "could not be drawn" not in html
+    assert "455.041" in html  # the unstable pole, read back through ln(z)/dt

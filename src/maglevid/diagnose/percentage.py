@@ -23,7 +23,7 @@ from maglevid.exceptions import DataError
 __all__ = ["percentage_index"]
 
 
-def percentage_index(estimate: Any, reference: Any) -> np.ndarray:
+def percentage_index(estimate: Any, reference: Any, *, zero_tol: float = 0.0) -> np.ndarray:
     """Element-wise percentage change of ``estimate`` against ``reference``.
 
     Implements the matrix percentage indexes ``A_p`` and ``B_p`` of
@@ -34,6 +34,12 @@ def percentage_index(estimate: Any, reference: Any) -> np.ndarray:
     ----------
     estimate, reference : array_like, same 2-D shape
         Identified and reference matrices (e.g. ``A_Ce`` and ``A_C``).
+    zero_tol : float
+        Reference elements with ``|ref| <= zero_tol * max|ref|`` count as
+        structural zeros. ``0`` (default): exactly zero, as in the paper. A
+        reference that went through ``discretize``/``undiscretize`` carries
+        round-off (~1e-12 of the largest element) where the physics has zeros;
+        ``1e-10`` restores them.
 
     Returns
     -------
@@ -60,8 +66,10 @@ def percentage_index(estimate: Any, reference: Any) -> np.ndarray:
         raise DataError(
             f"`estimate` has shape {est.shape}; expected the shape of `reference`, {ref.shape}"
         )
+    if not (zero_tol >= 0 and np.isfinite(zero_tol)):
+        raise DataError(f"`zero_tol` must be a finite number >= 0; got {zero_tol!r}")
     out = np.full(ref.shape, np.nan)
-    nz = ref != 0
+    nz = np.abs(ref) > zero_tol * float(np.max(np.abs(ref), initial=0.0))
     out[nz] = (est[nz] - ref[nz]) / ref[nz] * 100.0  # A_p = (A_Ce - A_C) / A_C * 100 %
     out.setflags(write=False)
     return out

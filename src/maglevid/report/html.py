@@ -94,6 +94,9 @@ PARAMETER_INFO: dict[str, tuple[str, str]] = {
     "v9": ("kw2/L2", "A/(V·s)"),
 }
 
+#: Relative size below which a baseline element is a structural zero of A_p, B_p.
+ZERO_TOL = 1e-10
+
 _STATUS_CLASS = {
     "changed": "st-changed",
     "within tolerance": "st-within",
@@ -266,7 +269,12 @@ def _percentage(d: Diagnosis) -> tuple[np.ndarray, np.ndarray] | None:
     base, ident = _as_continuous(d.baseline_model), _as_continuous(d.identified_model)
     if base is None or ident is None or base.A.shape != ident.A.shape:
         return None
-    return percentage_index(ident.A, base.A), percentage_index(ident.B, base.B)
+    # Models that went through undiscretize() carry ~1e-12 round-off where the
+    # physics has zeros: 1e-10 of the largest element still counts as a zero.
+    return (
+        percentage_index(ident.A, base.A, zero_tol=ZERO_TOL),
+        percentage_index(ident.B, base.B, zero_tol=ZERO_TOL),
+    )
 
 
 # ----------------------------------------------------------------------- sections
