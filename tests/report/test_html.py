@@ -285,3 +285,17 @@ def test_discrete_models_give_the_same_evidence(fault_diagnosis):
     html = _poles_section(d, None, "")
     assert "<img" in html and "could not be drawn" not in html
     assert "455.041" in html  # the unstable pole, read back through ln(z)/dt
+
+
+def test_identified_model_falls_back_to_the_identification(fault_diagnosis):
+    import dataclasses
+
+    d = dataclasses.replace(
+        fault_diagnosis, identified_model=None, percentage_index=None, changes=()
+    )
+    html = render_report(d, generated_at=GENERATED)
+    # Sections 3-5 are drawn from identification.continuous_model: the v5 cell,
+    # the pole maps, impulse and Bode figures (no forest plot without changes).
+    v5 = fault_diagnosis.percentage_index["A_p"][2, 2]
+    assert f'<span class="vtag">v5</span>{v5:+.4f}' in html
+    assert html.count("<img ") == 3

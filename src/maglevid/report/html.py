@@ -27,6 +27,7 @@ read the report too. All text is escaped.
 from __future__ import annotations
 
 import base64
+import dataclasses
 import html
 import json
 import logging
@@ -1050,6 +1051,11 @@ def render_report(
     from maglevid import __version__
 
     d = diagnosis
+    if d.identified_model is None and d.identification is not None:
+        # The identification's own model stands in (continuous preferred: eq. (4) form).
+        model = d.identification.continuous_model or d.identification.model
+        if model is not None:
+            d = dataclasses.replace(d, identified_model=model)
     when = (generated_at or datetime.now(timezone.utc)).astimezone(timezone.utc)
     when_txt = when.strftime("%Y-%m-%d %H:%M:%S UTC")
     name = d.machine or d.recording or "recording"
