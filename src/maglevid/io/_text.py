@@ -145,12 +145,14 @@ class TextTable(Table):
                 column=ref,
             )
         key = super().resolve(ref)
+        if isinstance(ref, int):
+            return ref
         return key if isinstance(key, int) else self.names.index(key)  # type: ignore[union-attr]
 
     def label(self, key: Key, index: int | None = None) -> str:
         if isinstance(key, int) and self.names is not None:
             return self.names[key]
-        return f"column {key}" if isinstance(key, int) else key
+        return f"#{key}" if isinstance(key, int) else key
 
     def default_name(self, key: Key) -> str | None:
         if not isinstance(key, int) or self.names is None:
