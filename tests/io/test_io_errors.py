@@ -414,6 +414,22 @@ def test_mat_struct_variable(tmp_path):
     assert exc.column == "data" and "struct" in str(exc)
 
 
+def test_mat73_non_numeric_classes(tmp_path):
+    import h5py
+    from _io_helpers import _write_mat73
+
+    path = tmp_path / "s.mat"
+    _write_mat73(path, {"y": np.arange(4.0)})
+    with h5py.File(path, "a") as fh:
+        ds = fh.create_dataset("label", data=np.zeros((1, 1), dtype=np.uint64))
+        ds.attrs["MATLAB_class"] = np.bytes_(b"string")  # a reference to a MATLAB object
+        fh.create_group("data").attrs["MATLAB_class"] = np.bytes_(b"struct")
+    for name in ("label", "data"):
+        exc = read_bad(path, {"dt": 0.1, "y": [name]})
+        assert exc.column == name and "not a numeric array" in str(exc)
+    assert read_recording(path, mapping={"dt": 0.1, "y": ["y"]}).n_samples == 4
+
+
 def test_json_dump_of_error_attributes(tmp_path):
     # The attributes a GUI or a log line needs are there and JSON-safe.
     path = tmp_path / "log.csv"

@@ -286,3 +286,27 @@ def test_options_only_mapping_refines_a_native_file(tmp_path, rng):
     assert not m.has_signals
     back = read_recording(path, mapping=m)
     assert back.metadata["operator"] == "kim"
+
+
+def test_byte_order_mark_is_not_part_of_the_first_name(tmp_path):
+    log = tmp_path / "excel.csv"
+    log.write_bytes("t;gap\n0;1\n1;2\n".encode("utf-8-sig"))
+    m = {"time": "t", "y": ["gap"], "text": {"delimiter": ";"}}
+    assert read_recording(log, mapping=m).dt == 1.0
+    headerless = tmp_path / "excel.txt"
+    headerless.write_bytes("0 1\n1 2\n".encode("utf-8-sig"))
+    assert read_recording(headerless, mapping={"time": 0, "y": [1]}).y[0, 0] == 1.0
+
+
+def test_a_maglevid_csv_read_through_a_mapping_keeps_its_units(tmp_path, rng):
+    from maglevid.data import ClosedLoopData
+    from maglevid.io import write_recording
+
+    data = ClosedLoopData(
+        y=rng.standard_normal(6), dt=0.1, names={"y": ["gap"]}, units={"y": ["m"]}
+    )
+    path = write_recording(data, tmp_path / "rec.csv")
+    back = read_recording(path, mapping={"time": "t", "y": [{"column": "y:gap", "unit": "m"}]})
+    assert np.array_equal(back.y, data.y) and back.metadata["source_format"] == "csv"
+    with pytest.raises(FileFormatError, match="the file says 'm', the mapping expects 'mm'"):
+        read_recording(path, mapping={"time": "t", "y": [{"column": "y:gap", "unit": "mm"}]})

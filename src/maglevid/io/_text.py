@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import codecs
 import csv
 import io
 import json
@@ -58,6 +59,9 @@ class TextTable(Table):
         *,
         native: bool = False,
     ):
+        if codecs.lookup(opts.encoding).name == "utf-8":
+            # Excel and Notepad put a byte-order mark before UTF-8 text; it is not data.
+            opts = replace(opts, encoding="utf-8-sig")
         self.opts = opts
         self._comment = opts.comment
         comments: list[str] = []

@@ -346,10 +346,21 @@ def _attr_text(value: Any) -> str:
     return str(value)
 
 
+#: MATLAB classes stored as plain HDF5 datasets of numbers (char: UTF-16 code units).
+_MAT73_CLASSES = {
+    "double",
+    "single",
+    "logical",
+    "char",
+    *(f"{s}int{b}" for s in ("", "u") for b in (8, 16, 32, 64)),
+}
+
+
 def _mat73_loader(path: Path, name: str, obj: Any, h5py: Any) -> Callable[[], Any]:
     def load() -> Any:
         cls = _attr_text(obj.attrs.get("MATLAB_class", b""))
-        if not isinstance(obj, h5py.Dataset) or cls in ("struct", "cell", "function_handle"):
+        if not isinstance(obj, h5py.Dataset) or (cls and cls not in _MAT73_CLASSES):
+            # struct, cell, string, sparse, objects: stored as groups or references.
             raise FileFormatError(
                 f"is a MATLAB {cls or 'group'}, not a numeric array", path=str(path), column=name
             )
