@@ -88,3 +88,16 @@ def test_to_dict_is_json_safe():
     text = json.dumps(d.to_dict())
     assert '"machine": "B1"' in text
     assert d.to_dict()["signals"]["y"]["units"] == ["m", "A"]
+
+
+def test_segment_cuts_extra_signals_with_their_rate():
+    meta = {
+        "extra_signals": {
+            "yd": {"unit": "m", "rate": "control", "values": [0.0, 1.0, 2.0, 3.0]},
+            "fast": {"unit": "V", "rate": "output", "values": list(range(8))},
+        }
+    }
+    d = ClosedLoopData(y=np.zeros((8, 1)), u=np.zeros((4, 1)), dt=1.0, p=2, metadata=meta)
+    s = d.segment(1, 3)
+    np.testing.assert_array_equal(s.metadata["extra_signals"]["yd"]["values"], [1.0, 2.0])
+    np.testing.assert_array_equal(s.metadata["extra_signals"]["fast"]["values"], [2, 3, 4, 5])
