@@ -20,6 +20,7 @@ lint: $(STAMP)
 	$(VENV)/bin/ruff format --check src tests benchmarks
 
 test: lint
+	bash scripts/install-browser.sh
 	$(PY) -m pytest -q
 
 format: $(STAMP)
