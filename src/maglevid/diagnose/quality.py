@@ -59,6 +59,7 @@ __all__ = [
     "regressor_condition_number",
     "scan_sample_time",
     "signal_spectrum",
+    "split_segments",
 ]
 
 log = logging.getLogger(__name__)
@@ -162,13 +163,23 @@ class SegmentReport:
             f"{len(self.segments)} levitating segment(s), "
             f"{100 * self.usable_fraction:.1f} % of {self.n_samples} samples"
         ]
-        for s in self.segments:
-            lines.append(f"  keep    {s.start * self.dt:8.2f}-{s.stop * self.dt:8.2f} s")
+        rows: list[tuple[int, int, str]] = [(s.start, s.stop, "keep") for s in self.segments]
+        # Adjacent excluded pieces (an event, its guards, the next event ...) as one row.
+        merged: list[list[Any]] = []
         for e in self.excluded:
-            lines.append(
-                f"  exclude {e.start * self.dt:8.2f}-{e.stop * self.dt:8.2f} s  "
-                f"{REASONS.get(e.reason, e.reason)}"
-            )
+            if merged and merged[-1][1] == e.start:
+                merged[-1][1] = e.stop
+                if e.reason not in merged[-1][2]:
+                    merged[-1][2].append(e.reason)
+            else:
+                merged.append([e.start, e.stop, [e.reason]])
+        for a, b, reasons in merged:
+            main = [r for r in reasons if r != "guard"] or reasons
+            rows.append((a, b, "; ".join(REASONS.get(r, r) for r in main)))
+        for a, b, what in sorted(rows):
+            tag = "keep   " if what == "keep" else "exclude"
+            text = "" if what == "keep" else f"  {what}"
+            lines.append(f"  {tag} {a * self.dt:8.2f}-{b * self.dt:8.2f} s{text}")
         return "\n".join(lines)
 
 
@@ -312,6 +323,38 @@ def find_levitation_segments(
         "min_duration": min_duration,
     }
     return SegmentReport(tuple(segments), tuple(excluded), n, dt, MappingProxyType(thresholds))
+
+
+def split_segments(
+    bounds: Sequence[tuple[int, int]],
+    bad: Any,
+    *,
+    pad: tuple[int, int] = (0, 0),
+    min_length: int = 1,
+) -> list[tuple[int, int]]:
+    """Cut segments where ``bad`` holds, dropping ``pad = (before, after)`` samples
+    around each bad sample and pieces shorter than ``min_length``.
+
+    Use it to keep a linear-controller method away from single saturated samples
+    (``bad = command at a limit``, ``pad = (0, 1)``) or to give each operating point
+    its own segment (``bad = reference changed``, ``pad = (0, settle)``), where
+    :func:`find_levitation_segments` would exclude whole guard bands.
+    """
+    b = np.asarray(bad, dtype=bool).reshape(-1)
+    n = b.size
+    drop = b.copy()
+    for k in range(1, pad[1] + 1):
+        drop[k:] |= b[:-k]
+    for k in range(1, pad[0] + 1):
+        drop[:-k] |= b[k:]
+    out = []
+    for a0, b0 in bounds:
+        if not (0 <= a0 < b0 <= n):
+            raise DataError(f"segment ({a0}, {b0}) is outside 0..{n}")
+        for a, c in _runs(~drop[a0:b0]):
+            if c - a >= min_length:
+                out.append((a0 + a, a0 + c))
+    return out
 
 
 # ----------------------------------------------------------------------------------------
@@ -713,7 +756,7 @@ def signal_spectrum(
     """
     dt = check_positive(dt, "dt")
     v = _vector(x, "x")
-    nps = min(v.size, 512) if nperseg is None else int(nperseg)
+    nps = min(v.size, 512 if nperseg is None else int(nperseg))
     return signal.welch(v, fs=1.0 / dt, nperseg=nps, detrend=detrend)
 
 
@@ -782,7 +825,8 @@ def persistent_excitation_order(
             break
         H = np.column_stack([v[k - j] for j in range(n)])
         sv = np.linalg.svd(H, compute_uv=False)
-        c = (sv[0] / sv[-1]) ** 2 if sv[-1] > 0 else np.inf
+        ratio = sv[0] / sv[-1] if sv[-1] > sv[0] * 1e-150 else np.inf
+        c = ratio**2 if ratio < 1e150 else np.inf
         cond[n - 1] = c
         if sv[0] > 0 and c < 1.0 / rtol:
             order = n

@@ -65,14 +65,17 @@ class Channel:
 
     @property
     def spec(self) -> str:
-        return f"{self.signal}:{self.index}"
+        return f"extra:{self.name}" if self.signal == "extra" else f"{self.signal}:{self.index}"
 
 
 def resolve_channel(data: ClosedLoopData, spec: str) -> Channel:
     """Resolve ``"signal[:channel]"`` (channel = index or name) against a recording.
 
     ``"y:1"`` is the second output, ``"y:i"`` the output named ``i``, ``"u"`` the only
-    input channel. Only same-rate records are accepted (``p = 1``).
+    input channel, ``"extra:yd"`` a control-rate extra channel kept by
+    :func:`maglevid.io.read_recording` in ``metadata["extra_signals"]`` (e.g. the
+    position reference of the UAQ records). Only same-rate records are accepted
+    (``p = 1``).
 
     Raises
     ------
@@ -87,6 +90,8 @@ def resolve_channel(data: ClosedLoopData, spec: str) -> Channel:
     if not isinstance(spec, str) or not spec:
         raise DataError(f"channel specification must be a string like 'y:0'; got {spec!r}")
     sig, _, ch = spec.partition(":")
+    if sig == "extra":
+        return _extra_channel(data, spec, ch)
     if sig not in ("y", "u", "r", "u_f"):
         raise DataError(f"channel {spec!r}: unknown signal {sig!r}; expected y, u, r or u_f")
     arr = data.y if sig == "y" else getattr(data, sig)
@@ -108,6 +113,22 @@ def resolve_channel(data: ClosedLoopData, spec: str) -> Channel:
     else:
         raise DataError(f"channel {spec!r}: no channel named {ch!r}; {sig!r} has {names}")
     return Channel(sig, idx, names[idx], np.asarray(arr[:, idx]))
+
+
+def _extra_channel(data: ClosedLoopData, spec: str, name: str) -> Channel:
+    extras = data.metadata.get("extra_signals") or {}
+    if name not in extras:
+        raise DataError(
+            f"channel {spec!r}: no extra signal {name!r}; the recording has {sorted(extras)}"
+        )
+    values = np.asarray(extras[name].get("values"), dtype=float).reshape(-1)
+    if values.size != data.n_samples:
+        raise DataError(
+            f"channel {spec!r}: {values.size} samples for {data.n_samples} control periods"
+        )
+    if not np.all(np.isfinite(values)):
+        raise DataError(f"channel {spec!r} contains NaN or inf")
+    return Channel("extra", 0, name, values)
 
 
 def resolve_segments(

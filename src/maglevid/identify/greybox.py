@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 import scipy.linalg as sla
@@ -52,7 +53,13 @@ from maglevid.identify.result import IdentificationResult
 from maglevid.lti import StateSpace
 from maglevid.physics.levitator import LevitatorParameters, linearize
 
-__all__ = ["METHODS", "fit_greybox_levitator", "sample_foh", "sample_zoh"]
+__all__ = [
+    "METHODS",
+    "fit_equilibrium_line",
+    "fit_greybox_levitator",
+    "sample_foh",
+    "sample_zoh",
+]
 
 log = logging.getLogger(__name__)
 
@@ -387,6 +394,61 @@ def fit_greybox_levitator(
             "segment_model_currents": [i0_of(d, s) for s in range(len(segs))],
         },
     )
+
+
+def fit_equilibrium_line(
+    gaps: Any,
+    currents: Any,
+    *,
+    m: float = 0.018,
+    g: float = 9.81,
+    y_ref: float = 0.005,
+    dt: float = 0.01,
+) -> dict[str, float]:
+    """``a``, ``k`` and the pole from equilibrium currents at several gaps (eq. (Q1)).
+
+    ``i0 = c (a + y0)`` with ``c = sqrt(2 m g / (k a))`` is a straight line in ``y0``:
+    least squares gives slope ``c`` and intercept ``c a``, so ``a = intercept/slope``,
+    ``k = 2 m g / (a c^2)`` and the pole ``sqrt(2 g/(a + y_ref))`` - from *static*
+    data alone, without any dynamics. Standard errors by the delta method from the
+    line's covariance (white scatter about the line; two points give no scatter and
+    NaN errors).
+    """
+    y0 = np.asarray(gaps, dtype=float).reshape(-1)
+    i0 = np.asarray(currents, dtype=float).reshape(-1)
+    if y0.size != i0.size or y0.size < 2 or np.ptp(y0) <= 0:
+        raise DataError("need at least two distinct gaps with one current each")
+    X = np.column_stack([y0, np.ones_like(y0)])
+    (c, ca), *_ = np.linalg.lstsq(X, i0, rcond=None)
+    dof = y0.size - 2
+    if dof > 0:
+        s2 = float(np.sum((i0 - X @ [c, ca]) ** 2)) / dof
+        _, sv, Vt = np.linalg.svd(X, full_matrices=False)
+        cov = (Vt.T / sv**2) @ Vt * s2
+    else:
+        cov = np.full((2, 2), np.nan)
+
+    def f(t: np.ndarray) -> np.ndarray:
+        a = t[1] / t[0]
+        p = np.sqrt(2.0 * g / (a + y_ref))
+        return np.array([a, 2.0 * m * g / (a * t[0] ** 2), p, np.exp(p * dt)])
+
+    th = np.array([c, ca])
+    val = f(th)
+    J = np.empty((4, 2))
+    for j in range(2):
+        h = 1e-6 * abs(th[j])
+        tp, tm = th.copy(), th.copy()
+        tp[j] += h
+        tm[j] -= h
+        J[:, j] = (f(tp) - f(tm)) / (2 * h)
+    se = np.sqrt(np.diag(J @ cov @ J.T)) if dof > 0 else np.full(4, np.nan)
+    names = ("a", "k", "pole_rad_s", "pole_z")
+    out = dict(zip(names, val.tolist()))
+    out.update({f"{n}_se": float(e) for n, e in zip(names, se)})
+    out["slope"] = float(c)
+    out["n_points"] = float(y0.size)
+    return out
 
 
 METHODS = {"greybox-levitator": fit_greybox_levitator}

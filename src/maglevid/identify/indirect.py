@@ -68,6 +68,8 @@ def resolve_controller(
     UAQ gains), or ``None`` (then ``data.loop["controller"]`` is used).
     """
     c = data.loop.get("controller") if controller is None else controller
+    if c is None and (data.loop.get("controller_law") or {}).get("kind") == "cascade-pid-pi":
+        c = "uaq-cascade"  # the io preset of the UAQ legacy files documents the law
     if c is None:
         raise DataError(
             "the indirect method needs the controller: pass `controller=` (StateSpace, dict "
@@ -76,10 +78,10 @@ def resolve_controller(
     if isinstance(c, str):
         if c != "uaq-cascade":
             raise DataError(f"unknown controller preset {c!r}; known: {PRESETS}")
-        gains = data.loop.get("gains")
-        g = CascadeGains(**{k: float(v) for k, v in dict(gains).items()}) if gains else None
-        K = cascade_state_space(g)
-        default_inputs = ["r:0", "y:0", "y:1"]
+        K = cascade_state_space(_cascade_gains_of(data))
+        extras = data.metadata.get("extra_signals") or {}
+        ref = "r:0" if data.r is not None else ("extra:yd" if "yd" in extras else "r:0")
+        default_inputs = [ref, "y:0", "y:1"]
         if abs(K.dt - data.dt) > 1e-12 * data.dt:
             raise DataError(f"controller dt = {K.dt} differs from the recording's dt = {data.dt}")
     elif isinstance(c, StateSpace):
@@ -101,6 +103,22 @@ def resolve_controller(
             f"got {inputs!r}"
         )
     return K, inputs
+
+
+def _cascade_gains_of(data: ClosedLoopData) -> CascadeGains | None:
+    """Gains from ``loop["gains"]`` (CascadeGains fields) or from the io preset's
+    ``loop["controller_law"]`` (outer/inner kp, ki, kd); ``None``: the UAQ gains."""
+    gains = data.loop.get("gains")
+    if gains:
+        return CascadeGains(**{k: float(v) for k, v in dict(gains).items()})
+    law = data.loop.get("controller_law")
+    if law and "outer" in law and "inner" in law:
+        o, i = law["outer"], law["inner"]
+        return CascadeGains(
+            kp=float(o["kp"]), ki=float(o["ki"]), kd=float(o["kd"]),
+            kpi=float(i["kp"]), kii=float(i["ki"]), dt=float(law.get("Ts_s", data.dt)),
+        )  # fmt: skip
+    return None
 
 
 def fit_indirect(
