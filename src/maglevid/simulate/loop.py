@@ -197,35 +197,64 @@ def replay_feedback(
     controller: IntegralStateFeedback,
     *,
     y: Any,
-    r: Any,
+    r: Any = None,
+    u: Any = None,
     x_hat0: Any = None,
     e0: Any = None,
     kernel: str = "auto",
 ) -> np.ndarray:
-    """Re-run the observer and controller (eqs. (42)-(43)) on recorded ``y`` and ``r``.
+    """Re-run the observer and controller (eqs. (42)-(43)) on recorded signals.
 
-    Returns ``u_f`` (N, nu). With the recording's initial states this gives the
-    recorded ``u_f`` to round-off; with zero initial states a deadbeat observer
-    agrees after its nilpotency index, except for a constant offset ``F_e e(0)``.
+    Parameters
+    ----------
+    observer, controller
+        The loop's observer and controller (e.g. from a recording's ``loop``).
+    y : array_like, shape (N, ny)
+        Recorded (measured) outputs.
+    r : array_like, shape (N, nu), optional
+        Recorded excitation: the observer is fed ``u = u_f + r`` with the
+        re-computed ``u_f`` (the controller re-run as in the loop).
+    u : array_like, shape (N, nu), optional
+        Recorded plant input instead of ``r``: the observer is fed the recorded
+        ``u``. Give exactly one of ``r`` and ``u``.
+    x_hat0, e0 : array_like, optional
+        Initial observer and integral states (zero by default).
 
-    Implementation: ``e'(k) = e(k) + E y(k)`` accumulates the past outputs,
+    Returns
+    -------
+    ndarray, shape (N, nu)
+        ``u_f``. With the recording's initial states this is the recorded
+        ``u_f`` to round-off. With ``u`` given and zero initial states, a
+        deadbeat observer gives the recorded ``u_f`` after its nilpotency index
+        except for the constant ``F_e e(0)``.
+
+    Notes
+    -----
+    ``e'(k) = e(k) + E y(k)`` accumulates the past outputs,
     ``e'(k+1) = e'(k) - E y(k)``, so the observer/controller is a linear system
-    with inputs ``[r; y]``, run by the fast kernel.
+    with inputs ``[r; y]`` (or ``[u; y]``), run by the fast kernel.
     """
+    if (r is None) == (u is None):
+        raise DataError("give exactly one of `r` (excitation) and `u` (plant input)")
     E, F, Fe = controller.E, controller.F, controller.Fe
     Ao, Bo, Co, G = observer.A, observer.B, observer.C, observer.G
     nx, ne, nu, ny = Ao.shape[0], E.shape[0], Bo.shape[1], Co.shape[0]
-    r = as_signal(r, "r", n_channels=nu)
-    y = as_signal(y, "y", n_samples=r.shape[0], n_channels=ny)
-    # u = -F x̂ + Fe (e' - E y) + r
-    A = np.block([[Ao + G @ Co - Bo @ F, Bo @ Fe], [np.zeros((ne, nx)), np.eye(ne)]])
-    B = np.block([[Bo, -Bo @ Fe @ E - G], [np.zeros((ne, nu)), -E]])
-    C = np.hstack([-F, Fe])
-    D = np.hstack([np.zeros((nu, nu)), -Fe @ E])
+    drive = as_signal(r if u is None else u, "r" if u is None else "u", n_channels=nu)
+    y = as_signal(y, "y", n_samples=drive.shape[0], n_channels=ny)
+    Z = np.zeros
+    C = np.hstack([-F, Fe])  # u_f = -F x̂ + Fe (e' - E y)
+    D = np.hstack([Z((nu, nu)), -Fe @ E])
+    if u is None:
+        # x̂(k+1) = (A+GC) x̂ + B (u_f + r) - G y
+        A = np.block([[Ao + G @ Co - Bo @ F, Bo @ Fe], [Z((ne, nx)), np.eye(ne)]])
+        B = np.block([[Bo, -Bo @ Fe @ E - G], [Z((ne, nu)), -E]])
+    else:
+        # x̂(k+1) = (A+GC) x̂ + B u - G y
+        A = np.block([[Ao + G @ Co, Z((nx, ne))], [Z((ne, nx)), np.eye(ne)]])
+        B = np.block([[Bo, -G], [Z((ne, nu)), -E]])
     xh = np.zeros(nx) if x_hat0 is None else np.asarray(x_hat0, float).reshape(nx)
     e = np.zeros(ne) if e0 is None else np.asarray(e0, float).reshape(ne)
     sys = StateSpace(A, B, C, D, observer.dt or 1.0)
-    u_f, _ = simulate_lti(
-        sys, np.hstack([r, y]), x0=np.concatenate([xh, e + E @ y[0]]), kernel=kernel
-    )
+    z0 = np.concatenate([xh, e + E @ y[0]])
+    u_f, _ = simulate_lti(sys, np.hstack([drive, y]), x0=z0, kernel=kernel)
     return u_f
