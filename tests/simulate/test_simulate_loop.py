@@ -100,3 +100,9 @@ def test_separation_principle_with_exact_model():
         np.concatenate([np.exp(np.array([-400, -600, -800, -100, -30]) * DT), obs.poles()])
     )
     np.testing.assert_allclose(cl, want, rtol=1e-8, atol=1e-10)
+
+
+def test_kernel_name_is_checked(setup):
+    plant, obs, ctrl = setup
+    with pytest.raises(DataError, match="kernel"):
+        simulate_linear_loop(plant, obs, ctrl, r=np.zeros((100, 2)), kernel="fast")

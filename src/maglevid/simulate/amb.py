@@ -77,6 +77,7 @@ __all__ = [
     "default_amb_observer",
     "linearized_v",
     "nonlinear_equilibrium",
+    "parse_fault",
     "run_scenario",
     "simulate_amb_loop",
 ]
@@ -583,7 +584,8 @@ def simulate_amb_loop(
         )
 
     r = make_excitation(n_samples, 2, std=excitation_std, kind=excitation, rng=gen)  # eq. (16)
-    v = gen.standard_normal((n_samples, 3)) * noise
+    # Noise drawn after the excitation, so r does not depend on noise_std.
+    v = gen.standard_normal((n_samples, 3)) * noise if np.any(noise) else np.zeros((n_samples, 3))
 
     meta: dict[str, Any] = {
         "simulated": True,
@@ -598,7 +600,7 @@ def simulate_amb_loop(
         sig = simulate_linear_loop(
             amb_state_space(plant, dt), observer, controller, r=r, noise=v, kernel=kernel
         )
-        y, u_f = sig.y, sig.u_f
+        y, u_f, u = sig.y, sig.u_f, sig.u
         x_hat0, e0 = sig.x_hat0, sig.e0
     else:
         eq = nonlinear_equilibrium(plant, nominal, observer, controller)
@@ -614,6 +616,7 @@ def simulate_amb_loop(
             eq=eq,
             progress=progress,
         )
+        u = u_f + r
         x_hat0, e0 = eq["x_hat"], eq["e"]
         meta["substeps"] = substeps
         meta["operating_point_true"] = {
@@ -643,7 +646,7 @@ def simulate_amb_loop(
     return ClosedLoopData(
         y=y,
         dt=dt,
-        u=np.asarray(u_f) + r,
+        u=u,
         r=r,
         u_f=u_f,
         names={"y": OUTPUT_NAMES, "u": INPUT_NAMES, "r": ("r1", "r2"), "u_f": ("uf1", "uf2")},
@@ -664,7 +667,8 @@ SCENARIO_HELP = (
 )
 
 
-def _parse_fault(text: str) -> tuple[str, float]:
+def parse_fault(text: str) -> tuple[str, float]:
+    """``"R1=1.2"`` -> ``("R1", 1.2)`` (the ``--fault`` option of the command line)."""
     if "=" not in text:
         raise argparse.ArgumentTypeError(f"--fault {text!r}: expected NAME=FACTOR, e.g. R1=1.2")
     name, value = text.split("=", 1)
@@ -688,7 +692,7 @@ def add_scenario_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--fault",
         action="append",
-        type=_parse_fault,
+        type=parse_fault,
         default=[],
         metavar="NAME=FACTOR",
         help="multiply a parameter of the simulated bearing (R1, R2, Ls1, Ls2, K1, K2, kw1, kw2, "

@@ -182,12 +182,21 @@ def simulate_lti(
         raise DataError(f"`kernel` must be one of {KERNELS}; got {kernel!r}")
     if int(block_size) < 2:
         raise DataError(f"`block_size` must be an integer >= 2; got {block_size!r}")
-    L = int(block_size)
-    w = np.array(as_signal(w, "w", n_channels=sys.nu))  # writable, contiguous copy
+    w = as_signal(w, "w", n_channels=sys.nu)
     x = np.zeros(sys.nx) if x0 is None else np.asarray(x0, dtype=float).reshape(-1)
     if x.shape != (sys.nx,):
         raise DataError(f"`x0` has {x.size} elements; the model has nx = {sys.nx}")
+    return _simulate_checked(sys, w, x, kernel, int(block_size))
+
+
+def _simulate_checked(
+    sys: StateSpace, w: np.ndarray, x: np.ndarray, kernel: str, L: int = DEFAULT_BLOCK
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`simulate_lti` on inputs already validated (no copies of ``w``)."""
+    if kernel not in KERNELS:
+        raise DataError(f"`kernel` must be one of {KERNELS}; got {kernel!r}")
     A, B, C, D = (np.asarray(M) for M in (sys.A, sys.B, sys.C, sys.D))
+    w = np.ascontiguousarray(w, dtype=float)
     N = w.shape[0]
     if kernel == "loop" or (kernel == "auto" and N <= max(_SMALL, 4 * L)):
         return _loop(A, B, C, D, w, x)

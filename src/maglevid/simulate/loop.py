@@ -41,7 +41,7 @@ from maglevid.control.integral import IntegralStateFeedback
 from maglevid.control.observer import Observer
 from maglevid.exceptions import DataError, DesignError
 from maglevid.lti import StateSpace
-from maglevid.simulate.kernel import simulate_lti
+from maglevid.simulate.kernel import _simulate_checked, simulate_lti
 
 __all__ = ["LoopSignals", "closed_loop_system", "replay_feedback", "simulate_linear_loop"]
 
@@ -185,11 +185,15 @@ def simulate_linear_loop(
     )
     e = np.zeros(ne) if e0 is None else np.asarray(e0, float).reshape(ne)
     z0 = np.concatenate([x, xh, e + controller.E @ v[0]])  # e'(0) = e(0) + E v(0)
-    out, _ = simulate_lti(sys, np.hstack([r, v]), x0=z0, kernel=kernel)
+    out, _ = _simulate_checked(sys, np.hstack([r, v]), z0, kernel)
     y, u_f = out[:, :ny], out[:, ny:]
-    return LoopSignals(
-        readonly(y), readonly(u_f + r), readonly(r), readonly(u_f), readonly(xh), readonly(e)
-    )
+    return LoopSignals(_frozen(y), _frozen(u_f + r), r, _frozen(u_f), readonly(xh), readonly(e))
+
+
+def _frozen(a: np.ndarray) -> np.ndarray:
+    """Mark a freshly computed array (or a view of one) read-only, without a copy."""
+    a.setflags(write=False)
+    return a
 
 
 def replay_feedback(

@@ -1,0 +1,1 @@
+"""On-demand benchmarks of maglevid (``python -m benchmarks.<name>``); never run as tests."""
