@@ -69,6 +69,7 @@ __all__ = [
     "DEFAULT_N_SAMPLES",
     "DEFAULT_POLES_S",
     "DEFAULT_SUBSTEPS",
+    "OBSERVER_MODELS",
     "PLANT_MODELS",
     "SCENARIO",
     "SCENARIO_HELP",
@@ -113,6 +114,11 @@ DEFAULT_SUBSTEPS = 4
 
 #: Plant models :func:`simulate_amb_loop` accepts.
 PLANT_MODELS = ("linear", "nonlinear")
+
+#: Whose A, B the observer of eq. (43) runs on (its gain G is always designed
+#: on the nominal bearing): ``"nominal"`` (a real controller) or ``"plant"``
+#: (the real bearing's ZOH model -- how the paper's examples are reproduced).
+OBSERVER_MODELS = ("nominal", "plant")
 
 #: Largest accepted unit-free loop-matrix condition for the default design.
 _DEFAULT_DESIGN_MAX_CONDITION = 1e3
@@ -476,6 +482,7 @@ def simulate_amb_loop(
     plant_model: str = "linear",
     substeps: int = DEFAULT_SUBSTEPS,
     rng: Any = None,
+    observer_model: str = "nominal",
     kernel: str = "auto",
     progress: Callable[[Iterable[int]], Iterable[int]] | None = None,
 ) -> ClosedLoopData:
@@ -513,6 +520,15 @@ def simulate_amb_loop(
     rng : numpy.random.Generator, int or None
         Randomness (excitation first, then noise). An int is a seed and is
         recorded; ``None`` draws a fresh seed and records it.
+    observer_model : {"nominal", "plant"}
+        ``"nominal"`` (default): the observer runs on its own model (the
+        nominal bearing's, or that of the ``observer`` given) -- what a real
+        controller does. ``"plant"``: the observer keeps its gain ``G`` but runs
+        on the real bearing's ZOH model ``A, B`` (for the nonlinear plant: its
+        linearisation at ``i0``), as the paper's examples evidently do ("the
+        same actual observer gain ... in all examples"): then the exact ARX
+        model of eq. (47) holds with the real ``A, B``. With ``"nominal"`` and
+        a fault, eq. (47) with one lag is only approximate (see the docs).
     kernel : {"auto", "block", "loop"}
         Linear plant only: see :func:`~maglevid.simulate.kernel.simulate_lti`.
     progress : callable, optional
@@ -567,6 +583,16 @@ def simulate_amb_loop(
         observer = default_amb_observer(nominal, dt)
     if observer.dt is not None and abs(observer.dt - dt) > 1e-12 * dt:
         raise DataError(f"the observer was designed for dt={observer.dt:g} s, not dt={dt:g} s")
+    if observer_model not in OBSERVER_MODELS:
+        raise DataError(
+            f"`observer_model` must be one of {OBSERVER_MODELS}; got {observer_model!r}"
+        )
+    if observer_model == "plant":
+        # The paper's simulation: the same gain G, with the real bearing's A, B in eq. (43).
+        true = amb_state_space(plant, dt)
+        info = dict(observer.info)
+        info.update({"model": "plant", "gain_designed_on": "nominal"})
+        observer = Observer(observer.G, true.A, true.B, observer.C, observer.kind, dt, info)
     if controller.F.shape != (2, observer.nx) or controller.ny != 3:
         raise DataError(
             f"controller has F {controller.F.shape}, E {controller.E.shape}; the bearing needs "
@@ -596,6 +622,7 @@ def simulate_amb_loop(
         "plant_model": plant_model,
         "excitation": {"kind": excitation, "std": np.broadcast_to(excitation_std, (2,)).tolist()},
         "noise_std": noise.tolist(),
+        "observer_model": observer_model,
     }
     if plant_model == "linear":
         sig = simulate_linear_loop(
@@ -737,6 +764,13 @@ def add_scenario_arguments(parser: argparse.ArgumentParser) -> None:
         default=DEFAULT_SUBSTEPS,
         help="RK4 steps per period (nonlinear plant)",
     )
+    parser.add_argument(
+        "--observer-model",
+        choices=OBSERVER_MODELS,
+        default="nominal",
+        help="model the observer runs on: the nominal bearing's (a real controller, default) or "
+        "the simulated bearing's with the nominal gain (the paper's examples)",
+    )
 
 
 def run_scenario(args: argparse.Namespace) -> ClosedLoopData:
@@ -762,6 +796,7 @@ def run_scenario(args: argparse.Namespace) -> ClosedLoopData:
         noise_std=args.noise,
         plant_model=args.plant,
         substeps=args.substeps,
+        observer_model=args.observer_model,
         rng=args.seed,
         progress=progress,
     )
