@@ -502,9 +502,16 @@ def _drifts(
     tolerances: float | Mapping[str, float],
     alpha: float,
 ) -> list[dict[str, Any]]:
-    """Trend test on each diagnosed parameter of the machine's stored history."""
+    """Trend test on each diagnosed parameter of the machine's stored history.
+
+    ``alpha`` is the family-wise level over the parameters: each of the
+    ``len(DIAGNOSED_PARAMETERS)`` tests runs at ``alpha / len(...)`` (Bonferroni),
+    so a healthy machine raises a false drift alarm with probability <= alpha
+    per diagnosis rather than ~13 alpha.
+    """
     from maglevid.diagnose.drift import detect_drift
 
+    alpha_each = alpha / len(DIAGNOSED_PARAMETERS)
     out = []
     base = diag.baseline.get("parameters", {}) if diag.baseline else {}
     for k in DIAGNOSED_PARAMETERS:
@@ -521,7 +528,7 @@ def _drifts(
             tr.time[ok] / 86400.0,
             tr.value[ok],
             tr.std_error[ok],
-            alpha=alpha,
+            alpha=alpha_each,
             tolerance=float(t) * abs(b),
             baseline=b,
         )
