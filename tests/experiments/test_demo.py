@@ -1,4 +1,4 @@
-"""The demo's fleet: right causes, no false alarm on the healthy bearing, drift before tolerance."""
+"""The demo fleet: right causes, no false alarm on the healthy one, drift before tolerance."""
 
 from __future__ import annotations
 

@@ -99,7 +99,10 @@ def _physical_dict(p: AMBParameters) -> dict[str, float]:
 def _baseline_from_history(
     store: Any, machine: str, method: str, fallback: AMBParameters | None, notes: list[str]
 ) -> tuple[dict[str, tuple[float, float]], AMBParameters | None, np.ndarray | None, str]:
-    est = store.latest_estimates(machine, method=method)
+    try:
+        est = store.latest_estimates(machine, method=method)
+    except MaglevidError:  # a machine new to the store
+        est = {}
     if not est:
         notes.append(
             f"no earlier diagnosis of {machine!r} in the history: compared with the design"
