@@ -39,12 +39,28 @@ effective instruments ``Psi = Q_z K^T``. For output ``i`` the coefficient error 
 moving-average order of the equation error (``hac_lags``), ``w_l = 1``
 (truncated kernel: unbiased for a moving average of order ``L``) or Bartlett
 weights ``1 - l/(L+1)`` (always positive semi-definite).
+
+When the equation error is a *known* moving average of white measurement
+noise, ``eps(k) = sum_{j=0}^{q} C_j w(k - j)`` with ``Cov(w) = Sigma_w`` (the
+``C_j`` follow from the estimated coefficients and the known loop), the
+covariance can be written exactly instead of estimated by a lag window::
+
+    theta_s - theta_s0 = sum_t M(t) w(t),  M(t) = sum_j C_j (x) psi(t + j),
+    Cov(vec Theta_s) = sum_t M(t) Sigma_w M(t)^T,
+
+with ``Sigma_w`` fitted to the residual autocovariances ``R(l) = sum_j C_j
+Sigma_w C_{j-l}^T``, ``l = 0..q``, by least squares. This matters on the
+bearing: the position row of the plant ARX is nearly a second difference,
+``eps ~ w(k+1) - 2 w(k) + w(k-1)``, whose long-run variance almost cancels; a
+lag-window estimate of that small difference of large terms overstates the
+standard errors by 1.5x (``tests/identify/test_identify_uncertainty.py``),
+the structured one does not.
 """
 
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -61,6 +77,7 @@ __all__ = [
     "lagged",
     "markov_from_arx",
     "solve_linear_regression",
+    "white_noise_covariance",
 ]
 
 logger = logging.getLogger(__name__)
@@ -90,7 +107,12 @@ class LinearFit:
     estimator : str
         ``"ls"``, ``"iv"`` (as many instruments as regressors) or ``"2sls"``.
     hac_lags, kernel : int, str
-        Lag window of the covariance.
+        Lag window of the covariance (``covariance_method="hac"``).
+    covariance_method : str
+        ``"hac"`` (lag window) or ``"white-noise"`` (known moving average of
+        white measurement noise; see the module notes).
+    noise_covariance : ndarray or None
+        ``Sigma_w`` fitted for ``"white-noise"``.
     notes : tuple of str
         Anything marginal (e.g. a covariance that needed its negative
         eigenvalues clipped).
@@ -105,9 +127,19 @@ class LinearFit:
     hac_lags: int
     kernel: str
     notes: tuple[str, ...] = field(default=())
+    covariance_method: str = "hac"
+    noise_covariance: np.ndarray | None = None
 
     def __post_init__(self) -> None:
-        for name in ("coefficients", "covariance", "residuals", "singular_values"):
+        for name in (
+            "coefficients",
+            "covariance",
+            "residuals",
+            "singular_values",
+            "noise_covariance",
+        ):
+            if getattr(self, name) is None:
+                continue
             a = np.array(getattr(self, name), dtype=float)
             a.setflags(write=False)
             object.__setattr__(self, name, a)
@@ -179,6 +211,80 @@ def hac_covariance(
     return S, clipped
 
 
+def white_noise_covariance(
+    residuals: np.ndarray, psi: np.ndarray, ma: Sequence[np.ndarray]
+) -> tuple[np.ndarray, np.ndarray, bool]:
+    """Covariance sum for ``eps(k) = sum_j C_j w(k - j)`` with white ``w`` (module notes).
+
+    Parameters
+    ----------
+    residuals : ndarray, shape (N, ny)
+        Estimated equation errors (for ``Sigma_w``).
+    psi : ndarray, shape (N, n)
+        Effective instruments (``theta_hat - theta = Psi^T eps``).
+    ma : sequence of ndarray, each (ny, nw)
+        ``C_0 .. C_q``.
+
+    Returns
+    -------
+    S : ndarray, shape (ny*n, ny*n)
+        ``sum_t M(t) Sigma_w M(t)^T``.
+    sigma_w : ndarray, shape (nw, nw)
+        Fitted noise covariance (positive semi-definite).
+    clipped : bool
+        Whether the fitted ``Sigma_w`` had to be made positive semi-definite.
+    """
+    C = [np.atleast_2d(np.asarray(c, dtype=float)) for c in ma]
+    N, ny = residuals.shape
+    n = psi.shape[1]
+    nw = C[0].shape[1]
+    q = len(C) - 1
+    if any(c.shape != (ny, nw) for c in C):
+        raise DataError(f"every MA coefficient must have shape ({ny}, {nw})")
+    # Sigma_w from R(l) = sum_{j>=l} C_j Sigma_w C_{j-l}^T, l = 0..min(q, 20), by lstsq
+    # over the symmetric basis E_ab + E_ba.
+    lags = range(min(q, 20) + 1)
+    R = [residuals[lag:].T @ residuals[: N - lag] / N for lag in lags]
+    basis = []
+    for a in range(nw):
+        for b in range(a, nw):
+            E = np.zeros((nw, nw))
+            E[a, b] = E[b, a] = 1.0
+            basis.append(E)
+    design = np.array(
+        [
+            np.concatenate(
+                [sum(C[j] @ E @ C[j - lag].T for j in range(lag, q + 1)).ravel() for lag in lags]
+            )
+            for E in basis
+        ]
+    ).T
+    target = np.concatenate([r.ravel() for r in R])
+    coef, *_ = np.linalg.lstsq(design, target, rcond=None)
+    sigma = sum(c * E for c, E in zip(coef, basis))
+    lam, V = np.linalg.eigh(sigma)
+    clipped = bool(lam[0] < -1e-8 * max(float(lam[-1]), 0.0))
+    sigma = (V * np.clip(lam, 0.0, None)) @ V.T
+    # sum_t M(t) Sigma M(t)^T with M(t) = sum_j C_j (x) psi(t + j) expands, by
+    # (A (x) b)(C (x) d)^T = (A C^T) (x) (b d^T), into
+    #   S = sum_{j, j'} (C_j Sigma C_j'^T) (x) Gamma(j' - j),
+    #   Gamma(l) = sum_t psi(t) psi(t + l)^T,  Gamma(-l) = Gamma(l)^T,
+    # which needs only q + 1 lagged products of psi.
+    Gam = [psi[: N - lag].T @ psi[lag:] for lag in range(min(q, N - 1) + 1)]
+
+    def gamma(lag: int) -> np.ndarray:
+        if abs(lag) >= len(Gam):
+            return np.zeros((n, n))
+        return Gam[lag] if lag >= 0 else Gam[-lag].T
+
+    S = np.zeros((ny * n, ny * n))
+    for j in range(q + 1):
+        CS = C[j] @ sigma
+        for jp in range(q + 1):
+            S += np.kron(CS @ C[jp].T, gamma(jp - j))
+    return 0.5 * (S + S.T), sigma, clipped
+
+
 def solve_linear_regression(
     Y: Any,
     Phi: Any,
@@ -188,6 +294,7 @@ def solve_linear_regression(
     kernel: str = "truncated",
     labels: Sequence[str] | None = None,
     min_norm: bool = False,
+    noise_ma: Callable[[np.ndarray], Sequence[np.ndarray]] | None = None,
 ) -> LinearFit:
     """Least-squares or instrumental-variable solution of ``Y(k) = Theta phi(k) + eps(k)``.
 
@@ -207,6 +314,11 @@ def solve_linear_regression(
         Lag weights of the covariance.
     labels : sequence of str, optional
         Regressor names, used in error messages.
+    noise_ma : callable, optional
+        ``Theta -> [C_0, ..., C_q]``: the equation error as a moving average of
+        white measurement noise (``eps(k) = sum_j C_j w(k - j)``). When given, the
+        covariance is the structured white-noise one (module notes) and
+        ``hac_lags``/``kernel`` are not used.
     min_norm : bool
         Accept a rank-deficient problem and return the minimum-norm solution
         (in the column-scaled coordinates) with a note, instead of raising.
@@ -294,15 +406,27 @@ def solve_linear_regression(
     theta = theta_s / s[:, None]
     residuals = np.asarray(Y) - Phi @ theta
     psi = Q @ K.T  # effective instruments (N, n)
-    S, clipped = hac_covariance(residuals, psi, lags=hac_lags, kernel=kernel)
+    sigma_w = None
+    if noise_ma is None:
+        method = "hac"
+        S, clipped = hac_covariance(residuals, psi, lags=hac_lags, kernel=kernel)
+        if clipped:
+            notes.append(
+                f"the {kernel}-kernel covariance with {hac_lags} lags had negative "
+                "eigenvalues (short record); they were set to zero"
+            )
+    else:
+        method = "white-noise"
+        S, sigma_w, clipped = white_noise_covariance(residuals, psi, noise_ma(theta.T))
+        if clipped:
+            notes.append(
+                "the noise covariance fitted to the residual autocovariances was not positive "
+                "semi-definite (the equation error may not be the assumed moving average of "
+                "white measurement noise); its negative part was set to zero"
+            )
     ny = Y.shape[1]
     d = np.tile(1.0 / s, ny)
     cov = S * d[:, None] * d[None, :]
-    if clipped:
-        notes.append(
-            f"the {kernel}-kernel covariance with {hac_lags} lags had negative eigenvalues "
-            "(short record); they were set to zero"
-        )
     if sv[0] / sv[-1] > 1e10:
         notes.append(f"the regression is ill-conditioned (condition {sv[0] / sv[-1]:.2g})")
         logger.warning(notes[-1])
@@ -316,6 +440,8 @@ def solve_linear_regression(
         hac_lags=int(hac_lags),
         kernel=kernel,
         notes=tuple(notes),
+        covariance_method=method,
+        noise_covariance=sigma_w,
     )
 
 

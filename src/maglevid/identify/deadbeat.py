@@ -92,6 +92,7 @@ __all__ = [
     "loop_matrices",
     "loop_output_matrix",
     "observer_controller_arx",
+    "observer_noise_ma",
     "plant_from_observer_controller",
 ]
 
@@ -224,6 +225,55 @@ def observer_controller_arx(
     return {"a1": a1, "b1": b1, "L": L, "M": M, "A": A, "B": B, "Gd": Gd_hat}
 
 
+def observer_noise_ma(
+    Theta: np.ndarray,
+    P: np.ndarray,
+    *,
+    G: np.ndarray,
+    A_obs: np.ndarray,
+    C: np.ndarray,
+    max_terms: int = 200,
+) -> list[np.ndarray]:
+    """The equation error of eq. (47) as a moving average of white measurement noise.
+
+    The regression uses the measured ``y_m = y + w`` where the observer/controller
+    has ``yh = C xh``. With the observer's model equal to the plant, the observer
+    error obeys ``x - xh -> (A + G C)(x - xh) + G w``, so
+    ``eta = y_m - yh = sum_j H_j w(k - j)`` with ``H_0 = I``,
+    ``H_j = C (A_o + G C)^(j-1) G``. Substituting ``yh = y_m - eta`` in the exact
+    relation gives the equation error
+
+        eps(k) = [eta(k+1); 0] - (Theta_y + P [G; 0]) eta(k)
+               = sum_j C_j w(k + 1 - j),  C_j = [I; 0] H_j - Xi H_{j-1},
+
+    ``Xi = Theta_y + P [G; 0]`` (the ``y`` coefficient of ``a1`` for the loop's
+    own split). A deadbeat observer makes it finite (``H_j = 0`` for ``j > 2``);
+    otherwise terms are kept until ``(A_o + G C)^j`` is negligible.
+    """
+    ny = C.shape[0]
+    nyu = P.shape[0]
+    ne = P.shape[0] - C.shape[1]
+    Xi = Theta[:, :ny] + P @ np.vstack([G, np.zeros((ne, ny))])
+    S1 = np.vstack([np.eye(ny), np.zeros((nyu - ny, ny))])
+    Abar = A_obs + G @ C
+    H = [np.eye(ny)]
+    Ak = np.eye(Abar.shape[0])
+    scale = max(float(np.max(np.abs(C @ G))), 1e-300)
+    for _ in range(max_terms):
+        Hj = C @ Ak @ G
+        if np.max(np.abs(Hj)) <= 1e-13 * scale:
+            break
+        H.append(Hj)
+        Ak = Ak @ Abar
+    out = [S1 @ H[0]]
+    for j in range(1, len(H) + 1):
+        Cj = -Xi @ H[j - 1]
+        if j < len(H):
+            Cj = Cj + S1 @ H[j]
+        out.append(Cj)
+    return out
+
+
 def _integrator_block_residual(L: np.ndarray, P: np.ndarray, yu: np.ndarray, *, nx: int) -> float:
     # Eq. (49) says P^-1 a1 P = diag(A + Gd C, I): the blocks coupling the
     # observer state and the integrator are 0 and the integrator block is I.
@@ -240,6 +290,34 @@ def _integrator_block_residual(L: np.ndarray, P: np.ndarray, yu: np.ndarray, *, 
         float(np.max(np.abs(Ls[nx:, :nx]))),
         float(np.max(np.abs(Ls[nx:, nx:] - np.eye(ne)))),
     )
+
+
+def _noise_model(
+    covariance: str,
+    data: ClosedLoopData,
+    P: np.ndarray,
+    C: np.ndarray,
+    mats: Mapping[str, np.ndarray],
+    notes: list[str],
+) -> Any:
+    if covariance not in ("white-noise", "hac"):
+        raise DataError(f"`covariance` must be 'white-noise' or 'hac'; got {covariance!r}")
+    if covariance == "hac":
+        return None
+    obs = data.loop.get("observer") if isinstance(data.loop, Mapping) else None
+    if "G" not in mats or not isinstance(obs, Mapping) or obs.get("A") is None:
+        notes.append(
+            "the observer is not recorded: the covariance uses a lag window (hac) instead of "
+            "the white-noise model"
+        )
+        return None
+    G = mats["G"]
+    A_obs = np.atleast_2d(np.asarray(obs["A"], dtype=float))
+
+    def noise_ma(Theta: np.ndarray) -> list[np.ndarray]:
+        return observer_noise_ma(Theta, P, G=G, A_obs=A_obs, C=C)
+
+    return noise_ma
 
 
 def _signals(data: ClosedLoopData) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -261,6 +339,7 @@ def fit_deadbeat(
     instruments: str = "auto",
     skip: int = 10,
     instrument_lags: int = 30,
+    covariance: str = "white-noise",
     hac_lags: int = 8,
     m: float | None = None,
     i0: float | None = None,
@@ -284,9 +363,12 @@ def fit_deadbeat(
         converges in two).
     instrument_lags : int
         Lags of ``r`` for ``instruments="lags"``.
+    covariance : {"white-noise", "hac"}
+        ``"white-noise"`` (default, needs the observer in ``data.loop``): the
+        equation error written exactly as a moving average of white measurement
+        noise (:func:`observer_noise_ma`); ``"hac"``: a lag window.
     hac_lags : int
-        Moving-average order allowed for the equation error in the covariance
-        (a deadbeat observer gives order 3; more covers near-deadbeat observers).
+        Lag window for ``covariance="hac"``.
     m, i0 : float, optional
         Mass and bias current; default ``data.loop["operating_point"]``.
 
@@ -360,7 +442,10 @@ def fit_deadbeat(
         + [f"u_f{i + 1}(k)" for i in range(nu)]
         + [f"{n}(k)" for n in names_u]
     )
-    fit = solve_linear_regression(lhs, phi, instruments=Z, hac_lags=hac_lags, labels=labels)
+    noise_ma = _noise_model(covariance, data, P, C, mats, notes)
+    fit = solve_linear_regression(
+        lhs, phi, instruments=Z, hac_lags=hac_lags, labels=labels, noise_ma=noise_ma
+    )
 
     def to_discrete(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return plant_from_observer_controller(theta, P, nx=nx, ny=ny, nu=nu)
@@ -389,6 +474,7 @@ def fit_deadbeat(
         "instruments": used_instruments,
         "skip": int(skip),
         "instrument_lags": int(instrument_lags),
+        "covariance": covariance,
         "hac_lags": int(hac_lags),
         "m": m,
         "i0": i0,

@@ -53,7 +53,12 @@ import numpy as np
 from maglevid.data import ClosedLoopData
 from maglevid.exceptions import DataError
 from maglevid.identify.arx import lagged, markov_from_arx, solve_linear_regression
-from maglevid.identify.deadbeat import _signals, loop_matrices, loop_output_matrix
+from maglevid.identify.deadbeat import (
+    _noise_model,
+    _signals,
+    loop_matrices,
+    loop_output_matrix,
+)
 from maglevid.identify.era import realize_era
 from maglevid.identify.result import IdentificationResult
 from maglevid.identify.uncertainty import amb_result
@@ -130,6 +135,7 @@ def fit_okid_era(
     era_rows: int | None = None,
     era_cols: int | None = None,
     skip: int = 10,
+    covariance: str = "white-noise",
     hac_lags: int = 8,
     m: float | None = None,
     i0: float | None = None,
@@ -147,7 +153,7 @@ def fit_okid_era(
         Markov parameters computed (default: enough for the Hankel matrices).
     era_rows, era_cols : int, optional
         Block size of the ERA Hankel matrices (default 2 x 2).
-    skip, hac_lags, m, i0
+    skip, covariance, hac_lags, m, i0
         As for :func:`~maglevid.identify.deadbeat.fit_deadbeat`.
 
     Returns
@@ -180,7 +186,15 @@ def fit_okid_era(
         lagged(np.hstack([y, u_f, u]), [i], start, N) for i in range(1, order + 1)
     ]  # eq. (28), each y(k-i) once
     phi = np.hstack(blocks)
-    fit = solve_linear_regression(lhs, phi, hac_lags=hac_lags, min_norm=order > 1)
+    notes = [
+        "OKID/ERA Case I: T = Cbar^-1 Ctilde (eq. (23)); exact without noise for ARX order 1 "
+        "only (see maglevid.identify.okid)"
+    ]
+    # Order 1 is the deadbeat regression shifted by one sample: same noise model.
+    noise_ma = _noise_model(covariance, data, P, C, mats, notes) if order == 1 else None
+    fit = solve_linear_regression(
+        lhs, phi, hac_lags=hac_lags, min_norm=order > 1, noise_ma=noise_ma
+    )
     b0 = np.zeros((ny + nu, nu + ny))
     b0[ny:, nu:] = -Fe @ E
     Et = np.zeros((nz, nu + ny))
@@ -206,10 +220,6 @@ def fit_okid_era(
 
     Y = markov(fit.coefficients.ravel())
     _, s = era(Y)
-    notes = [
-        "OKID/ERA Case I: T = Cbar^-1 Ctilde (eq. (23)); exact without noise for ARX order 1 "
-        "only (see maglevid.identify.okid)"
-    ]
     return amb_result(
         method="okid-era",
         to_discrete=to_discrete,
@@ -225,6 +235,7 @@ def fit_okid_era(
             "era_rows": rows,
             "era_cols": cols,
             "skip": int(skip),
+            "covariance": covariance if order == 1 else "hac",
             "hac_lags": int(hac_lags),
             "m": m,
             "i0": i0,

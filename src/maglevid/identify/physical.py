@@ -241,6 +241,7 @@ def fit_physical(
     instruments: str = "auto",
     skip: int = 10,
     instrument_lags: int = 30,
+    covariance: str = "white-noise",
     hac_lags: int = 4,
     m: float | None = None,
     i0: float | None = None,
@@ -262,10 +263,17 @@ def fit_physical(
         Samples dropped at the start.
     instrument_lags : int
         Lags of ``r`` for ``instruments="lags"``.
+    covariance : {"white-noise", "hac"}
+        How the covariance of the ARX coefficients is obtained. ``"white-noise"``
+        (default): the equation error is ``w(k+1) - Theta_y w(k) - theta_h
+        w_pos(k-1)`` for white measurement noise ``w``, and the covariance is
+        written exactly in terms of ``Cov(w)`` fitted to the residuals
+        (:func:`maglevid.identify.arx.white_noise_covariance`). ``"hac"``: a
+        lag-window estimate for any short-memory equation error (disturbances
+        too), but it overstates the standard errors on this plant (see
+        :mod:`maglevid.identify.arx`).
     hac_lags : int
-        Moving-average order of the equation error (2 for white measurement
-        noise: ``w(k+1) - Theta_y w(k) - theta_h w_pos(k-1)``; more allows for
-        disturbances).
+        Lag window for ``covariance="hac"``.
     m, i0 : float, optional
         Mass and bias current; default ``data.loop["operating_point"]``.
 
@@ -331,7 +339,20 @@ def fit_physical(
         + [f"{n}(k)" for n in unames]
         + [f"{n}(k-1)" for n in unames]
     )
-    fit = solve_linear_regression(lhs, phi, instruments=Z, hac_lags=hac_lags, labels=labels)
+    noise_ma = None
+    if covariance == "white-noise":
+
+        def noise_ma(Theta: np.ndarray) -> list[np.ndarray]:
+            # eps(k) = w(k+1) - Theta_y w(k) - theta_h w_pos(k-1) (module notes, section 1)
+            C2 = np.zeros((ny, ny))
+            C2[:, POSITION] = -Theta[:, ny]
+            return [np.eye(ny), -Theta[:, :ny], C2]
+
+    elif covariance != "hac":
+        raise DataError(f"`covariance` must be 'white-noise' or 'hac'; got {covariance!r}")
+    fit = solve_linear_regression(
+        lhs, phi, instruments=Z, hac_lags=hac_lags, labels=labels, noise_ma=noise_ma
+    )
     y_scale = np.sqrt(np.mean(y**2, axis=0))
     h_scale = np.sqrt(np.mean(np.hstack([y[:, POSITION : POSITION + 1], u]) ** 2, axis=0))
     dt = data.dt
@@ -370,6 +391,7 @@ def fit_physical(
             "instruments": kind,
             "skip": int(skip),
             "instrument_lags": int(instrument_lags),
+            "covariance": covariance,
             "hac_lags": int(hac_lags),
             "m": m,
             "i0": i0,
