@@ -263,6 +263,18 @@ class ClosedLoopData:
         for sig in ("u", "r", "u_f"):
             v = getattr(self, sig)
             kw[sig] = None if v is None else v[start:stop]
+        extras = self.metadata.get("extra_signals")
+        if extras:
+            # Extra channels (e.g. a position reference) live in metadata with a rate:
+            # "control" (N values) or "output" (N*p values); cut them with the signals.
+            meta = _thaw(self.metadata)
+            for entry in meta["extra_signals"].values():
+                vals = entry.get("values")
+                if vals is None:
+                    continue
+                lo, hi = (start * p, stop * p) if len(vals) == self.y.shape[0] else (start, stop)
+                entry["values"] = vals[lo:hi]
+            kw["metadata"] = meta
         return self.replace(**kw)
 
     def with_plant_input(self) -> ClosedLoopData:

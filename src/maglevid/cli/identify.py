@@ -29,6 +29,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "`--method list` shows them",
     )
     parser.add_argument(
+        "--mapping",
+        default=None,
+        help="column mapping for a rig's own log: a preset name (`maglevid convert --presets`) "
+        "or a JSON/TOML mapping file",
+    )
+    parser.add_argument(
         "--option",
         action="append",
         default=[],
@@ -61,11 +67,12 @@ def _default_method(data: Any) -> str:
 def run(args: argparse.Namespace) -> dict[str, Any]:
     if args.method == "list":
         return {"methods": sorted(available_methods())}
+    options = _parse_options(args.option)
     from maglevid.io import read_recording
 
-    data = read_recording(args.recording)
+    data = read_recording(args.recording, mapping=args.mapping)
     method = args.method or _default_method(data)
-    result = get_method(method)(data, **_parse_options(args.option))
+    result = get_method(method)(data, **options)
     out = result.to_dict()
     out["recording"] = args.recording
     return out
