@@ -250,6 +250,10 @@ class ClosedLoopData:
             "metadata": _thaw(self.metadata),
         }
         kw.update(changes)
+        # A signal removed by the change takes its names and units with it.
+        for table in ("names", "units"):
+            if table not in changes:
+                kw[table] = {k: v for k, v in kw[table].items() if k == "y" or kw[k] is not None}
         return ClosedLoopData(**kw)
 
     def segment(self, start: int, stop: int | None = None) -> ClosedLoopData:

@@ -8,7 +8,6 @@ the reason for their value.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -159,41 +158,17 @@ def check_levitation(
     )
 
 
-def _replay_state_feedback(data: ClosedLoopData, loop: Mapping[str, Any]) -> np.ndarray:
-    """Re-run the stated observer + integral state feedback on the logged y and u.
-
-    Observer eq. (43): x̂(k+1) = (A + G C) x̂(k) + B u(k) - G y(k),
-    integral eq. (39): e(k+1) = e(k) - E y(k+1), control eq. (42):
-    u_f(k) = -F x̂(k) + Fe e(k), from zero initial states.
-    """
-    ctrl, obs = loop["controller"], loop["observer"]
-    F, Fe, E = (np.asarray(ctrl[k], dtype=float) for k in ("F", "Fe", "E"))
-    A, B, C, G = (np.asarray(obs[k], dtype=float) for k in ("A", "B", "C", "G"))
-    y = data.y_control
-    u = data.u if data.u is not None else data.with_plant_input().u
-    n = data.n_samples
-    Aobs = A + G @ C
-    xh = np.zeros(A.shape[0])
-    e = np.zeros(E.shape[0])
-    out = np.empty((n, F.shape[0]))
-    Ey = y @ E.T
-    for k in range(n):
-        out[k] = -F @ xh + Fe @ e
-        xh = Aobs @ xh + B @ u[k] - G @ y[k]
-        if k + 1 < n:
-            e = e - Ey[k + 1]
-    return out
-
-
 def check_feedback_consistency(
     data: ClosedLoopData, *, max_mismatch: float = MAX_FEEDBACK_MISMATCH, skip: int = 50
 ) -> QualityCheck:
     """The logged feedback u_f equals what the stated controller computes from the logged y.
 
-    A mismatch means the stated controller matrices (or the channel order, units,
-    time alignment) are wrong, and then every method that uses them is wrong too.
-    The first ``skip`` samples (observer start-up) and a constant offset (the
-    unknown initial integrator state) are not compared.
+    The observer and controller of eqs. (42)-(43) are re-run on the logged ``y``
+    and ``u`` (:func:`maglevid.simulate.loop.replay_feedback`). A mismatch means
+    the stated controller matrices (or the channel order, units, time alignment)
+    are wrong, and then every method that uses them is wrong too. The first
+    ``skip`` samples (observer start-up) and a constant offset (the unknown
+    initial integrator state ``F_e e(0)``) are not compared.
     """
     loop = data.loop
     if data.u_f is None or "controller" not in loop or "observer" not in loop:
@@ -205,8 +180,16 @@ def check_feedback_consistency(
             message="no logged feedback or no stated controller: consistency not checked",
             blocking=False,
         )
+    from maglevid.control import IntegralStateFeedback, Observer
+    from maglevid.simulate.loop import replay_feedback
+
     try:
-        replay = _replay_state_feedback(data, loop)
+        replay = replay_feedback(
+            Observer.from_dict(loop["observer"]),
+            IntegralStateFeedback.from_dict(loop["controller"]),
+            y=data.y_control,
+            u=data.u if data.u is not None else data.with_plant_input().u,
+        )
     except (KeyError, ValueError) as exc:
         return QualityCheck(
             name="feedback consistency",
