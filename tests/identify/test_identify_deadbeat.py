@@ -26,7 +26,7 @@ EXACT = 1e-8
 
 @pytest.fixture(scope="module")
 def nominal_loop():
-    return make_loop(NOMINAL, observer_on="plant", n_samples=1500)
+    return make_loop(NOMINAL, observer_model="plant", n_samples=1500)
 
 
 @pytest.mark.parametrize("fit", [fit_deadbeat_arx, fit_deadbeat_iv])
@@ -44,7 +44,7 @@ def test_exact_without_noise_when_the_observer_runs_on_the_plant(nominal_loop, f
 def test_exact_for_a_fault_when_the_observer_model_is_the_faulty_plant(name):
     # The paper's examples II-III ("the same observer gain"): its derivation needs the
     # observer's model to be the running plant; then the method is exact.
-    data = make_loop(NOMINAL.with_fault(**FAULTS[name]), observer_on="plant", n_samples=1500)
+    data = make_loop(NOMINAL.with_fault(**FAULTS[name]), observer_model="plant", n_samples=1500)
     np.testing.assert_allclose(v_est(fit_deadbeat_arx(data)), v_true(data), rtol=EXACT)
 
 
@@ -108,7 +108,7 @@ def test_trap_b_the_known_b0_term_belongs_on_the_left(nominal_loop):
 
 
 def test_mirror_symmetric_controller_makes_the_method_impossible():
-    data = make_loop(NOMINAL, observer_on="plant", symmetric=True, n_samples=500)
+    data = make_loop(NOMINAL, observer_model="plant", symmetric=True, n_samples=500)
     with pytest.raises(IdentificationError, match=r"singular.*symmetric"):
         fit_deadbeat_arx(data)
 
@@ -116,7 +116,7 @@ def test_mirror_symmetric_controller_makes_the_method_impossible():
 @pytest.mark.parametrize("name", list(FAULTS))
 def test_biased_without_noise_when_the_observer_runs_on_the_nominal_plant(name):
     # The diagnostic case: the observer's model is the nominal bearing.
-    data = make_loop(NOMINAL.with_fault(**FAULTS[name]), observer_on="nominal", n_samples=1500)
+    data = make_loop(NOMINAL.with_fault(**FAULTS[name]), observer_model="nominal", n_samples=1500)
     res = fit_deadbeat_arx(data)
     err = np.max(np.abs(v_est(res) / v_true(data) - 1))
     assert err > 1e-4  # orders of magnitude above rounding

@@ -12,7 +12,7 @@ from maglevid.identify.okid import fit_okid_era
 
 @pytest.fixture(scope="module")
 def data():
-    return make_loop(NOMINAL, observer_on="plant", n_samples=1500)
+    return make_loop(NOMINAL, observer_model="plant", n_samples=1500)
 
 
 def test_order_one_is_exact(data):

@@ -25,7 +25,7 @@ EXACT = 1e-8  # noise-free: every v_i to better than 1e-6 % (the issue's require
 @pytest.mark.parametrize("name", list(FAULTS))
 @pytest.mark.parametrize("estimator", ["ls", "iv"])
 def test_exact_with_a_nominal_observer_and_a_fault(name, estimator):
-    data = make_loop(NOMINAL.with_fault(**FAULTS[name]), observer_on="nominal", n_samples=1500)
+    data = make_loop(NOMINAL.with_fault(**FAULTS[name]), observer_model="nominal", n_samples=1500)
     res = fit_physical(data, estimator=estimator)
     np.testing.assert_allclose(v_est(res), v_true(data), rtol=EXACT)
     assert res.fit["structure_residual"] < 1e-8

@@ -431,7 +431,7 @@ def fit_deadbeat(
     lhs, phi = deadbeat_regression(y, u, u_f, E=E, Fe=Fe, start=start)
     Z = None
     if used_instruments == "loop":
-        sim = simulate_loop_signals(data.loop, data.r)
+        sim = simulate_loop_signals(data.loop, data.r, dt=data.dt)
         Z = np.hstack([sim["y"], sim["u_f"], sim["u"]])[start : N - 1]
     elif used_instruments == "lags":
         Z = lagged_excitation(data.r, lags=int(instrument_lags), start=start, stop=N - 1)

@@ -34,9 +34,9 @@ Gilson & Van den Hof 2005 for closed loops):
     ``r`` is spread over many lags, so the estimate is noisier and carries the
     many-instrument bias of order ``L/N`` toward least squares.
 
-The loop is simulated linearly and noise free with the recording convention of
-:mod:`maglevid.simulate` (see ``docs/control-and-simulation.md``); the
-instruments need not match the recording exactly, only be functions of ``r``.
+The loop is simulated linearly and noise free by :mod:`maglevid.simulate` (the
+recording convention of ``docs/control-and-simulation.md``); the instruments
+need not match the recording exactly, only be functions of ``r``.
 """
 
 from __future__ import annotations
@@ -47,141 +47,37 @@ from typing import Any
 
 import numpy as np
 
-from maglevid.exceptions import DataError, IdentificationError
+from maglevid.control import IntegralStateFeedback, Observer
+from maglevid.exceptions import DataError, DesignError, IdentificationError
+from maglevid.lti import StateSpace
+from maglevid.simulate.loop import simulate_linear_loop
 
-__all__ = [
-    "closed_loop_matrices",
-    "lagged_excitation",
-    "simulate_loop_signals",
-]
+__all__ = ["lagged_excitation", "simulate_loop_signals"]
 
 logger = logging.getLogger(__name__)
 
 
-def _mat(loop: Mapping[str, Any], *keys: str) -> np.ndarray:
-    cur: Any = loop
-    path = "loop"
-    for k in keys:
-        if not isinstance(cur, Mapping) or k not in cur:
-            raise IdentificationError(
-                f"the recording's loop description lacks {path}[{k!r}]; this method needs "
-                "the known controller and observer (see docs/control-and-simulation.md)"
-            )
-        cur = cur[k]
-        path += f"[{k!r}]"
-    return np.atleast_2d(np.asarray(cur, dtype=float))
+def simulate_loop_signals(
+    loop: Mapping[str, Any], r: Any, *, plant: StateSpace | None = None, dt: float
+) -> dict[str, np.ndarray]:
+    """Noise-free linear response of the recorded loop to the excitation ``r``.
 
-
-def closed_loop_matrices(
-    loop: Mapping[str, Any], *, plant_A: Any = None, plant_B: Any = None
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """State-space model ``r -> [y, u_f, u]`` of the loop of eqs. (39)-(43).
-
-    At control instant ``k``: ``y(k) = C x(k)``; the integrator takes the
-    current sample, ``e(k) = e(k-1) - E y(k)`` (eq. (39)); ``u_f(k) = -F xh(k) +
-    Fe e(k)`` (eq. (42)); ``u(k) = u_f(k) + r(k)``; the prediction observer
-    ``xh(k+1) = (Ao + G C) xh(k) + Bo u(k) - G y(k)`` (eq. (43)) and the plant
-    ``x(k+1) = A x(k) + B u(k)`` advance. With the state ``xi = [x, xh, e(k-1)]``::
-
-        u_f = Kx xi,   Kx = [-Fe E C, -F, Fe]
-        xi(k+1) = ([[A, 0, 0], [-G C, Ao + G C, 0], [-E C, 0, I]] + Bu Kx) xi + Bu r,
-        Bu = [B; Bo; 0]
+    The controller and observer are rebuilt from ``loop`` and the loop is run by
+    :func:`maglevid.simulate.loop.simulate_linear_loop` (the recording
+    convention of ``docs/control-and-simulation.md``), from rest.
 
     Parameters
     ----------
     loop : mapping
         ``data.loop`` with ``controller`` (``F``, ``Fe``, ``E``) and ``observer``
         (``G``, ``A``, ``B``, ``C``).
-    plant_A, plant_B : array_like, optional
-        Discrete plant; the observer's model (the nominal plant) when omitted.
-
-    Returns
-    -------
-    Acl, Bcl, Ccl, Dcl : ndarray
-        Outputs stacked as ``[y (ny), u_f (nu), u (nu)]``.
-    """
-    F = _mat(loop, "controller", "F")
-    Fe = _mat(loop, "controller", "Fe")
-    E = _mat(loop, "controller", "E")
-    G = _mat(loop, "observer", "G")
-    Ao = _mat(loop, "observer", "A")
-    Bo = _mat(loop, "observer", "B")
-    C = _mat(loop, "observer", "C")
-    A = Ao if plant_A is None else np.asarray(plant_A, dtype=float)
-    B = Bo if plant_B is None else np.asarray(plant_B, dtype=float)
-    nx, nu = B.shape
-    ny = C.shape[0]
-    ne = E.shape[0]
-    if Fe.shape != (nu, ne) or F.shape != (nu, nx) or G.shape != (nx, ny):
-        raise DataError(
-            f"inconsistent loop matrices: F {F.shape}, Fe {Fe.shape}, E {E.shape}, "
-            f"G {G.shape}, C {C.shape}, B {B.shape}"
-        )
-    n = 2 * nx + ne
-    Kx = np.hstack([-Fe @ E @ C, -F, Fe])
-    A0 = np.zeros((n, n))
-    A0[:nx, :nx] = A
-    A0[nx : 2 * nx, :nx] = -G @ C
-    A0[nx : 2 * nx, nx : 2 * nx] = Ao + G @ C
-    A0[2 * nx :, :nx] = -E @ C
-    A0[2 * nx :, 2 * nx :] = np.eye(ne)
-    Bu = np.vstack([B, Bo, np.zeros((ne, nu))])
-    Acl = A0 + Bu @ Kx
-    Ccl = np.vstack([np.hstack([C, np.zeros((ny, nx + ne))]), Kx, Kx])
-    Dcl = np.vstack([np.zeros((ny + nu, nu)), np.eye(nu)])
-    return Acl, Bu, Ccl, Dcl
-
-
-def _simulate_lti(
-    A: np.ndarray, B: np.ndarray, C: np.ndarray, D: np.ndarray, u: np.ndarray, block: int = 128
-) -> np.ndarray:
-    # Block recursion: within a block of L samples the response is the free
-    # response from the block's initial state plus a Toeplitz convolution with
-    # the Markov parameters; only the L-step state recursion loops in Python.
-    #   y(jL + i) = C A^i xi_j + sum_{t<i} C A^{i-1-t} B u(jL+t) + D u(jL+i)
-    #   xi_{j+1} = A^L xi_j + sum_t A^{L-1-t} B u(jL+t)
-    N, nu = u.shape
-    n = A.shape[0]
-    ny = C.shape[0]
-    L = max(1, min(block, N))
-    nblk = -(-N // L)
-    U = np.zeros((nblk * L, nu))
-    U[:N] = u
-    Ublk = U.reshape(nblk, L * nu)
-    powers = [np.eye(n)]
-    for _ in range(L):
-        powers.append(A @ powers[-1])
-    O = np.vstack([C @ powers[i] for i in range(L)])  # (L*ny, n)
-    markov = [D] + [C @ powers[i - 1] @ B for i in range(1, L)]
-    T = np.zeros((L * ny, L * nu))
-    for i in range(L):
-        for t in range(i + 1):
-            T[i * ny : (i + 1) * ny, t * nu : (t + 1) * nu] = markov[i - t]
-    Gam = np.hstack([powers[L - 1 - t] @ B for t in range(L)])  # (n, L*nu)
-    AL = powers[L]
-    X = np.empty((nblk, n))
-    xi = np.zeros(n)
-    drive = Ublk @ Gam.T
-    for j in range(nblk):
-        X[j] = xi
-        xi = AL @ xi + drive[j]
-    Y = X @ O.T + Ublk @ T.T  # (nblk, L*ny)
-    return Y.reshape(nblk * L, ny)[:N]
-
-
-def simulate_loop_signals(
-    loop: Mapping[str, Any], r: Any, *, plant_A: Any = None, plant_B: Any = None
-) -> dict[str, np.ndarray]:
-    """Noise-free linear response of the known loop to the excitation ``r``.
-
-    Parameters
-    ----------
-    loop : mapping
-        ``data.loop`` (controller and observer; see :func:`closed_loop_matrices`).
     r : array_like, shape (N, nu)
         Recorded excitation.
-    plant_A, plant_B : array_like, optional
-        Discrete plant to put in the loop; the observer's model by default.
+    plant : StateSpace, optional
+        Discrete plant to put in the loop; by default the observer's own model
+        (the nominal bearing).
+    dt : float
+        Control period.
 
     Returns
     -------
@@ -190,23 +86,33 @@ def simulate_loop_signals(
     Raises
     ------
     IdentificationError
-        The loop lacks the matrices, or the closed loop with this plant is
-        unstable (the instruments would grow without bound).
+        The loop lacks the controller or observer, or the loop with this plant
+        is unstable (the instruments would grow without bound).
     """
-    r = np.asarray(r, dtype=float)
-    Acl, Bcl, Ccl, Dcl = closed_loop_matrices(loop, plant_A=plant_A, plant_B=plant_B)
-    rho = float(np.max(np.abs(np.linalg.eigvals(Acl))))
-    if rho >= 1.0:
+    ctrl = loop.get("controller") if isinstance(loop, Mapping) else None
+    obs = loop.get("observer") if isinstance(loop, Mapping) else None
+    if not isinstance(ctrl, Mapping) or not isinstance(obs, Mapping):
+        raise IdentificationError(
+            "the recording's loop lacks the controller or the observer; the 'loop' "
+            "instruments need both (use instruments='lags')"
+        )
+    try:
+        controller = IntegralStateFeedback.from_dict(ctrl)
+        observer = Observer.from_dict(obs)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise IdentificationError(
+            f"the recording's controller/observer cannot be rebuilt: {exc}"
+        ) from exc
+    if plant is None:
+        plant = StateSpace(observer.A, observer.B, observer.C, dt=dt)
+    try:
+        sig = simulate_linear_loop(plant, observer, controller, r=np.asarray(r, dtype=float))
+    except DesignError as exc:
         raise IdentificationError(
             f"the known controller does not stabilise the model used for the instruments "
-            f"(closed-loop spectral radius {rho:.6g}); use instruments='lags'"
-        )
-    if r.ndim != 2 or r.shape[1] != Bcl.shape[1]:
-        raise DataError(f"`r` has shape {r.shape}; expected (N, {Bcl.shape[1]})")
-    out = _simulate_lti(Acl, Bcl, Ccl, Dcl, r)
-    ny = Ccl.shape[0] - 2 * r.shape[1]
-    nu = r.shape[1]
-    return {"y": out[:, :ny], "u_f": out[:, ny : ny + nu], "u": out[:, ny + nu :]}
+            f"({exc}); use instruments='lags'"
+        ) from exc
+    return {"y": np.asarray(sig.y), "u_f": np.asarray(sig.u_f), "u": np.asarray(sig.u)}
 
 
 def lagged_excitation(r: Any, *, lags: int, start: int, stop: int) -> np.ndarray:

@@ -327,7 +327,7 @@ def fit_physical(
     lhs, phi = plant_regression(y, u, start=start)
     Z = None
     if kind == "loop":
-        sim = simulate_loop_signals(data.loop, data.r)
+        sim = simulate_loop_signals(data.loop, data.r, dt=data.dt)
         _, Z = plant_regression(sim["y"], sim["u"], start=start)
     elif kind == "lags":
         Z = lagged_excitation(data.r, lags=int(instrument_lags), start=start, stop=N - 1)

@@ -304,6 +304,8 @@ def amb_result(
         "coefficient_std_errors": fit.std_errors,
         "estimator": fit.estimator,
         "hac_lags": fit.hac_lags,
+        "covariance_method": fit.covariance_method,
+        "noise_covariance": fit.noise_covariance,
         "jacobian": J,
     }
     ex.update(extras or {})
