@@ -67,7 +67,7 @@ def test_noisy_estimate_is_within_a_few_standard_errors(noisy):
 
 
 def test_result_reports_the_fitted_noise_level(noisy):
-    data, res = noisy
+    _, res = noisy
     assert res.options["covariance"] == "white-noise"
     # The fitted measurement-noise std is within 10 % of the simulated one.
     sigma = np.sqrt(np.diag(res.extras["noise_covariance"]))
