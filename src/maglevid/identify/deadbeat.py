@@ -321,6 +321,8 @@ def _noise_model(
 
 
 def _signals(data: ClosedLoopData) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    if not isinstance(data, ClosedLoopData):
+        raise DataError(f"`data` must be a ClosedLoopData; got {type(data).__name__}")
     if data.p != 1:
         raise DataError(
             f"the deadbeat ARX method needs one output sample per control period; got p={data.p}"

@@ -212,6 +212,8 @@ def physical_transformation(Ac_tilde: np.ndarray, C_tilde: np.ndarray) -> np.nda
 
 
 def _plant_signals(data: ClosedLoopData) -> tuple[np.ndarray, np.ndarray]:
+    if not isinstance(data, ClosedLoopData):
+        raise DataError(f"`data` must be a ClosedLoopData; got {type(data).__name__}")
     if data.p != 1:
         raise DataError(
             f"the physical method needs one output sample per control period; got p={data.p}"
