@@ -44,6 +44,7 @@ from typing import Any
 import numpy as np
 
 from maglevid.control import IntegralStateFeedback, Observer
+from maglevid.exceptions import MaglevidError
 from maglevid.identify.deadbeat import fit_deadbeat_arx, fit_deadbeat_iv
 from maglevid.identify.physical import fit_physical, format_percentage_index, percentage_index
 from maglevid.lti import StateSpace
@@ -51,8 +52,8 @@ from maglevid.physics.amb import AMBParameters, amb_matrices, amb_state_space
 from maglevid.simulate import simulate_amb_loop, simulate_linear_loop
 
 __all__ = [
-    "DEFAULT_N_SAMPLES",
     "DEFAULT_NOISE",
+    "DEFAULT_N_SAMPLES",
     "EXAMPLES",
     "PAPER",
     "PAPER_HELP",
@@ -220,7 +221,7 @@ def _mc_task(spec: dict[str, Any]) -> dict[str, Any]:
             res = fit(data)
             out["v"][name] = _v(res).tolist()
             out["se"][name] = _v_se(res).tolist()
-        except Exception as exc:  # noqa: BLE001 - a failed fit is a result of the Monte Carlo
+        except (MaglevidError, np.linalg.LinAlgError) as exc:  # a failure is a result too
             out["v"][name] = None
             out["se"][name] = None
             out.setdefault("errors", {})[name] = f"{type(exc).__name__}: {exc}"
@@ -512,7 +513,7 @@ def run_reproduction(args: argparse.Namespace) -> dict[str, Any]:
     try:
         fit_deadbeat_arx(sym)
         sym_paper = "fitted (unexpected)"
-    except Exception as exc_:  # noqa: BLE001 - the expected refusal is the result
+    except MaglevidError as exc_:  # the expected refusal is the result
         sym_paper = f"refused: {type(exc_).__name__}"
     res_sym = fit_physical(sym)
     diag["R1+20%, mirror-symmetric controller"] = {
