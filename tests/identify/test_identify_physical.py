@@ -108,3 +108,20 @@ def test_wrong_recordings_are_clear_errors():
         fit_physical(data.segment(0, 20))
     with pytest.raises(DataError, match="needs the excitation"):
         fit_physical(data.replace(r=None))
+
+
+def test_subspace_model_in_physical_coordinates():
+    # A subspace model of the plant (arbitrary coordinates) through the same T.
+    from maglevid.identify.physical import to_physical_coordinates
+    from maglevid.identify.subspace import fit_moesp
+    from maglevid.physics.amb import v_from_matrices
+
+    data = make_loop(NOMINAL.with_fault(kw1=1.2), n_samples=3000)
+    res = fit_moesp(np.asarray(data.y), np.asarray(data.u), order=4, dt=data.dt, horizon=8)
+    disc, cont = to_physical_coordinates(res.model)
+    v, structure = v_from_matrices(cont.A, cont.B)
+    np.testing.assert_allclose(v, v_true(data), rtol=EXACT)
+    np.testing.assert_allclose(disc.C, C_AMB, atol=1e-12)
+    assert structure < 1e-8
+    with pytest.raises(DataError, match="4 states"):
+        to_physical_coordinates(StateSpace(np.eye(2), np.ones((2, 2)), np.eye(2), dt=1e-4))

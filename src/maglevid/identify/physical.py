@@ -68,6 +68,9 @@ ln(Atilde)/dt`` (eq. (8))::
 Btilde_c`` is a check (it appears as ``B_c[0]`` and enters the structure
 residual).
 
+Any other 4-state realization with these outputs (subspace, ERA) is put into
+physical coordinates the same way: :func:`to_physical_coordinates`.
+
 4. Instruments
 --------------
 See :mod:`maglevid.identify.iv`: ``"loop"`` simulates the known controller and
@@ -85,12 +88,13 @@ from typing import Any
 import numpy as np
 
 from maglevid.data import ClosedLoopData
-from maglevid.exceptions import DataError, IdentificationError
+from maglevid.exceptions import DataError, IdentificationError, ModelError
 from maglevid.identify.arx import solve_linear_regression
 from maglevid.identify.iv import lagged_excitation, simulate_loop_signals
 from maglevid.identify.result import IdentificationResult
 from maglevid.identify.uncertainty import amb_result
-from maglevid.physics.amb import C_AMB
+from maglevid.lti import StateSpace, undiscretize
+from maglevid.physics.amb import C_AMB, INPUT_NAMES, OUTPUT_NAMES, STATE_NAMES
 
 __all__ = [
     "METHODS",
@@ -100,6 +104,7 @@ __all__ = [
     "physical_transformation",
     "plant_regression",
     "realize_plant_arx",
+    "to_physical_coordinates",
 ]
 
 logger = logging.getLogger(__name__)
@@ -209,6 +214,48 @@ def physical_transformation(Ac_tilde: np.ndarray, C_tilde: np.ndarray) -> np.nda
             "depend on a state beyond the measured ones (velocity unobservable)"
         )
     return T
+
+
+def to_physical_coordinates(model: StateSpace) -> tuple[StateSpace, StateSpace]:
+    """Any 4-state AMB realization with outputs ``[x, i1, i2]`` in physical coordinates.
+
+    For models identified in arbitrary coordinates, e.g. by
+    :func:`maglevid.identify.subspace.fit_moesp` or ERA: ``T`` of the module
+    notes (section 3) from the continuous model, applied to both.
+
+    Parameters
+    ----------
+    model : StateSpace
+        Discrete (ZOH) or continuous model, 4 states, 3 outputs ``[x, i1, i2]``.
+
+    Returns
+    -------
+    discrete, continuous : StateSpace
+        In states ``[x, dx/dt, i1, i2]`` with ``C = [[1,0,0,0],[0,0,1,0],[0,0,0,1]]``
+        (``discrete`` is ``None`` for a continuous input); read v1..v9 off the
+        continuous one with :func:`maglevid.physics.amb.v_from_matrices`.
+
+    Raises
+    ------
+    IdentificationError
+        No real logarithm (discrete input) or a singular transformation.
+    """
+    if model.nx != 4 or model.ny != 3:
+        raise DataError(
+            f"an AMB model has 4 states and outputs [x, i1, i2]; got nx={model.nx}, ny={model.ny}"
+        )
+    try:
+        cont = undiscretize(model) if model.is_discrete else model
+    except ModelError as exc:
+        raise IdentificationError(f"no continuous counterpart of the model: {exc}") from exc
+    T = physical_transformation(cont.A, cont.C)
+    names = {"state_names": STATE_NAMES, "input_names": INPUT_NAMES, "output_names": OUTPUT_NAMES}
+    Ti = np.linalg.inv(T)
+    phys_c = StateSpace(T @ cont.A @ Ti, T @ cont.B, cont.C @ Ti, cont.D, None, **names)
+    if not model.is_discrete:
+        return None, phys_c  # type: ignore[return-value]
+    phys_d = StateSpace(T @ model.A @ Ti, T @ model.B, model.C @ Ti, model.D, model.dt, **names)
+    return phys_d, phys_c
 
 
 def _plant_signals(data: ClosedLoopData) -> tuple[np.ndarray, np.ndarray]:
