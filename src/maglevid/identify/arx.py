@@ -242,9 +242,13 @@ def white_noise_covariance(
     if any(c.shape != (ny, nw) for c in C):
         raise DataError(f"every MA coefficient must have shape ({ny}, {nw})")
     # Sigma_w from R(l) = sum_{j>=l} C_j Sigma_w C_{j-l}^T, l = 0..min(q, 20), by lstsq
-    # over the symmetric basis E_ab + E_ba.
+    # over the symmetric basis E_ab + E_ba. Each equation (entry (a, b) of R(l)) is
+    # weighted by 1/sqrt(R_aa(0) R_bb(0)): the channels differ by orders of magnitude
+    # (m against A), and unweighted the small channels' equations would not count.
     lags = range(min(q, 20) + 1)
     R = [residuals[lag:].T @ residuals[: N - lag] / N for lag in lags]
+    r0 = np.sqrt(np.clip(np.diag(R[0]), np.finfo(float).tiny, None))
+    wgt = np.tile((1.0 / np.outer(r0, r0)).ravel(), len(lags))
     basis = []
     for a in range(nw):
         for b in range(a, nw):
@@ -260,7 +264,7 @@ def white_noise_covariance(
         ]
     ).T
     target = np.concatenate([r.ravel() for r in R])
-    coef, *_ = np.linalg.lstsq(design, target, rcond=None)
+    coef, *_ = np.linalg.lstsq(design * wgt[:, None], target * wgt, rcond=None)
     sigma = sum(c * E for c, E in zip(coef, basis))
     lam, V = np.linalg.eigh(sigma)
     clipped = bool(lam[0] < -1e-8 * max(float(lam[-1]), 0.0))
