@@ -12,7 +12,8 @@ the nominal bearing:
 Every recording is written to ``OUT/recordings/<machine>/day-XX.npz`` (so any
 of them can be diagnosed again from the command line) and diagnosed into the
 SQLite history ``OUT/history.sqlite``; the bearings whose latest verdict is a
-fault or a drift get an HTML report ``OUT/<machine>.html``.
+fault or a drift get an HTML report ``OUT/<machine>.html``; ``OUT/signals.png``
+shows the signals of the last recording.
 
 Sensor noise (5 nm on the displacement, 10 µA on the currents) and 3 s records
 at 10 kHz give the resistance to about 1.2 % (one standard error), enough to
@@ -150,6 +151,10 @@ def run_demo(
                 }
             )
             logger.info("%s day %d: %s", bearing.name, day, diag.verdict_code)
+        from maglevid.plotting.signals import plot_signals
+
+        signals_png = out / "signals.png"
+        plot_signals(rec, path=signals_png, title=f"{rec.metadata['machine']}: last recording")
         reports = {}
         for name, diag in latest.items():
             if diag.verdict_code in ("fault", "drift", "unexplained_change"):
@@ -174,6 +179,7 @@ def run_demo(
         "store": str(out / "history.sqlite"),
         "rows": rows,
         "reports": reports,
+        "signals_plot": str(signals_png),
         "first_alarm_day": first_alarm,
         "bearings": {b.name: b.description for b in fleet},
     }
