@@ -93,7 +93,9 @@ def _iso(t: float) -> str:
     return datetime.fromtimestamp(t, tz=timezone.utc).isoformat()
 
 
-def _drift(trend: Any, rows: Any, tolerance: float | None, args: argparse.Namespace) -> dict:
+def _drift(
+    trend: Any, rows: Any, tolerance: float | None, alpha: float, drift_method: str
+) -> dict:
     """Drift test of the points ``rows`` (a boolean mask) of ``trend``; times in days."""
     import numpy as np
 
@@ -116,10 +118,10 @@ def _drift(trend: Any, rows: Any, tolerance: float | None, args: argparse.Namesp
             (t - t0) / _DAY,
             y,
             se,
-            alpha=args.alpha,
+            alpha=alpha,
             tolerance=tolerance,
             baseline=baseline,
-            method=args.drift_method,
+            method=drift_method,
         )
     except DataError as exc:
         return {"skipped": str(exc), "drifting": None}
@@ -136,6 +138,58 @@ def _drift(trend: Any, rows: Any, tolerance: float | None, args: argparse.Namesp
     return out
 
 
+def history_summary(
+    store: Any,
+    machine: str,
+    *,
+    parameters: list[str] | None = None,
+    method: str | None = None,
+    alpha: float = 0.01,
+    drift_method: str = "wls",
+    tolerances: dict[str, float] | None = None,
+) -> dict[str, Any]:
+    """Trends and drift tests of ``machine``'s parameters (the ``--json`` content)."""
+    from maglevid.exceptions import DataError
+
+    tolerances = tolerances or {}
+    names = parameters or store.parameters(machine)
+    unknown = sorted(set(tolerances) - set(names))
+    if unknown:
+        raise DataError(f"--tolerance for {unknown}, which are not shown")
+    out: dict[str, Any] = {}
+    drifting = []
+    for name in names:
+        trend = store.trend(machine, name, method=method)
+        points = [
+            {
+                "recorded_at": _iso(float(trend.time[i])),
+                "value": float(trend.value[i]),
+                "std_error": None if math.isnan(trend.std_error[i]) else float(trend.std_error[i]),
+                "method": str(trend.method[i]),
+                "diagnosis_id": int(trend.diagnosis_id[i]),
+            }
+            for i in range(len(trend))
+        ]
+        # One test per method: methods have different biases, mixing them fakes drift.
+        drift = {
+            str(m): _drift(trend, trend.method == m, tolerances.get(name), alpha, drift_method)
+            for m in dict.fromkeys(trend.method.tolist())
+        }
+        drifting += [f"{name} ({m})" for m, d in drift.items() if d.get("drifting")]
+        out[name] = {"unit": trend.unit, "points": points, "drift": drift}
+    n_diag = len({q["diagnosis_id"] for v in out.values() for q in v["points"]})
+    return {
+        "store": store.location,
+        "machine": machine,
+        "method": method,
+        "alpha": alpha,
+        "drift_method": drift_method,
+        "n_diagnoses": n_diag,
+        "parameters": out,
+        "drifting": drifting,
+    }
+
+
 def run(args: argparse.Namespace) -> dict[str, Any]:
     from maglevid.diagnose.history import default_store_location, open_history
     from maglevid.exceptions import DataError
@@ -143,51 +197,22 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     location = args.store or default_store_location()
     if not (0.0 < args.alpha < 1.0):
         raise DataError(f"--alpha {args.alpha}: expected 0 < alpha < 1")
-    tolerances = _tolerances(args.tolerance)
     with open_history(location, create=False, schema=args.schema) as store:
         if args.list:
             return {"store": store.location, "machines": [m.to_dict() for m in store.machines()]}
         if not args.machine:
             raise DataError("give a MACHINE (or --list to see the machines)")
-        names = args.parameter or store.parameters(args.machine)
-        unknown = sorted(set(tolerances) - set(names))
-        if unknown:
-            raise DataError(f"--tolerance for {unknown}, which are not shown")
-        parameters: dict[str, Any] = {}
-        drifting = []
-        for name in names:
-            trend = store.trend(args.machine, name, method=args.method)
-            points = [
-                {
-                    "recorded_at": _iso(float(trend.time[i])),
-                    "value": float(trend.value[i]),
-                    "std_error": None
-                    if math.isnan(trend.std_error[i])
-                    else float(trend.std_error[i]),
-                    "method": str(trend.method[i]),
-                    "diagnosis_id": int(trend.diagnosis_id[i]),
-                }
-                for i in range(len(trend))
-            ]
-            # One test per method: methods have different biases, mixing them fakes drift.
-            drift = {
-                str(m): _drift(trend, trend.method == m, tolerances.get(name), args)
-                for m in dict.fromkeys(trend.method.tolist())
-            }
-            drifting += [f"{name} ({m})" for m, d in drift.items() if d.get("drifting")]
-            parameters[name] = {"unit": trend.unit, "points": points, "drift": drift}
-        n_diag = len({q["diagnosis_id"] for v in parameters.values() for q in v["points"]})
-    return {
-        "store": store.location,
-        "machine": args.machine,
-        "method": args.method,
-        "alpha": args.alpha,
-        "drift_method": args.drift_method,
-        "n_diagnoses": n_diag,
-        "parameters": parameters,
-        "drifting": drifting,
-        "exit_code": 3 if (args.fail_on_drift and drifting) else 0,
-    }
+        result = history_summary(
+            store,
+            args.machine,
+            parameters=args.parameter,
+            method=args.method,
+            alpha=args.alpha,
+            drift_method=args.drift_method,
+            tolerances=_tolerances(args.tolerance),
+        )
+    result["exit_code"] = 3 if (args.fail_on_drift and result["drifting"]) else 0
+    return result
 
 
 def _fmt(x: float | None, digits: int = 6) -> str:

@@ -21,6 +21,7 @@ DIAGNOSIS_VERSION = 1
 VERDICT_CODES = (
     "no_change",  # nothing significant twice over
     "within_tolerance",  # statistically detectable, below the engineering tolerance
+    "drift",  # no fault yet, but a parameter trends towards its tolerance (history)
     "fault",  # a change explained by one (or two) physical causes
     "unexplained_change",  # significant changes no hypothesis explains
     "cannot_diagnose",  # the data do not allow a diagnosis (quality)
@@ -73,6 +74,10 @@ class Diagnosis:
         ``{"source": ..., "parameters": {name: (value, se)}, "v": [...], "v_covariance": ...}``.
     baseline_model, identified_model : StateSpace or None
         Continuous models in physical coordinates (for poles, impulse and frequency responses).
+    drifts : tuple of mapping
+        Parameters whose history shows a significant trend (with a history
+        store): ``{"parameter", "slope_percent_per_day", "p_value",
+        "projected_crossing", "method", ...}``.
     percentage_index : mapping or None
         ``{"A_p": array, "B_p": array}`` (NaN where the baseline element is zero).
     machine, recording, recording_hash : str or None
@@ -99,11 +104,12 @@ class Diagnosis:
     dt: float | None = None
     created_at: str | None = None
     notes: tuple[str, ...] = ()
+    drifts: tuple[Mapping[str, Any], ...] = ()
 
     def __post_init__(self) -> None:
         if self.verdict_code not in VERDICT_CODES:
             raise ValueError(f"verdict_code {self.verdict_code!r} not in {VERDICT_CODES}")
-        for name in ("reasons", "changes", "quality", "notes"):
+        for name in ("reasons", "changes", "quality", "notes", "drifts"):
             object.__setattr__(self, name, tuple(getattr(self, name)))
 
     @property
@@ -184,4 +190,5 @@ class Diagnosis:
             "percentage_index": pi,
             "dt": self.dt,
             "notes": list(self.notes),
+            "drifts": [_jsonable(dict(d)) for d in self.drifts],
         }

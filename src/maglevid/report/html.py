@@ -57,6 +57,7 @@ logger = logging.getLogger(__name__)
 VERDICT_STYLE: dict[str, tuple[str, str]] = {
     "no_change": ("#15803d", "No change"),
     "within_tolerance": ("#0e7490", "Within tolerance"),
+    "drift": ("#a16207", "Drift"),
     "fault": ("#b91c1c", "Fault"),
     "unexplained_change": ("#c2410c", "Unexplained change"),
     "cannot_diagnose": ("#475569", "Cannot diagnose"),
