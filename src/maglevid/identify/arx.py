@@ -52,9 +52,9 @@ with ``Sigma_w`` fitted to the residual autocovariances ``R(l) = sum_j C_j
 Sigma_w C_{j-l}^T``, ``l = 0..q``, by least squares. This matters on the
 bearing: the position row of the plant ARX is nearly a second difference,
 ``eps ~ w(k+1) - 2 w(k) + w(k-1)``, whose long-run variance almost cancels; a
-lag-window estimate of that small difference of large terms overstates the
-standard errors by 1.5x (``tests/identify/test_identify_uncertainty.py``),
-the structured one does not.
+lag-window estimate of that small difference of large terms overstated the
+standard errors of the position row 1.4-1.6x in a 30-record Monte Carlo
+(N = 2e4), the structured one does not (coverage in ``docs/gosiewski.md``).
 """
 
 from __future__ import annotations

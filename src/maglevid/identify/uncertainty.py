@@ -14,8 +14,8 @@ delta method, ``Cov(f(theta)) = J Cov(theta) J^T`` (as in
 the whole chain assembled from central differences of the cheap algebraic
 steps and the exact Fréchet derivative of the matrix logarithm (one
 ``expm_frechet`` Kronecker form per estimate instead of one ``logm`` per
-finite-difference step, which is 30 times faster at the same accuracy; the
-test suite compares the two). The chain is smooth wherever ``ln(A)`` is real
+finite-difference step, an order of magnitude faster at the same accuracy;
+the test suite compares the two). The chain is smooth wherever ``ln(A)`` is real
 and ``v1, v4, v6`` are nonzero.
 
 Intervals are the normal-approximation ones of
