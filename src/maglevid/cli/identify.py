@@ -61,7 +61,7 @@ def _parse_options(items: list[str]) -> dict[str, Any]:
 def _default_method(data: Any) -> str:
     from maglevid.diagnose.pipeline import choose_method
 
-    return choose_method(data)[0]
+    return choose_method(data)[0]  # "physical" for AMB recordings (observer-independent)
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
