@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import logging
 
+from maglevid import diagnose
 from maglevid.data import ClosedLoopData
 from maglevid.exceptions import (
     DataError,
@@ -32,6 +33,7 @@ __all__ = [
     "ModelError",
     "StateSpace",
     "__version__",
+    "diagnose",
     "discretize",
     "undiscretize",
 ]

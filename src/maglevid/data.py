@@ -250,7 +250,15 @@ class ClosedLoopData:
             "metadata": _thaw(self.metadata),
         }
         kw.update(changes)
+        # A signal removed by the change takes its names and units with it.
+        for table in ("names", "units"):
+            if table not in changes:
+                kw[table] = {k: v for k, v in kw[table].items() if k == "y" or kw[k] is not None}
         return ClosedLoopData(**kw)
+
+    def with_metadata(self, **items: Any) -> ClosedLoopData:
+        """Copy with metadata entries added or replaced (e.g. ``machine=``)."""
+        return self.replace(metadata={**_thaw(self.metadata), **items})
 
     def segment(self, start: int, stop: int | None = None) -> ClosedLoopData:
         """Control periods ``start:stop`` as a new recording (time origin kept)."""
@@ -263,6 +271,18 @@ class ClosedLoopData:
         for sig in ("u", "r", "u_f"):
             v = getattr(self, sig)
             kw[sig] = None if v is None else v[start:stop]
+        extras = self.metadata.get("extra_signals")
+        if extras:
+            # Extra channels (e.g. a position reference) live in metadata with a rate:
+            # "control" (N values) or "output" (N*p values); cut them with the signals.
+            meta = _thaw(self.metadata)
+            for entry in meta["extra_signals"].values():
+                vals = entry.get("values")
+                if vals is None:
+                    continue
+                lo, hi = (start * p, stop * p) if len(vals) == self.y.shape[0] else (start, stop)
+                entry["values"] = vals[lo:hi]
+            kw["metadata"] = meta
         return self.replace(**kw)
 
     def with_plant_input(self) -> ClosedLoopData:

@@ -1,0 +1,143 @@
+"""``maglevid diagnose RECORDING``: what changed in the bearing, and where."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+from maglevid.exceptions import DataError
+
+COMMAND = "diagnose"
+HELP = "diagnose a bearing from a recording: what changed, in which coil, amplifier or sensor"
+DESCRIPTION = """\
+Identify the bearing's physical parameters from a closed-loop recording and
+compare them with a baseline. A change is reported only when it is significant
+twice over: outside the combined confidence interval AND larger than the
+engineering tolerance. The cause is isolated (coil resistance, shorted turns,
+amplifier gain, mass, operating point, sensor gain) and every verdict cites
+its numbers. Bad data give "cannot diagnose, because ..." instead of a guess.
+
+  maglevid diagnose rec.npz --baseline nominal --report rec.html
+  maglevid diagnose rec.npz --machine B7 --store fleet.sqlite --baseline history
+  maglevid diagnose rec.npz --tolerance R1=0.1 --tolerance kw1=0.02 --json
+"""
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("recording", help="recording file (.npz, .csv + .json, .mat, .parquet)")
+    parser.add_argument(
+        "--baseline",
+        default="nominal",
+        help="'nominal' (design values stored in the recording), 'history' (the machine's "
+        "latest identification in --store) or a JSON file of AMB parameters (default: nominal)",
+    )
+    parser.add_argument("--machine", default=None, help="machine name (for the history)")
+    parser.add_argument(
+        "--store",
+        default=None,
+        help="history store: SQLite file or postgresql:// URL; the diagnosis is recorded there",
+    )
+    parser.add_argument("--method", default=None, help="identification method (default: chosen)")
+    parser.add_argument(
+        "--tolerance",
+        action="append",
+        default=[],
+        metavar="[NAME=]FRACTION",
+        help="engineering tolerance, relative (0.05 = 5 %%); per parameter with NAME=; repeatable",
+    )
+    parser.add_argument("--mapping", default=None, help="column mapping for a rig's own log")
+    parser.add_argument("--report", default=None, help="write a self-contained HTML report here")
+    parser.add_argument(
+        "--fail-on-fault",
+        action="store_true",
+        help="exit code 3 when the verdict is a fault, an unexplained change or a drift",
+    )
+
+
+def _tolerances(items: list[str]) -> float | dict[str, float] | None:
+    if not items:
+        return None
+    per: dict[str, float] = {}
+    default = None
+    for item in items:
+        name, _, val = item.rpartition("=")
+        try:
+            f = float(val)
+        except ValueError:
+            raise DataError(
+                f"--tolerance {item!r}: expected [NAME=]FRACTION, e.g. R1=0.05"
+            ) from None
+        if name:
+            per[name] = f
+        else:
+            default = f
+    if default is not None and not per:
+        return default
+    if default is not None:
+        from maglevid.diagnose.pipeline import DIAGNOSED_PARAMETERS
+
+        per = {**dict.fromkeys(DIAGNOSED_PARAMETERS, default), **per}
+    return per
+
+
+def _baseline(text: str) -> Any:
+    if text in ("nominal", "history"):
+        return text
+    path = Path(text)
+    if not path.is_file():
+        raise DataError(
+            f"--baseline {text!r}: expected 'nominal', 'history' or a JSON file of parameters"
+        )
+    try:
+        values = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise DataError(f"{path}: baseline is not valid JSON ({exc})") from None
+    if not isinstance(values, dict):
+        raise DataError(f"{path}: baseline must be a JSON object of parameter values")
+    return values
+
+
+def run(args: argparse.Namespace) -> dict[str, Any]:
+    from maglevid.diagnose.pipeline import diagnose
+
+    store = None
+    if args.store is not None:
+        from maglevid.diagnose.history import open_history
+
+        store = open_history(args.store)
+    diag = diagnose(
+        args.recording,
+        baseline=_baseline(args.baseline),
+        machine=args.machine,
+        method=args.method,
+        tolerances=_tolerances(args.tolerance),
+        history=store,
+        mapping=args.mapping,
+    )
+    out = diag.to_dict()
+    if args.report:
+        from maglevid.report import write_report
+
+        trends = None
+        if store is not None and diag.machine:
+            from maglevid.cli.history import history_summary
+            from maglevid.report import trends_from_history
+
+            hist = history_summary(store, diag.machine, parameters=None, method=diag.method)
+            trends = trends_from_history(hist, method=diag.method)
+        out["report"] = str(write_report(diag, args.report, trends=trends))
+    if store is not None:
+        store.close()
+    if args.fail_on_fault and diag.verdict_code in ("fault", "unexplained_change", "drift"):
+        out["exit_code"] = 3
+    out["summary_text"] = diag.summary()
+    return out
+
+
+def format_text(result: dict[str, Any]) -> str:
+    text = result.get("summary_text", result.get("verdict", ""))
+    if result.get("report"):
+        text += f"\nreport: {result['report']}"
+    return text

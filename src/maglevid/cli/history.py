@@ -1,0 +1,276 @@
+"""``maglevid history MACHINE``: parameter trends and drift tests from the history store."""
+
+from __future__ import annotations
+
+import argparse
+import math
+from datetime import datetime, timezone
+from typing import Any
+
+COMMAND = "history"
+HELP = "parameter trends of a machine, with a drift test per parameter"
+DESCRIPTION = """\
+Show how the physical parameters of a machine evolved over its stored
+diagnoses (value +- standard error per recording) and test each for a linear
+drift (weighted least squares, t-test on the slope; or Mann-Kendall).
+
+  maglevid history --list                          # machines in the store
+  maglevid history pump-7                          # every parameter
+  maglevid history pump-7 --parameter R1 Ls1 --tolerance R1=0.2 --json
+
+The store is --store PATH_OR_URL, else $MAGLEVID_HISTORY, else
+maglevid-history.sqlite in the current folder. A PostgreSQL store is given as
+postgresql://user:password@host:port/database.
+"""
+
+_DAY = 86400.0
+_TEXT_POINTS = 20  # most recent points per parameter in text output; --json has all
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("machine", nargs="?", help="machine name (see --list)")
+    parser.add_argument(
+        "--store",
+        default=None,
+        metavar="PATH_OR_URL",
+        help="history store: SQLite file or postgresql:// URL "
+        "(default: $MAGLEVID_HISTORY or ./maglevid-history.sqlite)",
+    )
+    parser.add_argument(
+        "--schema", default=None, help="PostgreSQL schema of the store (default: maglevid)"
+    )
+    parser.add_argument("--list", action="store_true", help="list the machines and exit")
+    parser.add_argument(
+        "--parameter",
+        nargs="+",
+        action="extend",
+        default=None,
+        metavar="NAME",
+        help="parameters to show (default: all)",
+    )
+    parser.add_argument("--method", default=None, help="only diagnoses made by this method")
+    parser.add_argument(
+        "--alpha", type=float, default=0.01, help="significance level of the drift test"
+    )
+    parser.add_argument(
+        "--drift-method",
+        choices=("wls", "mann-kendall"),
+        default="wls",
+        help="drift test: weighted least-squares t-test (default) or Mann-Kendall",
+    )
+    parser.add_argument(
+        "--tolerance",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="band half-width of a parameter (its unit) around its stored baseline; "
+        "projects when the trend leaves it; repeatable",
+    )
+    parser.add_argument(
+        "--fail-on-drift",
+        action="store_true",
+        help="exit with status 3 when any parameter drifts (for scheduled checks)",
+    )
+
+
+def _tolerances(items: list[str]) -> dict[str, float]:
+    from maglevid.exceptions import DataError
+
+    out: dict[str, float] = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        try:
+            tol = float(value)
+        except ValueError:
+            tol = math.nan
+        if not sep or not name or not (math.isfinite(tol) and tol > 0):
+            raise DataError(f"--tolerance {item!r}: expected NAME=VALUE with VALUE > 0")
+        out[name] = tol
+    return out
+
+
+def _iso(t: float) -> str:
+    return datetime.fromtimestamp(t, tz=timezone.utc).isoformat()
+
+
+def _drift(
+    trend: Any, rows: Any, tolerance: float | None, alpha: float, drift_method: str
+) -> dict:
+    """Drift test of the points ``rows`` (a boolean mask) of ``trend``; times in days."""
+    import numpy as np
+
+    from maglevid.diagnose.drift import detect_drift
+    from maglevid.exceptions import DataError
+
+    t = trend.time[rows]
+    y = trend.value[rows]
+    se = trend.std_error[rows]
+    notes = []
+    if se.size and not bool(np.all(se > 0)):  # NaN (unknown) or 0: cannot weight
+        notes.append("some points have no standard error: equal weights (OLS)")
+        se = None
+    base = trend.baseline[rows]
+    base = base[~np.isnan(base)]
+    baseline = float(base[-1]) if tolerance is not None and base.size else None
+    t0 = float(t.min()) if t.size else 0.0
+    try:
+        r = detect_drift(
+            (t - t0) / _DAY,
+            y,
+            se,
+            alpha=alpha,
+            tolerance=tolerance,
+            baseline=baseline,
+            method=drift_method,
+        )
+    except DataError as exc:
+        return {"skipped": str(exc), "drifting": None}
+    out = r.to_dict()
+    out["notes"] = notes + out["notes"]
+    out["time_unit"] = "day"
+    out["t_ref"] = _iso(t0 + r.t_ref * _DAY)
+    if r.projected_crossing_time is not None:
+        out["projected_crossing_at"] = _iso(t0 + r.projected_crossing_time * _DAY)
+        if r.crossing_ci is not None:
+            out["crossing_ci_at"] = [
+                _iso(t0 + c * _DAY) if math.isfinite(c) else None for c in r.crossing_ci
+            ]
+    return out
+
+
+def history_summary(
+    store: Any,
+    machine: str,
+    *,
+    parameters: list[str] | None = None,
+    method: str | None = None,
+    alpha: float = 0.01,
+    drift_method: str = "wls",
+    tolerances: dict[str, float] | None = None,
+) -> dict[str, Any]:
+    """Trends and drift tests of ``machine``'s parameters (the ``--json`` content)."""
+    from maglevid.exceptions import DataError
+
+    tolerances = tolerances or {}
+    names = parameters or store.parameters(machine)
+    unknown = sorted(set(tolerances) - set(names))
+    if unknown:
+        raise DataError(f"--tolerance for {unknown}, which are not shown")
+    out: dict[str, Any] = {}
+    drifting = []
+    for name in names:
+        trend = store.trend(machine, name, method=method)
+        points = [
+            {
+                "recorded_at": _iso(float(trend.time[i])),
+                "value": float(trend.value[i]),
+                "std_error": None if math.isnan(trend.std_error[i]) else float(trend.std_error[i]),
+                "method": str(trend.method[i]),
+                "diagnosis_id": int(trend.diagnosis_id[i]),
+            }
+            for i in range(len(trend))
+        ]
+        # One test per method: methods have different biases, mixing them fakes drift.
+        drift = {
+            str(m): _drift(trend, trend.method == m, tolerances.get(name), alpha, drift_method)
+            for m in dict.fromkeys(trend.method.tolist())
+        }
+        drifting += [f"{name} ({m})" for m, d in drift.items() if d.get("drifting")]
+        out[name] = {"unit": trend.unit, "points": points, "drift": drift}
+    n_diag = len({q["diagnosis_id"] for v in out.values() for q in v["points"]})
+    return {
+        "store": store.location,
+        "machine": machine,
+        "method": method,
+        "alpha": alpha,
+        "drift_method": drift_method,
+        "n_diagnoses": n_diag,
+        "parameters": out,
+        "drifting": drifting,
+    }
+
+
+def run(args: argparse.Namespace) -> dict[str, Any]:
+    from maglevid.diagnose.history import default_store_location, open_history
+    from maglevid.exceptions import DataError
+
+    location = args.store or default_store_location()
+    if not (0.0 < args.alpha < 1.0):
+        raise DataError(f"--alpha {args.alpha}: expected 0 < alpha < 1")
+    with open_history(location, create=False, schema=args.schema) as store:
+        if args.list:
+            return {"store": store.location, "machines": [m.to_dict() for m in store.machines()]}
+        if not args.machine:
+            raise DataError("give a MACHINE (or --list to see the machines)")
+        result = history_summary(
+            store,
+            args.machine,
+            parameters=args.parameter,
+            method=args.method,
+            alpha=args.alpha,
+            drift_method=args.drift_method,
+            tolerances=_tolerances(args.tolerance),
+        )
+    result["exit_code"] = 3 if (args.fail_on_drift and result["drifting"]) else 0
+    return result
+
+
+def _fmt(x: float | None, digits: int = 6) -> str:
+    return "n/a" if x is None else f"{x:.{digits}g}"
+
+
+def format_text(result: dict[str, Any]) -> str:
+    if "machines" in result:
+        if not result["machines"]:
+            return f"store {result['store']}: no machines"
+        lines = [f"store {result['store']}:"]
+        lines.append(
+            f"  {'machine':<24} {'diagnoses':>9}  {'first recording':<19}  last recording"
+        )
+        for m in result["machines"]:
+            first = (m["first_recorded_at"] or "-")[:19]
+            last = (m["last_recorded_at"] or "-")[:19]
+            lines.append(f"  {m['name']:<24} {m['n_diagnoses']:>9}  {first:<19}  {last}")
+        return "\n".join(lines)
+    last = _TEXT_POINTS
+    lines = [
+        f"machine {result['machine']}  ({result['n_diagnoses']} diagnoses; store "
+        f"{result['store']})"
+    ]
+    for name, p in result["parameters"].items():
+        unit = p["unit"] or ""
+        lines.append("")
+        lines.append(f"{name} [{unit}]" if unit else name)
+        pts = p["points"]
+        if len(pts) > last:
+            lines.append(f"  ... {len(pts) - last} earlier points (all in --json)")
+        for q in pts[-last:]:
+            se = q["std_error"]
+            pm = f" ± {se:.3g}" if se is not None else " (no s.e.)"
+            lines.append(
+                f"  {q['recorded_at'][:16].replace('T', ' ')}  {q['value']:.6g}{pm}  {q['method']}"
+            )
+        for method, d in p["drift"].items():
+            if "skipped" in d:
+                lines.append(f"  drift ({method}): not tested: {d['skipped']}")
+                continue
+            verdict = "DRIFTING" if d["drifting"] else "no significant drift"
+            rel = "<" if d["drifting"] else ">="
+            lines.append(
+                f"  drift ({d['method']}, {method}): slope {_fmt(d['slope'], 3)} {unit}/day "
+                f"± {_fmt(d['slope_se'], 2)}, p = {_fmt(d['p_value'], 2)} {rel} "
+                f"{d['alpha']:g}: {verdict}"
+            )
+            if d.get("projected_crossing_at"):
+                ci = d.get("crossing_ci_at") or [None, None]
+                lines.append(
+                    f"    limit {_fmt(d['limit'])} {unit} (baseline {_fmt(d['baseline'])} ± "
+                    f"{_fmt(d['tolerance'])}) reached about {d['projected_crossing_at'][:10]} "
+                    f"({d['confidence']:.0%} CI {(ci[0] or '-inf')[:10]} .. "
+                    f"{(ci[1] or '+inf')[:10]})"
+                )
+            lines.extend(f"    note: {n}" for n in d["notes"])
+    if result["drifting"]:
+        lines.append("")
+        lines.append("drifting: " + ", ".join(result["drifting"]))
+    return "\n".join(lines)

@@ -1,0 +1,233 @@
+"""Data-quality checks that come before any diagnosis of a bearing recording.
+
+Each check returns a :class:`~maglevid.diagnose.diagnosis.QualityCheck`; a failed
+blocking check turns the verdict into "cannot diagnose, because ...", which is a
+better answer than a wrong one. Thresholds are module constants, documented with
+the reason for their value.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from maglevid.data import ClosedLoopData
+from maglevid.diagnose.diagnosis import QualityCheck
+
+__all__ = [
+    "MIN_SAMPLES",
+    "check_excitation",
+    "check_feedback_consistency",
+    "check_length",
+    "check_levitation",
+    "check_saturation",
+    "run_checks",
+]
+
+#: Fewest control periods for a diagnosis. The ARX regression of the AMB methods
+#: has up to ~40 regressors; 50 samples per regressor keep the relative standard
+#: errors of v_i near 1/sqrt(2000) ~ 2 % even at unit signal-to-noise ratio.
+MIN_SAMPLES = 2000
+
+#: Excitation: rms of r relative to rms of u must exceed this (1 %). Below it the
+#: loop runs on noise alone and the estimates are dominated by it.
+MIN_EXCITATION_RATIO = 0.01
+
+#: Saturation: fraction of samples pinned at the extreme value of an input.
+MAX_SATURATED_FRACTION = 0.005
+
+#: Lost levitation: |x| beyond this fraction of the nominal air gap x0 means the
+#: rotor touched down (retainer bearings are typically at half the gap).
+MAX_DISPLACEMENT_FRACTION = 0.5
+
+#: Logged feedback versus the stated controller: relative rms mismatch allowed
+#: (digital controllers replay exactly; 1e-3 leaves room for logging quantisation).
+MAX_FEEDBACK_MISMATCH = 1e-3
+
+
+def check_length(data: ClosedLoopData, *, min_samples: int = MIN_SAMPLES) -> QualityCheck:
+    n = data.n_samples
+    return QualityCheck(
+        name="record length",
+        passed=n >= min_samples,
+        value=float(n),
+        threshold=float(min_samples),
+        message=(
+            f"{n} control periods ({n * data.dt:.3g} s)"
+            + ("" if n >= min_samples else f": too short, at least {min_samples} are needed")
+        ),
+    )
+
+
+def check_excitation(
+    data: ClosedLoopData, *, min_ratio: float = MIN_EXCITATION_RATIO
+) -> QualityCheck:
+    """Persistent excitation: the known signal r must be a visible part of u."""
+    if data.r is None:
+        return QualityCheck(
+            name="excitation",
+            passed=False,
+            value=0.0,
+            threshold=min_ratio,
+            message="no excitation r in the recording: the closed-loop methods need a known r",
+        )
+    u = data.u if data.u is not None else data.with_plant_input().u
+    r_rms = float(np.sqrt(np.mean(np.square(data.r - data.r.mean(axis=0)))))
+    u_rms = float(np.sqrt(np.mean(np.square(u - u.mean(axis=0)))))
+    ratio = r_rms / u_rms if u_rms > 0 else 0.0
+    ok = ratio >= min_ratio
+    return QualityCheck(
+        name="excitation",
+        passed=ok,
+        value=ratio,
+        threshold=min_ratio,
+        message=(
+            f"excitation is {100 * ratio:.2g} % of the plant input (rms)"
+            + ("" if ok else ": too little excitation to identify the plant")
+        ),
+    )
+
+
+def check_saturation(
+    data: ClosedLoopData,
+    *,
+    limits: Any = None,
+    max_fraction: float = MAX_SATURATED_FRACTION,
+) -> QualityCheck:
+    """Inputs pinned at a limit (given, or the observed extreme repeated many times)."""
+    u = data.u if data.u is not None else data.with_plant_input().u
+    if limits is None:
+        limits = data.loop.get("u_limits") if hasattr(data.loop, "get") else None
+    worst = 0.0
+    for j in range(u.shape[1]):
+        col = u[:, j]
+        if limits is not None:
+            lo, hi = np.asarray(limits, dtype=float).reshape(-1, 2)[min(j, len(limits) - 1)]
+            frac = float(np.mean((col <= lo) | (col >= hi)))
+        else:
+            # Without stated limits, a clipped signal shows its extreme value many times.
+            span = float(np.ptp(col)) or 1.0
+            top = np.mean(col >= col.max() - 1e-9 * span)
+            bot = np.mean(col <= col.min() + 1e-9 * span)
+            frac = float(max(top, bot)) if max(top, bot) > 2.0 / col.size else 0.0
+        worst = max(worst, frac)
+    ok = worst <= max_fraction
+    return QualityCheck(
+        name="saturation",
+        passed=ok,
+        value=worst,
+        threshold=max_fraction,
+        message=(
+            f"{100 * worst:.2g} % of samples at an input limit"
+            + ("" if ok else ": the amplifier saturates, so the loop is not linear")
+        ),
+    )
+
+
+def check_levitation(
+    data: ClosedLoopData,
+    *,
+    x0: float | None = None,
+    max_fraction: float = MAX_DISPLACEMENT_FRACTION,
+) -> QualityCheck:
+    """The rotor stayed levitated: displacement (output 0) within a fraction of the gap."""
+    if x0 is None:
+        op = data.loop.get("operating_point", {}) if hasattr(data.loop, "get") else {}
+        x0 = op.get("x0") if hasattr(op, "get") else None
+    x = data.y[:, 0]
+    if x0 is None:
+        return QualityCheck(
+            name="levitation",
+            passed=True,
+            value=float(np.max(np.abs(x))),
+            threshold=float("nan"),
+            message="air gap unknown: levitation not checked",
+            blocking=False,
+        )
+    frac = float(np.max(np.abs(x)) / float(x0))
+    stuck = bool(np.ptp(x) == 0.0)
+    ok = frac <= max_fraction and not stuck
+    msg = f"largest displacement {100 * frac:.3g} % of the air gap"
+    if stuck:
+        msg += ": the displacement does not move at all (rotor resting or sensor dead)"
+    elif not ok:
+        msg += ": levitation was lost (touch-down)"
+    return QualityCheck(
+        name="levitation", passed=ok, value=frac, threshold=max_fraction, message=msg
+    )
+
+
+def check_feedback_consistency(
+    data: ClosedLoopData, *, max_mismatch: float = MAX_FEEDBACK_MISMATCH, skip: int = 50
+) -> QualityCheck:
+    """The logged feedback u_f equals what the stated controller computes from the logged y.
+
+    The observer and controller of eqs. (42)-(43) are re-run on the logged ``y``
+    and ``u`` (:func:`maglevid.simulate.loop.replay_feedback`). A mismatch means
+    the stated controller matrices (or the channel order, units, time alignment)
+    are wrong, and then every method that uses them is wrong too. The first
+    ``skip`` samples (observer start-up) and a constant offset (the unknown
+    initial integrator state ``F_e e(0)``) are not compared.
+    """
+    loop = data.loop
+    if data.u_f is None or "controller" not in loop or "observer" not in loop:
+        return QualityCheck(
+            name="feedback consistency",
+            passed=True,
+            value=float("nan"),
+            threshold=max_mismatch,
+            message="no logged feedback or no stated controller: consistency not checked",
+            blocking=False,
+        )
+    from maglevid.control import IntegralStateFeedback, Observer
+    from maglevid.simulate.loop import replay_feedback
+
+    try:
+        replay = replay_feedback(
+            Observer.from_dict(loop["observer"]),
+            IntegralStateFeedback.from_dict(loop["controller"]),
+            y=data.y_control,
+            u=data.u if data.u is not None else data.with_plant_input().u,
+        )
+    except (KeyError, ValueError) as exc:
+        return QualityCheck(
+            name="feedback consistency",
+            passed=False,
+            value=float("inf"),
+            threshold=max_mismatch,
+            message=f"the stated controller cannot be replayed on this recording: {exc}",
+        )
+    d = (np.asarray(data.u_f) - replay)[skip:]
+    d = d - d.mean(axis=0)
+    ref = np.asarray(data.u_f)[skip:]
+    mismatch = float(
+        np.sqrt(np.mean(d**2)) / max(np.sqrt(np.mean((ref - ref.mean(0)) ** 2)), 1e-300)
+    )
+    ok = mismatch <= max_mismatch
+    return QualityCheck(
+        name="feedback consistency",
+        passed=ok,
+        value=mismatch,
+        threshold=max_mismatch,
+        message=(
+            f"logged feedback differs from the stated controller by {100 * mismatch:.2g} % rms"
+            + (
+                ""
+                if ok
+                else ": the recording is inconsistent with the stated controller "
+                "(wrong gains, channel order, units or time alignment)"
+            )
+        ),
+    )
+
+
+def run_checks(data: ClosedLoopData, **options: Any) -> tuple[QualityCheck, ...]:
+    """All checks, in the order a person would want to read them."""
+    return (
+        check_length(data, **{k: v for k, v in options.items() if k == "min_samples"}),
+        check_excitation(data),
+        check_saturation(data),
+        check_levitation(data),
+        check_feedback_consistency(data),
+    )

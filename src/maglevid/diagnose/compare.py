@@ -1,0 +1,136 @@
+"""Compare identified parameters with a baseline: significant twice over.
+
+A change is reported only when it is significant twice over (issue 5):
+
+1. *statistically*: the difference lies outside the combined confidence interval,
+   ``|theta - theta_b| > z_{1-(1-level)/2} sqrt(se^2 + se_b^2)`` (the baseline's
+   standard error is 0 for design values);
+2. *in engineering terms*: the relative change exceeds the user's tolerance for
+   that parameter, ``|theta - theta_b| > tol |theta_b|``.
+
+A change that passes only the first test is "detectable but within tolerance",
+one that passes only the second is "not resolved by the data" (the record is
+too short or too noisy to tell).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+from scipy import stats
+
+from maglevid.exceptions import DataError
+
+__all__ = ["DEFAULT_TOLERANCE", "ParameterChange", "compare_parameters"]
+
+#: Default engineering tolerance: 5 % relative change.
+DEFAULT_TOLERANCE = 0.05
+
+
+@dataclass(frozen=True)
+class ParameterChange:
+    """One parameter's comparison with its baseline."""
+
+    name: str
+    estimate: float
+    std_error: float
+    baseline: float
+    baseline_std_error: float
+    change: float
+    change_percent: float
+    change_ci: tuple[float, float]
+    tolerance: float
+    statistically_significant: bool
+    exceeds_tolerance: bool
+
+    @property
+    def significant(self) -> bool:
+        """Both tests pass: a change worth reporting."""
+        return self.statistically_significant and self.exceeds_tolerance
+
+    @property
+    def status(self) -> str:
+        if self.significant:
+            return "changed"
+        if self.statistically_significant:
+            return "within tolerance"
+        if self.exceeds_tolerance:
+            return "not resolved"
+        return "unchanged"
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["change_ci"] = list(self.change_ci)
+        d["significant"] = self.significant
+        d["status"] = self.status
+        return d
+
+
+def _pair(v: Any) -> tuple[float, float]:
+    if isinstance(v, (tuple, list)):
+        return float(v[0]), float(v[1]) if len(v) > 1 and v[1] is not None else 0.0
+    return float(v), 0.0
+
+
+def compare_parameters(
+    estimates: Mapping[str, Any],
+    baseline: Mapping[str, Any],
+    *,
+    tolerances: Mapping[str, float] | float = DEFAULT_TOLERANCE,
+    level: float = 0.95,
+) -> list[ParameterChange]:
+    """Compare each parameter present in both mappings.
+
+    Parameters
+    ----------
+    estimates, baseline : mapping of name -> value or (value, std_error)
+        A bare value has standard error 0 (a design value).
+    tolerances : float or mapping of name -> float
+        Relative engineering tolerance per parameter (default 5 %); names not in
+        the mapping get :data:`DEFAULT_TOLERANCE`.
+    level : float
+        Confidence level of the combined interval.
+
+    Returns
+    -------
+    list of ParameterChange, in the order of ``estimates``.
+    """
+    if not 0 < level < 1:
+        raise DataError(f"`level` must be in (0, 1); got {level}")
+    z = float(stats.norm.ppf(0.5 + level / 2))
+    out = []
+    for name, est in estimates.items():
+        if name not in baseline:
+            continue
+        v, se = _pair(est)
+        b, se_b = _pair(baseline[name])
+        tol = (
+            float(tolerances)
+            if not isinstance(tolerances, Mapping)
+            else float(tolerances.get(name, DEFAULT_TOLERANCE))
+        )
+        if tol < 0:
+            raise DataError(f"tolerance for {name!r} must be >= 0; got {tol}")
+        se_c = float(np.hypot(se if np.isfinite(se) else np.inf, se_b))
+        d = v - b
+        stat = bool(np.isfinite(se_c) and abs(d) > z * se_c)
+        exceeds = bool(abs(d) > tol * abs(b))
+        out.append(
+            ParameterChange(
+                name=name,
+                estimate=v,
+                std_error=se,
+                baseline=b,
+                baseline_std_error=se_b,
+                change=d,
+                change_percent=100.0 * d / b if b != 0 else float("nan"),
+                change_ci=(d - z * se_c, d + z * se_c),
+                tolerance=tol,
+                statistically_significant=stat,
+                exceeds_tolerance=exceeds,
+            )
+        )
+    return out

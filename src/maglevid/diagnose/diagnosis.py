@@ -1,0 +1,194 @@
+"""The diagnosis of one recording: what the report, the history and the CLI show."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from maglevid.diagnose.compare import ParameterChange
+from maglevid.diagnose.isolate import IsolationResult
+from maglevid.identify.result import IdentificationResult, _jsonable
+from maglevid.lti import StateSpace
+
+__all__ = ["DIAGNOSIS_VERSION", "VERDICT_CODES", "Diagnosis", "QualityCheck"]
+
+DIAGNOSIS_VERSION = 1
+
+#: Verdict codes, from best to worst news.
+VERDICT_CODES = (
+    "no_change",  # nothing significant twice over
+    "within_tolerance",  # statistically detectable, below the engineering tolerance
+    "drift",  # no fault yet, but a parameter trends towards its tolerance (history)
+    "fault",  # a change explained by one (or two) physical causes
+    "unexplained_change",  # significant changes no hypothesis explains
+    "cannot_diagnose",  # the data do not allow a diagnosis (quality)
+)
+
+
+@dataclass(frozen=True)
+class QualityCheck:
+    """One data-quality check: passed or not, the number it is based on, and why it matters."""
+
+    name: str
+    passed: bool
+    value: float
+    threshold: float
+    message: str
+    blocking: bool = True
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "name": self.name,
+            "passed": self.passed,
+            "value": _jsonable(float(self.value)),
+            "threshold": _jsonable(float(self.threshold)),
+            "message": self.message,
+            "blocking": self.blocking,
+        }
+
+
+@dataclass(frozen=True, eq=False)
+class Diagnosis:
+    """The diagnosis of one recording.
+
+    Attributes
+    ----------
+    verdict : str
+        Plain words, first thing a person reads ("Coil 1 resistance R1 up 19.8 % ...").
+    verdict_code : str
+        One of :data:`VERDICT_CODES`.
+    reasons : tuple of str
+        The parameters and numbers that support the verdict.
+    method, method_reason : str
+        Identification method used and why it was chosen.
+    identification : IdentificationResult or None
+        ``None`` when the quality checks stopped the diagnosis.
+    changes : tuple of ParameterChange
+        Every compared parameter, significant or not.
+    isolation : IsolationResult or None
+    quality : tuple of QualityCheck
+    baseline : mapping
+        ``{"source": ..., "parameters": {name: (value, se)}, "v": [...], "v_covariance": ...}``.
+    baseline_model, identified_model : StateSpace or None
+        Continuous models in physical coordinates (for poles, impulse and frequency responses).
+    drifts : tuple of mapping
+        Parameters whose history shows a significant trend (with a history
+        store): ``{"parameter", "slope_percent_per_day", "p_value",
+        "projected_crossing", "method", ...}``.
+    percentage_index : mapping or None
+        ``{"A_p": array, "B_p": array}`` (NaN where the baseline element is zero).
+    machine, recording, recording_hash : str or None
+    dt : float or None
+        Control period of the recording (for the discrete models).
+    """
+
+    verdict: str
+    verdict_code: str
+    reasons: tuple[str, ...] = ()
+    method: str = ""
+    method_reason: str = ""
+    identification: IdentificationResult | None = None
+    changes: tuple[ParameterChange, ...] = ()
+    isolation: IsolationResult | None = None
+    quality: tuple[QualityCheck, ...] = ()
+    baseline: Mapping[str, Any] = field(default_factory=dict)
+    baseline_model: StateSpace | None = None
+    identified_model: StateSpace | None = None
+    percentage_index: Mapping[str, Any] | None = None
+    machine: str | None = None
+    recording: str | None = None
+    recording_hash: str | None = None
+    dt: float | None = None
+    created_at: str | None = None
+    notes: tuple[str, ...] = ()
+    drifts: tuple[Mapping[str, Any], ...] = ()
+
+    def __post_init__(self) -> None:
+        if self.verdict_code not in VERDICT_CODES:
+            raise ValueError(f"verdict_code {self.verdict_code!r} not in {VERDICT_CODES}")
+        for name in ("reasons", "changes", "quality", "notes", "drifts"):
+            object.__setattr__(self, name, tuple(getattr(self, name)))
+
+    @property
+    def significant_changes(self) -> tuple[ParameterChange, ...]:
+        return tuple(c for c in self.changes if c.significant)
+
+    @property
+    def can_diagnose(self) -> bool:
+        return self.verdict_code != "cannot_diagnose"
+
+    def estimates(self) -> dict[str, tuple[float, float]]:
+        """Identified parameters as ``{name: (value, std_error)}`` (empty if none)."""
+        if self.identification is None:
+            return {}
+        se = self.identification.std_errors()
+        return {k: (v, se[k]) for k, v in self.identification.parameters.items()}
+
+    def summary(self) -> str:
+        """A short text: verdict first, then the evidence."""
+        lines = [f"VERDICT: {self.verdict}"]
+        if self.machine:
+            lines.append(f"machine: {self.machine}")
+        if self.recording:
+            lines.append(f"recording: {self.recording}")
+        lines.extend(f"  - {r}" for r in self.reasons)
+        if self.method:
+            lines.append(f"method: {self.method} ({self.method_reason})")
+        failed = [q for q in self.quality if not q.passed]
+        lines.append(
+            "data quality: "
+            + ("all checks passed" if not failed else "; ".join(q.message for q in failed))
+        )
+        if self.changes:
+            lines.append(
+                f"{'parameter':>10} {'baseline':>12} {'estimate':>12} {'change %':>10} "
+                f"{'95% CI of change %':>22}  status"
+            )
+            for c in self.changes:
+                b = c.baseline if c.baseline != 0 else float("nan")
+                lo, hi = (100 * c.change_ci[0] / b, 100 * c.change_ci[1] / b)
+                lines.append(
+                    f"{c.name:>10} {c.baseline:>12.5g} {c.estimate:>12.5g} "
+                    f"{c.change_percent:>+10.2f} [{lo:>+9.2f}, {hi:>+9.2f}]  {c.status}"
+                )
+        lines.extend(f"note: {n}" for n in self.notes)
+        return "\n".join(lines)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-safe, versioned: the same content as the report, for machines."""
+        pi = None
+        if self.percentage_index is not None:
+            pi = {k: _jsonable(np.asarray(v)) for k, v in self.percentage_index.items()}
+        return {
+            "format": "maglevid-diagnosis",
+            "version": DIAGNOSIS_VERSION,
+            "verdict": self.verdict,
+            "verdict_code": self.verdict_code,
+            "reasons": list(self.reasons),
+            "machine": self.machine,
+            "recording": self.recording,
+            "recording_hash": self.recording_hash,
+            "created_at": self.created_at,
+            "method": self.method,
+            "method_reason": self.method_reason,
+            "quality": [q.to_dict() for q in self.quality],
+            "changes": [c.to_dict() for c in self.changes],
+            "isolation": None if self.isolation is None else self.isolation.to_dict(),
+            "baseline": _jsonable(dict(self.baseline)),
+            "identification": None
+            if self.identification is None
+            else self.identification.to_dict(),
+            "baseline_model": None
+            if self.baseline_model is None
+            else self.baseline_model.to_dict(),
+            "identified_model": None
+            if self.identified_model is None
+            else self.identified_model.to_dict(),
+            "percentage_index": pi,
+            "dt": self.dt,
+            "notes": list(self.notes),
+            "drifts": [_jsonable(dict(d)) for d in self.drifts],
+        }

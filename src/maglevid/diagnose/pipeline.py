@@ -1,0 +1,671 @@
+"""From a bearing's recording to a diagnosis a person can act on.
+
+:func:`diagnose` runs, in order:
+
+1. the data-quality checks (:mod:`maglevid.diagnose.checks`): a failed blocking
+   check gives "cannot diagnose, because ..." instead of a wrong answer;
+2. the choice of an identification method for this recording (and why);
+3. the identification of v1..v9 and the physical parameters with covariance;
+4. the comparison with a baseline, significant twice over
+   (:mod:`maglevid.diagnose.compare`);
+5. fault isolation by signature matching in v-space
+   (:mod:`maglevid.diagnose.isolate`);
+6. with a history store: the drift test over the machine's earlier diagnoses
+   (:mod:`maglevid.diagnose.drift`) and storing this diagnosis (idempotent on
+   the recording's content hash).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+from collections.abc import Mapping
+from dataclasses import fields
+from datetime import datetime, timezone
+from typing import Any
+
+import numpy as np
+
+from maglevid.data import ClosedLoopData, _thaw
+from maglevid.diagnose.checks import run_checks
+from maglevid.diagnose.compare import DEFAULT_TOLERANCE, compare_parameters
+from maglevid.diagnose.diagnosis import Diagnosis
+from maglevid.diagnose.isolate import HYPOTHESES, IsolationResult, isolate_fault
+from maglevid.exceptions import DataError, MaglevidError
+from maglevid.lti import StateSpace
+from maglevid.physics.amb import V_NAMES, AMBParameters, amb_state_space
+
+__all__ = ["DIAGNOSED_PARAMETERS", "choose_method", "diagnose", "recording_hash"]
+
+logger = logging.getLogger(__name__)
+
+#: Physical parameters compared with the baseline (the report's forest plot).
+DIAGNOSED_PARAMETERS: tuple[str, ...] = (
+    "R1", "R2", "L1", "L2", "Ls1", "Ls2", "ki1", "ki2", "kw1", "kw2", "x0", "K1", "K2",
+)  # fmt: skip
+
+_BASELINE_FIELDS = {f.name for f in fields(AMBParameters)}
+
+
+def recording_hash(data: ClosedLoopData) -> str:
+    """SHA-256 of a recording's signals and description (the history's idempotency key)."""
+    h = hashlib.sha256()
+    for sig in ("y", "u", "r", "u_f"):
+        a = data.y if sig == "y" else getattr(data, sig)
+        h.update(sig.encode())
+        if a is not None:
+            h.update(np.ascontiguousarray(a, dtype="<f8").tobytes())
+    desc = data.to_dict()
+    desc["metadata"] = {k: v for k, v in desc["metadata"].items() if k not in ("source",)}
+    h.update(json.dumps(desc, sort_keys=True, default=str).encode())
+    return h.hexdigest()
+
+
+def choose_method(data: ClosedLoopData) -> tuple[str, str]:
+    """The identification method for this recording, and why (one sentence)."""
+    from maglevid.diagnose.levitator import is_levitator
+
+    if is_levitator(data):
+        return (
+            "greybox-levitator",
+            "a single-magnet levitator log without a known excitation or state-feedback loop: "
+            "the grey-box model of the magnet (mass known; inductance length scale and force "
+            "constant fitted by k-step prediction on the levitating segments) gives the "
+            "unstable pole with its confidence interval",
+        )
+    if data.p > 1:
+        return (
+            "intersample",
+            f"outputs are inter-sampled p={data.p} times per control period: the direct "
+            "inter-sampling method (Sun et al.) identifies the unstable plant from u and y alone",
+        )
+    return (
+        "physical",
+        "identifies the plant u -> y directly and transforms it to physical coordinates: exact "
+        "whatever the controller and observer (the observer was built on the nominal bearing, "
+        "which a fault makes wrong), and consistent under measurement noise through "
+        "instruments made from the known excitation r",
+    )
+
+
+def _baseline_from_loop(data: ClosedLoopData) -> AMBParameters | None:
+    nominal = data.loop.get("nominal") if hasattr(data.loop, "get") else None
+    if not nominal:
+        return None
+    return AMBParameters(
+        **{k: float(v) for k, v in dict(nominal).items() if k in _BASELINE_FIELDS}
+    )
+
+
+def _physical_dict(p: AMBParameters) -> dict[str, float]:
+    out = {k: float(getattr(p, k)) for k in _BASELINE_FIELDS}
+    out.update(p.derived())
+    out.update(dict(zip(V_NAMES, p.v().tolist())))
+    return out
+
+
+def _baseline_from_history(
+    store: Any, machine: str, method: str, fallback: AMBParameters | None, notes: list[str]
+) -> tuple[dict[str, tuple[float, float]], AMBParameters | None, np.ndarray | None, str]:
+    try:
+        est = store.latest_estimates(machine, method=method)
+    except MaglevidError:  # a machine new to the store
+        est = {}
+    if not est:
+        notes.append(
+            f"no earlier diagnosis of {machine!r} in the history: compared with the design"
+        )
+        return {}, fallback, None, "design (no history yet)"
+    vals = {k: (e.value, e.std_error if e.std_error is not None else 0.0) for k, e in est.items()}
+    try:
+        params = AMBParameters(
+            **{k: vals[k][0] for k in _BASELINE_FIELDS if k in vals},
+            **{k: getattr(fallback, k) for k in ("m", "i0") if fallback is not None},
+        )
+    except (MaglevidError, TypeError) as exc:
+        notes.append(f"the stored baseline is not a valid parameter set ({exc}); using the design")
+        params = fallback
+    v_cov = None
+    if all(k in vals for k in V_NAMES):
+        v_cov = np.diag([vals[k][1] ** 2 for k in V_NAMES])
+    return vals, params, v_cov, "earlier identification (history)"
+
+
+def _verdict(
+    changes: list[Any],
+    iso: IsolationResult | None,
+    tolerances: Mapping[str, float] | float,
+) -> tuple[str, str, list[str]]:
+    sig = [c for c in changes if c.significant]
+    reasons = [
+        f"{c.name} = {c.estimate:.5g} vs baseline {c.baseline:.5g}: {c.change_percent:+.1f} % "
+        f"(95 % CI {100 * c.change_ci[0] / c.baseline:+.1f} … "
+        f"{100 * c.change_ci[1] / c.baseline:+.1f} %,"
+        f" tolerance ±{100 * c.tolerance:.0f} %)"
+        for c in sig
+    ]
+    if iso is None:
+        if sig:
+            return (
+                "Significant change: " + ", ".join(c.name for c in sig),
+                "unexplained_change",
+                reasons,
+            )
+        return "No significant change", "no_change", reasons
+    best = iso.best
+    none = iso.no_change
+    if not best.parameters:
+        reasons.append(
+            f"every v_i is consistent with the baseline: chi2 = {none.chi2:.3g} "
+            f"with {none.dof} dof "
+            f"(p = {none.p_value:.2g})"
+        )
+        return "No significant change", "no_change", reasons
+    if not iso.explained:
+        reasons.append(
+            f"no single physical cause (or pair) explains the changes: best {best.describe()}, "
+            f"chi2 = {best.chi2:.3g} with {best.dof} dof (p = {best.p_value:.2g})"
+        )
+        return "Unexplained change in the bearing's dynamics", "unexplained_change", reasons
+    names = " and ".join(best.parameters)
+    reasons.append(
+        f"only {names} changed fits all nine v_i: chi2 = {best.chi2:.3g} with {best.dof} dof "
+        f"(p = {best.p_value:.2g}); 'nothing changed' is rejected (chi2 = {none.chi2:.3g}, "
+        f"{none.dof} dof)"
+    )
+    for h in iso.indistinguishable:
+        reasons.append(f"cannot be told apart from: {h.describe()} (chi2 = {h.chi2:.3g})")
+
+    def tol(k: str) -> float:
+        if isinstance(tolerances, Mapping):
+            return float(tolerances.get(k, DEFAULT_TOLERANCE))
+        return float(tolerances)
+
+    beyond = [abs(f - 1) > tol(k) for k, f in zip(best.parameters, best.factors)]
+    if any(beyond):
+        return "Fault: " + best.describe(), "fault", reasons
+    return (
+        "Change within tolerance: " + best.describe(),
+        "within_tolerance",
+        reasons,
+    )
+
+
+def _diagnose_levitator(
+    data: ClosedLoopData,
+    baseline: Any,
+    common: dict[str, Any],
+    tol: float | Mapping[str, float],
+    level: float,
+    method_options: Mapping[str, Any] | None,
+    notes: list[str],
+    store: Any,
+    machine: str | None,
+) -> Diagnosis:
+    """The levitator route: segments, grey box, pole and ``a`` against the baseline."""
+    from maglevid.diagnose import levitator as lev
+    from maglevid.identify.registry import get_method
+
+    quality, segs = lev.levitator_checks(data)
+    failed = [q for q in quality if not q.passed and q.blocking]
+    if failed:
+        return Diagnosis(
+            verdict="Cannot diagnose: " + "; ".join(q.message for q in failed),
+            verdict_code="cannot_diagnose",
+            reasons=tuple(q.message for q in failed),
+            quality=quality,
+            **common,
+        )
+    opts = {"segments": segs, **dict(method_options or {})}
+    try:
+        result = get_method(common["method"])(data, **opts)
+    except MaglevidError as exc:
+        return Diagnosis(
+            verdict=f"Cannot diagnose: identification failed ({exc})",
+            verdict_code="cannot_diagnose",
+            reasons=(str(exc),),
+            quality=quality,
+            **common,
+        )
+    notes.extend(result.notes)
+    estimates, y_ref = lev.levitator_estimates(result)
+    if baseline == "history" and store is not None and machine is not None:
+        try:
+            stored = store.latest_estimates(machine, method=common["method"])
+        except MaglevidError:
+            stored = {}
+        base_vals = {k: (e.value, e.std_error or 0.0) for k, e in stored.items() if k in estimates}
+        source_b = "earlier identification (history)"
+    else:
+        base_vals, source_b = {}, ""
+    if not base_vals:
+        base = lev.levitator_baseline(data)
+        base_vals = lev.levitator_baseline_values(base, y_ref)
+        source_b = "published physics of the rig (recording metadata)"
+        if baseline == "history":
+            notes.append(
+                "no earlier diagnosis in the history: compared with the published physics"
+            )
+    changes = compare_parameters(estimates, base_vals, tolerances=tol, level=level)
+    sig = [c for c in changes if c.significant]
+    pole = next(c for c in changes if c.name == "pole_rad_s")
+    lo, hi = result.confidence_intervals(level)["pole_rad_s"]
+    reasons = [
+        f"unstable pole {pole.estimate:.4g} rad/s (95 % CI {lo:.4g} … {hi:.4g}) at the "
+        f"operating gap {1e3 * y_ref:.3g} mm; baseline {pole.baseline:.4g} rad/s "
+        f"({pole.change_percent:+.1f} %, {pole.status})"
+    ]
+    reasons += [
+        f"{c.name} = {c.estimate:.4g} vs baseline {c.baseline:.4g}: {c.change_percent:+.1f} %"
+        for c in sig
+        if c.name != "pole_rad_s"
+    ]
+    if sig:
+        verdict = "Changed against the baseline: " + ", ".join(
+            f"{c.name} {c.change_percent:+.1f} %" for c in sig
+        )
+        code = "unexplained_change"
+        notes.append(
+            "a levitator has no fault-isolation model in maglevid yet: the change is reported "
+            "with its numbers, not attributed to a cause ('a' also absorbs a gap-sensor offset)"
+        )
+    elif any(c.statistically_significant for c in changes):
+        verdict, code = "Change within tolerance", "within_tolerance"
+    else:
+        verdict, code = "No significant change", "no_change"
+    return Diagnosis(
+        verdict=verdict,
+        verdict_code=code,
+        reasons=tuple(reasons),
+        identification=result,
+        changes=tuple(changes),
+        quality=quality,
+        baseline={"source": source_b, "parameters": {k: list(v) for k, v in base_vals.items()}},
+        identified_model=result.continuous_model,
+        notes=tuple(notes),
+        **common,
+    )
+
+
+def _percentage_index(ident: StateSpace | None, base: StateSpace | None) -> dict[str, Any] | None:
+    if ident is None or base is None:
+        return None
+    from maglevid.diagnose.percentage import percentage_index
+
+    return {
+        "A_p": percentage_index(ident.A, base.A, zero_tol=1e-10),
+        "B_p": percentage_index(ident.B, base.B, zero_tol=1e-10),
+    }
+
+
+def diagnose(
+    recording: ClosedLoopData | str | os.PathLike[str],
+    *,
+    baseline: str | AMBParameters | Mapping[str, float] = "nominal",
+    machine: str | None = None,
+    method: str | None = None,
+    tolerances: float | Mapping[str, float] | None = None,
+    history: Any = None,
+    recorded_at: datetime | str | None = None,
+    method_options: Mapping[str, Any] | None = None,
+    mapping: Any = None,
+    alpha: float = 0.01,
+    level: float = 0.95,
+) -> Diagnosis:
+    """Diagnose one recording of a bearing against a baseline.
+
+    Parameters
+    ----------
+    recording : ClosedLoopData or path
+        The recording (any format :func:`maglevid.io.read_recording` reads).
+    baseline : "nominal", "history", AMBParameters or mapping
+        ``"nominal"``: the design parameters stored in the recording's loop
+        (``loop["nominal"]``); ``"history"``: the machine's latest identification
+        in ``history`` (falls back to the design for the first diagnosis); or
+        explicit parameters.
+    machine : str, optional
+        Machine name (needed with a history store; default: the recording's
+        ``metadata["machine"]``).
+    method : str, optional
+        Identification method; default chosen by :func:`choose_method`.
+    tolerances : float or mapping, optional
+        Relative engineering tolerance per parameter (default 5 %).
+    history : HistoryStore or str, optional
+        Store (or its path/URL) to read the baseline and trends from and to
+        record this diagnosis in.
+    recorded_at : datetime or ISO string, optional
+        When the recording was taken (default: ``metadata["recorded_at"]``, else now).
+    method_options : mapping, optional
+        Options passed to the identification method.
+    mapping : optional
+        Column mapping for reading a user's own log.
+    alpha : float
+        Significance level of the isolation and drift tests.
+    level : float
+        Confidence level of the intervals.
+
+    Returns
+    -------
+    Diagnosis
+    """
+    from maglevid.identify.registry import get_method
+
+    notes: list[str] = []
+    source: str | None = None
+    if not isinstance(recording, ClosedLoopData):
+        from maglevid.io import read_recording
+
+        source = str(recording)
+        data = read_recording(recording, mapping=mapping)
+    else:
+        data = recording
+        source = data.metadata.get("source") if hasattr(data.metadata, "get") else None
+    machine = machine or (data.metadata.get("machine") if hasattr(data.metadata, "get") else None)
+    tol: float | Mapping[str, float] = DEFAULT_TOLERANCE if tolerances is None else tolerances
+    rhash = recording_hash(data)
+    when = recorded_at or data.metadata.get("recorded_at") or datetime.now(timezone.utc)
+    created = datetime.now(timezone.utc).isoformat(timespec="seconds")
+
+    store = history
+    if isinstance(history, (str, os.PathLike)):
+        from maglevid.diagnose.history import open_history
+
+        store = open_history(history)
+
+    chosen, why = choose_method(data)
+    if method is not None and method != chosen:
+        why = "chosen by the user"
+    method = method or chosen
+
+    common = {
+        "machine": machine,
+        "recording": source,
+        "recording_hash": rhash,
+        "dt": data.dt,
+        "created_at": created,
+        "method": method,
+        "method_reason": why,
+    }
+    from maglevid.diagnose.levitator import is_levitator
+
+    if is_levitator(data) and method == "greybox-levitator":
+        diag = _diagnose_levitator(
+            data, baseline, common, tol, level, method_options, notes, store, machine
+        )
+        _record(store, diag, data, when, method_options, notes)
+        return diag
+
+    quality = run_checks(data)
+    failed = [q for q in quality if not q.passed and q.blocking]
+    if failed:
+        diag = Diagnosis(
+            verdict="Cannot diagnose: " + "; ".join(q.message for q in failed),
+            verdict_code="cannot_diagnose",
+            reasons=tuple(q.message for q in failed),
+            quality=quality,
+            **common,
+        )
+        _record(store, diag, data, when, method_options, notes)
+        return diag
+
+    design = _baseline_from_loop(data)
+    base_vals: dict[str, tuple[float, float]]
+    base_cov = None
+    if isinstance(baseline, AMBParameters):
+        base_params, source_b = baseline, "given parameters"
+        base_vals = {k: (v, 0.0) for k, v in _physical_dict(baseline).items()}
+    elif isinstance(baseline, Mapping):
+        base_params, source_b = None, "given values"
+        base_vals = {k: (float(v), 0.0) for k, v in baseline.items()}
+        try:
+            base_params = AMBParameters(
+                **{k: float(v) for k, v in baseline.items() if k in _BASELINE_FIELDS}
+            )
+            base_vals = {
+                **{k: (v, 0.0) for k, v in _physical_dict(base_params).items()},
+                **base_vals,
+            }
+        except (MaglevidError, TypeError):
+            notes.append("the baseline is not a full parameter set: no fault isolation")
+    elif baseline == "nominal":
+        if design is None:
+            raise DataError(
+                "baseline='nominal' needs the design parameters in the recording "
+                "(loop['nominal']); give the baseline explicitly or use a history"
+            )
+        base_params, source_b = design, "design (nominal parameters in the recording)"
+        base_vals = {k: (v, 0.0) for k, v in _physical_dict(design).items()}
+    elif baseline == "history":
+        if store is None or machine is None:
+            raise DataError("baseline='history' needs `history` (a store) and `machine`")
+        base_vals, base_params, base_cov, source_b = _baseline_from_history(
+            store, machine, method, design, notes
+        )
+        if not base_vals and design is not None:
+            base_vals = {k: (v, 0.0) for k, v in _physical_dict(design).items()}
+    else:
+        raise DataError(
+            "`baseline` must be 'nominal', 'history', AMBParameters or a mapping; "
+            f"got {baseline!r}"
+        )
+
+    try:
+        result = get_method(method)(data, **dict(method_options or {}))
+    except MaglevidError as exc:
+        diag = Diagnosis(
+            verdict=f"Cannot diagnose: identification failed ({exc})",
+            verdict_code="cannot_diagnose",
+            reasons=(str(exc),),
+            quality=quality,
+            **common,
+        )
+        _record(store, diag, data, when, method_options, notes)
+        return diag
+    notes.extend(result.notes)
+    est = result.parameters
+    se = result.std_errors()
+    estimates = {k: (est[k], se[k]) for k in est}
+    compared = {k: estimates[k] for k in DIAGNOSED_PARAMETERS if k in estimates}
+    changes = compare_parameters(compared, base_vals, tolerances=tol, level=level)
+
+    iso = None
+    if (
+        base_params is not None
+        and all(k in est for k in V_NAMES)
+        and result.covariance is not None
+    ):
+        idx = [list(est).index(k) for k in V_NAMES]
+        v_hat = np.array([est[k] for k in V_NAMES])
+        v_cov = result.covariance[np.ix_(idx, idx)]
+        try:
+            iso = isolate_fault(
+                v_hat,
+                v_cov,
+                base_params,
+                baseline_covariance=base_cov,
+                hypotheses=[h for h in HYPOTHESES],
+                alpha=alpha,
+            )
+        except MaglevidError as exc:
+            notes.append(f"fault isolation not possible: {exc}")
+    verdict, code, reasons = _verdict(changes, iso, tol)
+
+    base_model = amb_state_space(base_params) if base_params is not None else None
+    ident_model = result.continuous_model
+    diag = Diagnosis(
+        verdict=verdict,
+        verdict_code=code,
+        reasons=tuple(reasons),
+        identification=result,
+        changes=tuple(changes),
+        isolation=iso,
+        quality=quality,
+        baseline={
+            "source": source_b,
+            "parameters": {k: list(v) for k, v in base_vals.items()},
+            "loop": _thaw(data.loop),
+        },
+        baseline_model=base_model,
+        identified_model=ident_model,
+        percentage_index=_percentage_index(ident_model, base_model),
+        notes=tuple(notes),
+        **common,
+    )
+    _record(store, diag, data, when, method_options, notes)
+    if store is not None:
+        drifts = _drifts(store, diag, tol, alpha)
+        if drifts:
+            words = "; ".join(
+                f"{d['parameter']} {d['slope_percent_per_day']:+.2g} %/day (p = {d['p_value']:.2g}"
+                + (
+                    f", projected to leave ±{d['tolerance_percent']:.0f} % "
+                    f"on {d['projected_crossing'][:10]})"
+                    if d["projected_crossing"]
+                    else ")"
+                )
+                for d in drifts
+            )
+            extra = {
+                "drifts": tuple(drifts),
+                "reasons": (*diag.reasons, f"drift over the history: {words}"),
+            }
+            if diag.verdict_code in ("no_change", "within_tolerance"):
+                extra["verdict"] = f"No fault yet, but drifting: {words}"
+                extra["verdict_code"] = "drift"
+            diag = _replace_diagnosis(diag, **extra)
+    return diag
+
+
+def _replace_diagnosis(diag: Diagnosis, **changes: Any) -> Diagnosis:
+    from dataclasses import replace
+
+    return replace(diag, **changes)
+
+
+def _record(
+    store: Any,
+    diag: Diagnosis,
+    data: ClosedLoopData,
+    when: Any,
+    method_options: Mapping[str, Any] | None,
+    notes: list[str],
+) -> None:
+    if store is None:
+        return
+    if diag.machine is None:
+        raise DataError(
+            "storing a diagnosis needs a machine name (`machine=` or metadata['machine'])"
+        )
+    from maglevid.diagnose.history import hash_options
+
+    estimates: dict[str, Any] = {}
+    base = diag.baseline.get("parameters", {}) if diag.baseline else {}
+    if diag.identification is not None:
+        cis = diag.identification.confidence_intervals()
+        for k, (v, se) in diag.estimates().items():
+            if not np.isfinite(v):
+                continue
+            b = base.get(k)
+            estimates[k] = (
+                v,
+                se if np.isfinite(se) else None,
+                cis[k][0] if np.isfinite(cis[k][0]) else None,
+                cis[k][1] if np.isfinite(cis[k][1]) else None,
+                None,
+                None if b is None else float(b[0]),
+            )
+    summary = diag.to_dict()
+    summary.pop("identification", None)
+    options = dict(method_options or {})
+    store.record_diagnosis(
+        diag.machine,
+        recording_hash=diag.recording_hash,
+        recorded_at=when,
+        method=diag.method,
+        verdict=diag.verdict,
+        verdict_code=diag.verdict_code,
+        estimates=estimates,
+        summary=_clean_json(json.loads(json.dumps(summary, default=str))),
+        options=options,
+        options_hash=hash_options(options),
+        recording_path=diag.recording,
+        dt=data.dt,
+        n_samples=data.n_samples,
+    )
+    logger.info("stored diagnosis of %s (%s)", diag.machine, diag.verdict_code)
+
+
+def _clean_json(obj: Any) -> Any:
+    """JSON-safe copy with non-finite floats as null (the store's JSON has no NaN)."""
+    if isinstance(obj, Mapping):
+        return {str(k): _clean_json(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_clean_json(v) for v in obj]
+    if isinstance(obj, float) and not np.isfinite(obj):
+        return None
+    if isinstance(obj, (np.floating, np.integer)):
+        return _clean_json(obj.item())
+    return obj
+
+
+#: Fewest diagnoses in a machine's history before a drift test is made.
+MIN_DRIFT_POINTS = 4
+
+
+def _drifts(
+    store: Any,
+    diag: Diagnosis,
+    tolerances: float | Mapping[str, float],
+    alpha: float,
+) -> list[dict[str, Any]]:
+    """Trend test on each diagnosed parameter of the machine's stored history.
+
+    ``alpha`` is the family-wise level over the parameters: each of the
+    ``len(DIAGNOSED_PARAMETERS)`` tests runs at ``alpha / len(...)`` (Bonferroni),
+    so a healthy machine raises a false drift alarm with probability <= alpha
+    per diagnosis rather than ~13 alpha.
+    """
+    from maglevid.diagnose.drift import detect_drift
+
+    alpha_each = alpha / len(DIAGNOSED_PARAMETERS)
+    out = []
+    base = diag.baseline.get("parameters", {}) if diag.baseline else {}
+    for k in DIAGNOSED_PARAMETERS:
+        try:
+            tr = store.trend(diag.machine, k, method=diag.method)
+        except MaglevidError:
+            continue
+        ok = np.isfinite(tr.value) & np.isfinite(tr.std_error) & (tr.std_error > 0)
+        if ok.sum() < MIN_DRIFT_POINTS or np.ptp(tr.time[ok]) <= 0:
+            continue
+        b = float(base[k][0]) if k in base else float(tr.value[ok][0])
+        t = tolerances.get(k, DEFAULT_TOLERANCE) if isinstance(tolerances, Mapping) else tolerances
+        res = detect_drift(
+            tr.time[ok] / 86400.0,
+            tr.value[ok],
+            tr.std_error[ok],
+            alpha=alpha_each,
+            tolerance=float(t) * abs(b),
+            baseline=b,
+        )
+        if not res.drifting:
+            continue
+        crossing = None
+        if res.projected_crossing_time is not None and np.isfinite(res.projected_crossing_time):
+            crossing = datetime.fromtimestamp(
+                res.projected_crossing_time * 86400.0, tz=timezone.utc
+            ).isoformat(timespec="seconds")
+        out.append(
+            {
+                "parameter": k,
+                "slope_percent_per_day": 100.0 * res.slope / b if b else float("nan"),
+                "p_value": res.p_value,
+                "n_points": int(ok.sum()),
+                "projected_crossing": crossing,
+                "tolerance_percent": 100.0 * float(t),
+                "method": res.method,
+            }
+        )
+    return out

@@ -1,0 +1,245 @@
+"""Block-Hankel statistics in linear memory: the data stage of the subspace methods.
+
+The subspace methods (:mod:`maglevid.identify.subspace`) need one thing from the
+data: a factor ``F`` with ``F F^T = H^T H / j`` of the block-Hankel matrix
+
+.. math::
+
+    H = \\begin{bmatrix} z(0)^T & z(1)^T & \\cdots & z(w-1)^T \\\\
+                        z(1)^T & z(2)^T & \\cdots & z(w)^T \\\\
+                        \\vdots \\\\
+                        z(j-1)^T & \\cdots & & z(N-1)^T \\end{bmatrix},
+    \\qquad z(t) = \\begin{bmatrix} u(t) \\\\ y(t) \\end{bmatrix},
+
+(time-first: one row per window start ``t``, ``j`` rows, ``k = w m`` columns,
+``m = nu + ny``). ``F`` stands for the triangular factor ``L`` of the LQ
+decomposition of the textbook (variables-as-rows) Hankel matrix ``H^T = L Q^T``:
+any ``F`` with ``F F^T = L L^T`` represents the data rows in an orthonormal basis
+of their span, so every row-space projection of the subspace algorithms can be
+done on ``F`` alone. The full ``j x k`` matrix is never formed.
+
+Two accumulators produce it, both fed chunk by chunk (so a record of 10^8
+samples never has to be in memory) and both giving the same result, to
+rounding, whatever the chunk boundaries:
+
+``_LagGram`` (``factorization="gram"``, the fast route)
+    The Gram matrix of a block-Hankel matrix is block-Toeplitz up to edge terms:
+
+    .. math::
+
+        G_{ab} = \\sum_{t=0}^{j-1} z(t+a) z(t+b)^T
+               = S_\\tau - \\sum_{s=0}^{a-1} z(s) z(s+\\tau)^T
+                 + \\sum_{s=N-L}^{a+j-1} z(s) z(s+\\tau)^T, \\qquad \\tau = b - a,
+
+    with the lagged sums ``S_tau = sum_{s=0}^{N-1-L} z(s) z(s+tau)^T`` over every
+    start ``s`` whose ``L`` successors exist, ``L`` the largest lag kept. The
+    ``L + 1`` sums cost ``2 (L+1) m^2`` flops per sample, ``i`` times fewer than
+    a Gram of the Hankel rows (``(2 i m)^2``); the edge sums need only the first
+    and the last ``L`` samples. The Gram of ANY window ``w <= L + 1`` follows, so
+    the horizon can be chosen after the pass over the data. The factor is then a
+    pivoted Cholesky factorisation (LAPACK ``dpstrf``) of the channel-scaled
+    Gram: no regularisation is added; directions whose Schur complement falls
+    below ``k * eps * max(diag)`` (rounding level) are dropped, which is exact
+    for the computed Gram. The Gram squares the condition number, so directions
+    that are exactly dependent in noise-free data come out at about
+    ``sqrt(eps)`` relative; see ``docs/subspace.md`` for the measured cost.
+
+``_HankelQR`` (``factorization="qr"``, the accurate route)
+    Tall-skinny QR: the Hankel rows of each chunk are stacked under the running
+    triangular factor and re-triangularised by Householder QR (LAPACK
+    ``dgeqrf``), ``R <- qr([R; H_chunk])``. Backward stable (errors of order
+    ``eps`` relative, not ``sqrt(eps)``); about 5-20 times slower than the Gram
+    route, and the window is fixed when the accumulator is made.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import numpy as np
+import scipy.linalg as sla
+from numpy.lib.stride_tricks import sliding_window_view
+from scipy.linalg import lapack
+
+from maglevid.exceptions import DataError
+
+__all__: list[str] = []
+
+#: Starts per block in the lagged sums: a (block x m) slice stays in the L2 cache.
+_LAG_BLOCK = 8192
+
+
+def _pieces(pending: np.ndarray, z: np.ndarray, span: int) -> Iterator[tuple[np.ndarray, int]]:
+    """Yield ``(X, n_starts)``: windows ``X[s:s+span+1]`` for ``s < n_starts`` are complete.
+
+    ``pending`` holds the last ``min(n, span)`` samples seen so far (whose windows
+    were not complete); ``z`` is the new chunk. The windows are yielded exactly
+    once over all calls, whatever the chunking. The big chunk ``z`` is not copied.
+    """
+    c0 = pending.shape[0]
+    if c0:
+        junction = np.concatenate([pending, z[:span]])
+        n_st = min(c0, junction.shape[0] - span)
+        if n_st > 0:
+            yield junction, n_st
+        if n_st < c0:  # the chunk was too short to complete the pending windows
+            return
+    n_z = z.shape[0] - span
+    if n_z > 0:
+        yield z, n_z
+
+
+def _new_pending(pending: np.ndarray, z: np.ndarray, span: int) -> np.ndarray:
+    """The last ``span`` samples of ``[pending; z]`` (all of them when fewer)."""
+    if z.shape[0] >= span:
+        return np.array(z[z.shape[0] - span :], dtype=float)
+    return np.concatenate([pending, z])[-span:].copy()
+
+
+class _Moments:
+    """Running channel sums (for scaling and for the mean in fit percentages)."""
+
+    def __init__(self, m: int) -> None:
+        self.n = 0
+        self.sum = np.zeros(m)
+        self.sumsq = np.zeros(m)
+
+    def update(self, z: np.ndarray) -> None:
+        self.n += z.shape[0]
+        self.sum += z.sum(axis=0)
+        self.sumsq += np.einsum("ij,ij->j", z, z)
+
+    def rms(self) -> np.ndarray:
+        return np.sqrt(self.sumsq / max(self.n, 1))
+
+    def mean(self) -> np.ndarray:
+        return self.sum / max(self.n, 1)
+
+
+class _LagGram:
+    """Lagged sums ``S_tau`` plus head and tail samples: the Gram of any window <= L+1.
+
+    Parameters
+    ----------
+    m : int
+        Channels of ``z = [u, y]``.
+    max_lag : int
+        ``L``, the largest lag kept (window ``w = L + 1`` at most).
+    """
+
+    def __init__(self, m: int, max_lag: int) -> None:
+        self.m = m
+        self.L = max_lag
+        self.S = np.zeros((max_lag + 1, m, m))
+        self.head = np.empty((0, m))
+        self.pending = np.empty((0, m))
+        self.moments = _Moments(m)
+
+    @property
+    def n(self) -> int:
+        return self.moments.n
+
+    def update(self, z: np.ndarray) -> None:
+        L = self.L
+        if self.head.shape[0] < L:
+            self.head = np.concatenate([self.head, z[: L - self.head.shape[0]]])
+        for X, n_st in _pieces(self.pending, z, L):
+            self._accumulate(X, n_st)
+        self.pending = _new_pending(self.pending, z, L)
+        self.moments.update(z)
+
+    def _accumulate(self, X: np.ndarray, n_starts: int) -> None:
+        # S_tau += sum_s z(s) z(s+tau)^T, blocked so both slices stay in cache.
+        S = self.S
+        for s0 in range(0, n_starts, _LAG_BLOCK):
+            s1 = min(n_starts, s0 + _LAG_BLOCK)
+            XT = X[s0:s1].T
+            for tau in range(self.L + 1):
+                S[tau] += XT @ X[s0 + tau : s1 + tau]
+
+    def min_samples(self) -> int:
+        """Samples needed for the edge formula (head and tail disjoint from the middle)."""
+        return 2 * self.L + 1
+
+    def gram(self, w: int) -> np.ndarray:
+        """``H^T H`` (unnormalised) for windows of ``w <= L + 1`` samples, rows 0..N-w."""
+        L, m, N = self.L, self.m, self.n
+        if not 1 <= w <= L + 1:
+            raise ValueError(f"window {w} outside 1..{L + 1}")
+        if N < self.min_samples():
+            raise DataError(f"{N} samples are too few for lags up to {L}")
+        head, tail = self.head, self.pending  # first L and last L samples
+        G = np.empty((w * m, w * m))
+        for tau in range(w):
+            na = w - tau  # blocks (a, a + tau), a = 0..w-1-tau
+            # Head: sum_{s<a} z(s) z(s+tau)^T, cumulative over a.
+            hp = np.einsum("si,sj->sij", head[: na - 1], head[tau : tau + na - 1])
+            hcum = np.concatenate([np.zeros((1, m, m)), np.cumsum(hp, axis=0)])
+            # Tail: sum_{q=0}^{a+L-w} tail(q) tail(q+tau)^T, tail(q) = z(N-L+q).
+            nq = L - tau  # products with q + tau <= L - 1
+            tp = np.einsum("si,sj->sij", tail[:nq], tail[tau : tau + nq])
+            tcum = np.concatenate([np.zeros((1, m, m)), np.cumsum(tp, axis=0)])
+            for a in range(na):
+                blk = self.S[tau] - hcum[a] + tcum[a + L - w + 1]
+                b = a + tau
+                G[a * m : (a + 1) * m, b * m : (b + 1) * m] = blk
+                if tau:
+                    G[b * m : (b + 1) * m, a * m : (a + 1) * m] = blk.T
+        return G
+
+
+class _HankelQR:
+    """Running triangular factor ``R`` of the Hankel rows (tall-skinny QR), window ``w``."""
+
+    def __init__(self, m: int, window: int) -> None:
+        self.m = m
+        self.w = window
+        self.k = window * m
+        self.R = np.empty((0, self.k))
+        self.pending = np.empty((0, m))
+        self.moments = _Moments(m)
+        self.block = max(8 * self.k, 4096)
+
+    @property
+    def n(self) -> int:
+        return self.moments.n
+
+    def update(self, z: np.ndarray) -> None:
+        span = self.w - 1
+        for X, n_st in _pieces(self.pending, z, span):
+            for s0 in range(0, n_st, self.block):
+                s1 = min(n_st, s0 + self.block)
+                Hc = sliding_window_view(X[s0 : s1 + span], (self.w, self.m))
+                Hc = Hc.reshape(s1 - s0, self.k)  # copies: rows [z(s), ..., z(s+w-1)]
+                self.R = np.linalg.qr(np.concatenate([self.R, Hc]), mode="r")
+        self.pending = _new_pending(self.pending, z, span) if span else np.empty((0, self.m))
+        self.moments.update(z)
+
+
+def factor_gram(G: np.ndarray) -> tuple[np.ndarray, int]:
+    """``F`` (k x r) with ``F F^T = G`` by pivoted Cholesky; ``r`` is the numerical rank.
+
+    ``G`` should be scaled to unit-order diagonal first. LAPACK ``dpstrf`` stops
+    when the largest remaining pivot falls below ``k * eps * max(diag(G))``; the
+    discarded Schur complement is at the rounding level of ``G`` itself, so no
+    regularisation is needed and none is added.
+    """
+    k = G.shape[0]
+    tol = k * np.finfo(float).eps * float(np.max(np.diag(G)))
+    c, piv, rank, info = lapack.dpstrf(G, tol=tol, lower=1)
+    if info < 0:  # pragma: no cover - LAPACK argument error
+        raise RuntimeError(f"dpstrf failed with info={info}")
+    F = np.zeros((k, rank))
+    F[piv - 1] = np.tril(c)[:, :rank]
+    return F, int(rank)
+
+
+def factor_r(R: np.ndarray) -> np.ndarray:
+    """``F = R^T`` from a QR factor (already exact for ``R^T R``)."""
+    return np.ascontiguousarray(R.T)
+
+
+def lower_factor(F: np.ndarray) -> np.ndarray:
+    """Lower-trapezoidal ``L`` with ``L L^T = F F^T`` (rows kept in ``F``'s order)."""
+    R = sla.qr(F.T, mode="r", check_finite=False)[0]
+    return R[: min(R.shape)].T

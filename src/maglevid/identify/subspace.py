@@ -1,0 +1,1398 @@
+"""MIMO subspace identification: MOESP and N4SID, in memory or streamed in chunks.
+
+Implements
+
+* MOESP: ordinary MOESP (Verhaegen & Dewilde 1992), PI-MOESP (past inputs as
+  instruments) and PO-MOESP (past inputs and outputs as instruments, Verhaegen
+  1994), the variant to use for noisy data;
+* N4SID (Van Overschee & De Moor 1994): the oblique projection with the
+  N4SID, MOESP and CVA weightings of the unifying theorem (Van Overschee & De
+  Moor 1996, Ch. 4), the "robust" combined algorithm (A and C from the state
+  equations, B and D by least squares afterwards) and the "simple" one (all
+  four from the state sequences).
+
+Both work from one triangular factor of the block-Hankel data, computed in
+linear memory by :mod:`maglevid.identify._hankel` (Gram + pivoted Cholesky by
+default, tall-skinny QR on request). :class:`SubspaceAccumulator` exposes the
+streaming form: feed a record of any length chunk by chunk, then fit; the
+result equals the in-memory one to rounding.
+
+Notation (time-first data, horizon ``i``)
+-----------------------------------------
+``U_p = U_{0|i-1}``, ``U_f = U_{i|2i-1}``, ``Y_p``, ``Y_f`` likewise, ``W_p =
+[U_p; Y_p]`` the block rows of the textbook Hankel matrices; ``Gamma_i`` the
+extended observability matrix ``[C; CA; ...; CA^{i-1}]``; ``H_i`` the block
+lower-triangular Toeplitz matrix of the Markov parameters ``D, CB, CAB, ...``.
+Every product of data rows is taken on the factor ``F`` (``F F^T = H^T H / j``)
+so the rows are represented in an orthonormal basis and "projection onto the
+row space of X" is a small least-squares problem.
+
+Nothing here stabilises an estimate: an unstable plant gives an unstable model.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import warnings
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import scipy.linalg as sla
+
+from maglevid._validation import as_signal, check_positive
+from maglevid.exceptions import (
+    DataError,
+    IdentificationError,
+    IllConditionedWarning,
+    ModelError,
+)
+from maglevid.identify._hankel import (
+    _HankelQR,
+    _LagGram,
+    factor_gram,
+    factor_r,
+    lower_factor,
+)
+from maglevid.identify._recursion import linear_recursion
+from maglevid.identify.result import IdentificationResult
+from maglevid.lti import StateSpace, undiscretize
+
+__all__ = ["DEFAULT_MAX_HORIZON", "METHODS", "SubspaceAccumulator", "fit_moesp", "fit_n4sid"]
+
+logger = logging.getLogger(__name__)
+
+#: Largest horizon the automatic rule considers (closed-loop unstable plants
+#: sampled fast need 20-40; see docs/subspace.md).
+DEFAULT_MAX_HORIZON = 40
+
+#: The automatic horizon keeps at least this many Hankel rows per column.
+_ROWS_PER_COLUMN_AUTO = 5
+#: Any horizon needs at least this many Hankel rows per column.
+_ROWS_PER_COLUMN_MIN = 2
+
+_MOESP_WEIGHTINGS = ("po", "pi", "ordinary")
+_N4SID_WEIGHTINGS = ("n4sid", "moesp", "cva")
+_N4SID_VARIANTS = ("robust", "simple")
+_FACTORIZATIONS = ("gram", "qr")
+_BD_METHODS = ("subspace", "regression")
+
+_EPS = float(np.finfo(float).eps)
+
+#: Default relative singular-value floor of the order choice, per factorisation:
+#: the rounding level of noise-free data (measured, docs/subspace.md) times ~100.
+_DEFAULT_RANK_TOL = {"gram": 1e-6, "qr": 1e-10}
+#: Relative rank threshold of the row-space projections, per factorisation.
+_PROJ_RCOND = {"gram": 1e-10, "qr": 1e-13}
+#: Below this ratio s_n / s_1 the weakest retained direction is not resolved
+#: reliably by the factorisation (Gram: errors ~ eps / ratio^2; QR: ~ eps / ratio).
+_ILL_RATIO = {"gram": 1e-5, "qr": 1e-10}
+#: Floor of ARX residual variances (channels scaled to unit RMS) in the horizon rule.
+_ARX_VAR_FLOOR = 1e-12
+#: Samples per chunk of the in-memory passes (a chunk of z stays in the L2/L3 cache).
+_CHUNK = 1 << 16
+#: The regression for B, D refuses a model that grows by more than this over the record.
+_MAX_GROWTH = 1e12
+
+
+# ----------------------------------------------------------------- data stage
+@dataclass(frozen=True)
+class _Stats:
+    """What the data stage hands to the algorithms (scaled, normalised by sqrt(j))."""
+
+    F: np.ndarray  # (k_rows, r): F F^T = Hs^T Hs / j, Hs the channel-scaled Hankel
+    nu: int
+    ny: int
+    i_rows: int  # window of the Hankel rows is 2 * i_rows
+    j: int
+    n_samples: int
+    scale: np.ndarray  # (m,) RMS of [u, y]
+    mean: np.ndarray  # (m,)
+    rank: int
+    factorization: str
+
+    @property
+    def m(self) -> int:
+        return self.nu + self.ny
+
+    def u_rows(self, t0: int, t1: int) -> np.ndarray:
+        """Row indices of u(t0..t1-1) (time-major, z = [u, y])."""
+        m = self.m
+        return np.array([t * m + c for t in range(t0, t1) for c in range(self.nu)], dtype=int)
+
+    def y_rows(self, t0: int, t1: int) -> np.ndarray:
+        m, nu = self.m, self.nu
+        return np.array([t * m + nu + c for t in range(t0, t1) for c in range(self.ny)], dtype=int)
+
+    def rows(self, idx: np.ndarray) -> np.ndarray:
+        return self.F[idx]
+
+
+def _auto_max_horizon(n_samples: int, m: int, cap: int) -> int:
+    # Largest i with j = N - 2i + 1 >= 5 * (2 i m) rows per column: i <= (N+1)/(2+10m).
+    return int(min(cap, (n_samples + 1) // (2 + 2 * _ROWS_PER_COLUMN_AUTO * m)))
+
+
+def _min_horizon(order: int | None, ny: int) -> int:
+    # (i - 1) ny >= n: Gamma_{i-1} must have full column rank (shift invariance, N4SID).
+    if order is None:
+        return 2
+    return max(2, math.ceil(order / ny) + 1)
+
+
+def _check_rows(n_samples: int, i: int, m: int, what: str) -> None:
+    j = n_samples - 2 * i + 1
+    k = 2 * i * m
+    if j < _ROWS_PER_COLUMN_MIN * k:
+        need = _ROWS_PER_COLUMN_MIN * k + 2 * i - 1
+        raise DataError(
+            f"the record has {n_samples} samples; {what} needs at least {need} "
+            f"(2 x {k} block-Hankel rows for horizon {i} with {m} channels)"
+        )
+
+
+def _stats_from(acc: _LagGram | _HankelQR, nu: int, ny: int, i_rows: int) -> _Stats:
+    """Scaled, normalised factor of the Hankel rows of window ``2 i_rows``."""
+    N = acc.n
+    m = nu + ny
+    w = 2 * i_rows
+    j = N - w + 1
+    scale = acc.moments.rms()
+    zero = np.flatnonzero(scale == 0.0)
+    if zero.size:
+        c = int(zero[0])
+        name = f"u[:, {c}]" if c < nu else f"y[:, {c - nu}]"
+        raise DataError(
+            f"`{name}` is identically zero; every input must excite the system and every "
+            "output must be measured"
+        )
+    d = np.tile(1.0 / scale, w)
+    if isinstance(acc, _LagGram):
+        G = acc.gram(w) * (d[:, None] * d[None, :]) / j
+        F, rank = factor_gram(G)
+        fact = "gram"
+    else:
+        R = acc.R
+        if R.shape[1] != w * m:  # pragma: no cover - guarded by the caller
+            raise ValueError("QR accumulator window does not match")
+        F = factor_r(R) * d[:, None] / math.sqrt(j)
+        rank = int(min(R.shape))
+        fact = "qr"
+    return _Stats(
+        F=F,
+        nu=nu,
+        ny=ny,
+        i_rows=i_rows,
+        j=j,
+        n_samples=N,
+        scale=scale,
+        mean=acc.moments.mean(),
+        rank=rank,
+        factorization=fact,
+    )
+
+
+# ------------------------------------------------------- small linear algebra
+def _orth(X: np.ndarray, rcond: float) -> np.ndarray:
+    """Orthonormal basis (r x q) of the row space of ``X`` (p x r), rank by ``rcond``."""
+    if X.shape[0] == 0:
+        return np.zeros((X.shape[1], 0))
+    _, s, Vt = np.linalg.svd(X, full_matrices=False)
+    if s.size == 0 or s[0] == 0.0:
+        return np.zeros((X.shape[1], 0))
+    q = int(np.count_nonzero(s > rcond * s[0]))
+    return Vt[:q].T
+
+
+def _perp(X: np.ndarray, Q: np.ndarray) -> np.ndarray:
+    """``X Pi_perp``: rows of ``X`` minus their projection on the row space with basis ``Q``."""
+    return X - (X @ Q) @ Q.T
+
+
+def _proj(X: np.ndarray, Q: np.ndarray) -> np.ndarray:
+    """``X Pi``: projection of the rows of ``X`` on the row space with basis ``Q``."""
+    return (X @ Q) @ Q.T
+
+
+def _regress(Y: np.ndarray, X: np.ndarray, rcond: float) -> np.ndarray:
+    """Coefficients ``M`` of ``Y ~ M X`` (rows are signals): least squares by SVD (``gelsd``)."""
+    if X.shape[0] == 0:
+        return np.zeros((Y.shape[0], 0))
+    sol = sla.lstsq(X.T, Y.T, cond=rcond, check_finite=False)[0]
+    return sol.T
+
+
+def _pinv_apply(Gam: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """``Gamma^dagger X`` for a tall ``Gamma`` of full column rank (least squares)."""
+    return sla.lstsq(Gam, X, check_finite=False)[0]
+
+
+def _observability(A: np.ndarray, C: np.ndarray, i: int) -> np.ndarray:
+    """``Gamma_i = [C; CA; ...; CA^{i-1}]``."""
+    ny, n = C.shape
+    G = np.empty((i * ny, n))
+    blk = C
+    for r in range(i):
+        G[r * ny : (r + 1) * ny] = blk
+        blk = blk @ A
+    return G
+
+
+def _markov(A: np.ndarray, B: np.ndarray, C: np.ndarray, D: np.ndarray, i: int) -> np.ndarray:
+    """``[D, CB, CAB, ..., CA^{i-2}B]``, shape (i, ny, nu)."""
+    out = np.empty((i, C.shape[0], B.shape[1]))
+    out[0] = D
+    AkB = B
+    for k in range(1, i):
+        out[k] = C @ AkB
+        AkB = A @ AkB
+    return out
+
+
+def _toeplitz(h: np.ndarray) -> np.ndarray:
+    """Block lower-triangular Toeplitz ``H_i`` of Markov parameters ``h`` (i, ny, nu)."""
+    i, ny, nu = h.shape
+    H = np.zeros((i * ny, i * nu))
+    for r in range(i):
+        for c in range(r + 1):
+            H[r * ny : (r + 1) * ny, c * nu : (c + 1) * nu] = h[r - c]
+    return H
+
+
+def _char_poly(A: np.ndarray) -> np.ndarray:
+    """``[a1, ..., an]`` of ``det(zI - A) = z^n + a1 z^{n-1} + ... + an``."""
+    return np.real(np.poly(A))[1:] if A.size else np.zeros(0)
+
+
+# ------------------------------------------------------------ order and horizon
+def _choose_order(s: np.ndarray, n_max: int, rank_tol: float) -> tuple[int, float]:
+    """Largest gap of the log singular values, with values below ``rank_tol * s_1`` floored.
+
+    Returns the order and the ratio ``s_n / s_{n+1}`` at the chosen gap (floored).
+    """
+    if s.size == 0 or s[0] <= 0.0:
+        raise IdentificationError(
+            "all singular values are zero: the outputs carry no information about the "
+            "inputs (check the data and the excitation)"
+        )
+    n_max = min(n_max, s.size - 1)
+    if n_max < 1:
+        return 1, float("inf")
+    sf = np.maximum(s / s[0], rank_tol)
+    gaps = np.log(sf[:n_max]) - np.log(sf[1 : n_max + 1])
+    n = int(np.argmax(gaps)) + 1
+    return n, float(np.exp(gaps[n - 1]))
+
+
+def _arx_horizon(st: _Stats, p_max: int, feedthrough: bool) -> tuple[int, np.ndarray]:
+    """ARX order by AIC from the leading ``p_max + 1`` time blocks of the factor.
+
+    For ``p = 1..p_max``, ``y(t+p)`` is regressed on ``z(t..t+p-1)`` (and ``u(t+p)``
+    with feedthrough) over the same Hankel rows; the residual covariance is the
+    diagonal block of the lower-triangular factor of the rows in the order
+    ``[y(t), u(t), y(t+1), u(t+1), ...]`` (``[u, y]`` per time with feedthrough).
+    AIC(p) = j log det Sigma_p + 2 p m ny (Akaike 1974), with the eigenvalues of
+    Sigma_p floored at 1e-12 (channels scaled to unit RMS): noise-free data then
+    pick the smallest exact order instead of chasing rounding noise.
+    """
+    nu, ny, m = st.nu, st.ny, st.m
+    w = p_max + 1
+    perm: list[int] = []
+    for t in range(w):
+        u_t = list(st.u_rows(t, t + 1))
+        y_t = list(st.y_rows(t, t + 1))
+        perm += (u_t + y_t) if feedthrough else (y_t + u_t)
+    L = lower_factor(st.F[np.array(perm)])
+    aic = np.full(p_max + 1, np.inf)
+    for p in range(1, p_max + 1):
+        start = p * m + (nu if feedthrough else 0)
+        Ly = L[start : start + ny, start:]
+        ev = np.linalg.eigvalsh(Ly @ Ly.T) if Ly.shape[1] else np.zeros(ny)
+        logdet = float(np.sum(np.log(np.maximum(ev, _ARX_VAR_FLOOR))))
+        aic[p] = st.j * logdet + 2.0 * (p * m * ny + (nu * ny if feedthrough else 0))
+    return int(np.argmin(aic)), aic
+
+
+# ------------------------------------------------------------- the algorithms
+@dataclass
+class _Core:
+    """Scaled-coordinate estimate before B, D (and the pieces later steps reuse)."""
+
+    A: np.ndarray
+    C: np.ndarray
+    B: np.ndarray | None
+    D: np.ndarray | None
+    s: np.ndarray
+    n: int
+    gap: float
+    order_auto: bool
+    K_hat: np.ndarray | None = None  # robust N4SID: unconstrained coefficient on U_f
+    Z: tuple[np.ndarray, np.ndarray] | None = None  # (Z_i, Z_{i+1}) when already computed
+
+
+def _order_and_gamma(
+    U: np.ndarray, s: np.ndarray, order: int | None, n_max: int, rank_tol: float
+) -> tuple[int, float, bool, np.ndarray]:
+    if order is None:
+        n, gap = _choose_order(s, n_max, rank_tol)
+        auto = True
+    else:
+        n = order
+        if n > s.size or s[n - 1] <= 0.0:
+            raise IdentificationError(
+                f"order={n} exceeds the rank of the projected data "
+                f"({int(np.count_nonzero(s > 0))}); the instruments or the horizon are too "
+                "small for it (increase `horizon`, or use weighting='po')"
+            )
+        gap = float(s[n - 1] / s[n]) if s.size > n and s[n] > 0 else float("inf")
+        auto = False
+    Gam = U[:, :n] * np.sqrt(s[:n])[None, :]
+    return n, gap, auto, Gam
+
+
+def _ac_from_gamma(Gam: np.ndarray, ny: int) -> tuple[np.ndarray, np.ndarray]:
+    # Shift invariance: Gamma_i without its first block row = Gamma_{i-1} A.
+    C = Gam[:ny].copy()
+    A = sla.lstsq(Gam[:-ny], Gam[ny:], check_finite=False)[0]
+    return A, C
+
+
+def _moesp_core(
+    st: _Stats, i: int, weighting: str, order: int | None, rank_tol: float, rcond: float
+) -> _Core:
+    # LQ of [U_f; W_p; Y_f]: Y_f Pi_{U_f}^perp projected on the row space of the
+    # instruments W_p Pi_{U_f}^perp is L32 Q2^T; its column space is that of
+    # Gamma_i (Verhaegen 1994, PO-MOESP; W_p = U_p for PI-MOESP; ordinary MOESP
+    # (Verhaegen & Dewilde 1992) takes Y_f Pi_{U_f}^perp itself, L22).
+    ny = st.ny
+    Uf = st.rows(st.u_rows(i, 2 * i))
+    Yf = st.rows(st.y_rows(i, 2 * i))
+    Qu = _orth(Uf, rcond)
+    Yfp = _perp(Yf, Qu)
+    if weighting == "ordinary":
+        P = Yfp
+    else:
+        idx = st.u_rows(0, i)
+        if weighting == "po":
+            idx = np.concatenate([idx, st.y_rows(0, i)])
+        Qw = _orth(_perp(st.rows(idx), Qu), rcond)
+        P = Yfp @ Qw  # L32 (up to an orthogonal factor on the right)
+    U, s, _ = np.linalg.svd(P, full_matrices=False)
+    n, gap, auto, Gam = _order_and_gamma(U, s, order, (i - 1) * ny, rank_tol)
+    A, C = _ac_from_gamma(Gam, ny)
+    return _Core(A=A, C=C, B=None, D=None, s=s, n=n, gap=gap, order_auto=auto)
+
+
+def _bd_moesp(
+    st: _Stats, i: int, A: np.ndarray, C: np.ndarray, feedthrough: bool, rcond: float
+) -> tuple[np.ndarray, np.ndarray]:
+    # Y_f = Gamma_i X_f + H_i U_f + noise. With Gamma_perp^T Gamma_i = 0 and the
+    # regression on U_f (= L31 L11^{-1} in the LQ of [U_f; ...; Y_f]):
+    #   M := Gamma_perp^T (Y_f / U_f) = Gamma_perp^T H_i(B, D),
+    # linear in (B, D). With Gamma_perp^T = [Lc_0 ... Lc_{i-1}] (block columns),
+    # block column c of M is  Lc_c D + sum_{r>c} Lc_r C A^{r-c-1} B.
+    ny, nu = st.ny, st.nu
+    n = A.shape[0]
+    Gam = _observability(A, C, i)
+    Qg = np.linalg.qr(Gam, mode="complete")[0]
+    Gp = Qg[:, n:].T  # (i ny - n) x i ny
+    Uf = st.rows(st.u_rows(i, 2 * i))
+    Yf = st.rows(st.y_rows(i, 2 * i))
+    M = _regress(Gp @ Yf, Uf, rcond)  # (i ny - n) x i nu
+    p = Gp.shape[0]
+    nd = ny if feedthrough else 0
+    lhs = np.zeros((i * p, nd + n))
+    rhs = np.zeros((i * p, nu))
+    for c in range(i):
+        rows = slice(c * p, (c + 1) * p)
+        if feedthrough:
+            lhs[rows, :ny] = Gp[:, c * ny : (c + 1) * ny]
+        if c < i - 1:
+            lhs[rows, nd:] = Gp[:, (c + 1) * ny :] @ _observability(A, C, i - c - 1)
+        rhs[rows] = M[:, c * nu : (c + 1) * nu]
+    sol = sla.lstsq(lhs, rhs, check_finite=False)[0]
+    D = sol[:ny] if feedthrough else np.zeros((ny, nu))
+    B = sol[nd:]
+    return B, D
+
+
+def _oblique(
+    st: _Stats, Yf: np.ndarray, Uf: np.ndarray, Wp: np.ndarray, rcond: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Oblique projection ``Y_f /_{U_f} W_p`` and the basis of ``U_f``'s row space."""
+    # Y_f / [W_p; U_f] = L_w W_p + L_u U_f; the oblique projection is L_w W_p, and
+    # L_w is the regression of Y_f Pi_{U_f}^perp on W_p Pi_{U_f}^perp.
+    Qu = _orth(Uf, rcond)
+    Lw = _regress(_perp(Yf, Qu), _perp(Wp, Qu), rcond)
+    return Lw @ Wp, Qu
+
+
+def _n4sid_core(
+    st: _Stats,
+    i: int,
+    weighting: str,
+    variant: str,
+    order: int | None,
+    rank_tol: float,
+    rcond: float,
+    feedthrough: bool,
+) -> _Core:
+    ny, nu = st.ny, st.nu
+    Up = st.rows(st.u_rows(0, i))
+    Yp = st.rows(st.y_rows(0, i))
+    Uf = st.rows(st.u_rows(i, 2 * i))
+    Yf = st.rows(st.y_rows(i, 2 * i))
+    Wp = np.concatenate([Up, Yp])
+    O_i, Qu = _oblique(st, Yf, Uf, Wp, rcond)  # Van Overschee & De Moor (1994), Theorem 2
+    # Weights W1 O_i W2 of the unifying theorem (1996, Ch. 4).
+    T = None
+    if weighting == "n4sid":
+        M = O_i
+    elif weighting == "moesp":
+        M = _perp(O_i, Qu)
+    else:  # cva: W1 = (Y_f Pi_perp Y_f^T)^{-1/2}, here through a triangular factor
+        T = lower_factor(_perp(Yf, Qu))
+        if T.shape[1] < T.shape[0] or np.min(np.abs(np.diag(T))) <= 1e-8 * np.max(
+            np.abs(np.diag(T))
+        ):
+            raise IdentificationError(
+                "weighting='cva' needs Y_f Pi_perp Y_f^T of full rank, which noise-free or "
+                "deterministic data lack; use weighting='n4sid' or 'moesp'"
+            )
+        M = sla.solve_triangular(T, _perp(O_i, Qu), lower=True)
+    U, s, _ = np.linalg.svd(M, full_matrices=False)
+    n, gap, auto, Gam = _order_and_gamma(U, s, order, (i - 1) * ny, rank_tol)
+    if T is not None:
+        Gam = T @ Gam  # Gamma_i = W1^{-1} U_1 S_1^{1/2}
+    Gm = Gam[:-ny]  # Gamma_{i-1}
+    if variant == "simple":
+        # X_i = Gamma_i^+ O_i, X_{i+1} = Gamma_{i-1}^+ O_{i-1};
+        # [X_{i+1}; Y_i] = [A B; C D] [X_i; U_i] + residuals (least squares).
+        Wpp = np.concatenate([st.rows(st.u_rows(0, i + 1)), st.rows(st.y_rows(0, i + 1))])
+        O_m, _ = _oblique(
+            st, st.rows(st.y_rows(i + 1, 2 * i)), st.rows(st.u_rows(i + 1, 2 * i)), Wpp, rcond
+        )
+        X_i = _pinv_apply(Gam, O_i)
+        X_n = _pinv_apply(Gm, O_m)
+        U_i = st.rows(st.u_rows(i, i + 1))
+        Y_i = st.rows(st.y_rows(i, i + 1))
+        AB = _regress(X_n, np.concatenate([X_i, U_i]), rcond)
+        A, B = AB[:, :n], AB[:, n:]
+        if feedthrough:
+            CD = _regress(Y_i, np.concatenate([X_i, U_i]), rcond)
+            C, D = CD[:, :n], CD[:, n:]
+        else:
+            C, D = _regress(Y_i, X_i, rcond), np.zeros((ny, nu))
+        return _Core(A=A, C=C, B=B, D=D, s=s, n=n, gap=gap, order_auto=auto)
+    # Robust: [Gamma_{i-1}^+ Z_{i+1}; Y_i] = [A; C] Gamma_i^+ Z_i + K U_f + residuals,
+    # Z_i = Y_f / [W_p; U_f], Z_{i+1} = Y_f^- / [W_p^+; U_f^-]; K is linear in (B, D).
+    Z_i, Z_n = _z_projections(st, i, rcond)
+    Y_i = st.rows(st.y_rows(i, i + 1))
+    lhs = np.concatenate([_pinv_apply(Gm, Z_n), Y_i])
+    rhs = np.concatenate([_pinv_apply(Gam, Z_i), Uf])
+    sol = _regress(lhs, rhs, rcond)
+    A, C = sol[:n, :n], sol[n:, :n]
+    return _Core(
+        A=A,
+        C=C,
+        B=None,
+        D=None,
+        s=s,
+        n=n,
+        gap=gap,
+        order_auto=auto,
+        K_hat=sol[:, n:],
+        Z=(Z_i, Z_n),
+    )
+
+
+def _z_projections(st: _Stats, i: int, rcond: float) -> tuple[np.ndarray, np.ndarray]:
+    """``Z_i = Y_f / [W_p; U_f]`` and ``Z_{i+1} = Y_f^- / [W_p^+; U_f^-]``."""
+    U_all = st.rows(st.u_rows(0, 2 * i))
+    Q1 = _orth(np.concatenate([U_all, st.rows(st.y_rows(0, i))]), rcond)
+    Q2 = _orth(np.concatenate([U_all, st.rows(st.y_rows(0, i + 1))]), rcond)
+    Z_i = _proj(st.rows(st.y_rows(i, 2 * i)), Q1)
+    Z_n = _proj(st.rows(st.y_rows(i + 1, 2 * i)), Q2)
+    return Z_i, Z_n
+
+
+def _k_operator(A: np.ndarray, C: np.ndarray, i: int, nu: int, feedthrough: bool) -> np.ndarray:
+    """Matrix ``N`` with ``vec-by-block(K(B, D)) = N [D; B]`` (robust N4SID, B and D step).
+
+    ``K = [[B, Gamma_{i-1}^+ H_{i-1}] - A Gamma_i^+ H_i ; [D, 0] - C Gamma_i^+ H_i]``;
+    block column ``c`` (input ``u(i+c)``) is ``N_c [D; B]`` with ``h(0) = D`` and
+    ``h(k) = C A^{k-1} B = E_k [D; B]``.
+    """
+    ny, n = C.shape
+    Gam = _observability(A, C, i)
+    Gp = np.linalg.pinv(Gam)  # n x i ny  (small, full column rank)
+    Gmp = np.linalg.pinv(Gam[:-ny]) if i > 1 else np.zeros((n, 0))
+    # E_k (ny x (ny + n)): h(k) = E_k [D; B].
+    E = np.zeros((i, ny, ny + n))
+    E[0, :, :ny] = np.eye(ny)
+    CAk = C.copy()
+    for k in range(1, i):
+        E[k, :, ny:] = CAk
+        CAk = CAk @ A
+    blocks = []
+    for c in range(i):
+        top = np.zeros((n, ny + n))
+        bot = np.zeros((ny, ny + n))
+        if c == 0:
+            top[:, ny:] = np.eye(n)
+            bot[:, :ny] = np.eye(ny)
+        else:
+            for r in range(c - 1, i - 1):
+                top += Gmp[:, r * ny : (r + 1) * ny] @ E[r - c + 1]
+        acc = np.zeros((n, ny + n))
+        for r in range(c, i):
+            acc += Gp[:, r * ny : (r + 1) * ny] @ E[r - c]
+        top -= A @ acc
+        bot -= C @ acc
+        blocks.append(np.concatenate([top, bot]))
+    Nmat = np.concatenate(blocks)  # (i (n + ny)) x (ny + n)
+    return Nmat if feedthrough else Nmat[:, ny:]
+
+
+def _bd_robust(
+    K_hat: np.ndarray, A: np.ndarray, C: np.ndarray, i: int, nu: int, feedthrough: bool
+) -> tuple[np.ndarray, np.ndarray]:
+    ny = C.shape[0]
+    Nmat = _k_operator(A, C, i, nu, feedthrough)
+    # Right-hand side: block columns of K_hat stacked the same way.
+    rhs = np.concatenate([K_hat[:, c * nu : (c + 1) * nu] for c in range(i)])
+    sol = sla.lstsq(Nmat, rhs, check_finite=False)[0]
+    if feedthrough:
+        return sol[ny:], sol[:ny]
+    return sol, np.zeros((ny, nu))
+
+
+def _innovation_stats(
+    st: _Stats,
+    i: int,
+    A: np.ndarray,
+    B: np.ndarray,
+    C: np.ndarray,
+    D: np.ndarray,
+    rcond: float,
+    Z: tuple[np.ndarray, np.ndarray] | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Residual covariance of the state equations (scaled units) and output residual rows.
+
+    ``X_i = Gamma_i^+ (Z_i - H_i U_f)`` are the states of a bank of Kalman filters
+    with ``i`` past samples (Van Overschee & De Moor 1996, Ch. 4); the residuals
+    ``[X_{i+1} - A X_i - B U_i ; Y_i - C X_i - D U_i]`` estimate the process and
+    measurement noise, the second block is the one-step prediction error.
+    """
+    ny = C.shape[0]
+    Z_i, Z_n = _z_projections(st, i, rcond) if Z is None else Z
+    Uf = st.rows(st.u_rows(i, 2 * i))
+    Ufm = st.rows(st.u_rows(i + 1, 2 * i))
+    h = _markov(A, B, C, D, i)
+    Gam = _observability(A, C, i)
+    X_i = _pinv_apply(Gam, Z_i - _toeplitz(h) @ Uf)
+    X_n = _pinv_apply(Gam[:-ny], Z_n - _toeplitz(h[: i - 1]) @ Ufm)
+    U_i = st.rows(st.u_rows(i, i + 1))
+    Y_i = st.rows(st.y_rows(i, i + 1))
+    rho_w = X_n - A @ X_i - B @ U_i
+    rho_v = Y_i - C @ X_i - D @ U_i
+    rho = np.concatenate([rho_w, rho_v])
+    cov = rho @ rho.T  # F is normalised: this is the sample covariance
+    return 0.5 * (cov + cov.T), rho_v
+
+
+def _kalman_gain(
+    A: np.ndarray, C: np.ndarray, cov: np.ndarray
+) -> tuple[np.ndarray | None, np.ndarray | None, str]:
+    """Steady-state predictor gain from ``[[Q, S], [S^T, R]]`` (scaled units)."""
+    n = A.shape[0]
+    ny = C.shape[0]
+    ev, V = np.linalg.eigh(cov)
+    cov = (V * np.maximum(ev, 0.0)) @ V.T  # remove rounding-level negative eigenvalues
+    Q, S, R = cov[:n, :n], cov[:n, n:], cov[n:, n:]
+    # Outputs are scaled to unit RMS: 1e-12 is far below any measurable noise and
+    # only keeps R invertible for noise-free data.
+    R = R + 1e-12 * np.eye(ny)
+    try:
+        P = sla.solve_discrete_are(A.T, C.T, Q, R, s=S)
+    except (ValueError, np.linalg.LinAlgError) as exc:
+        return None, None, f"the Kalman-filter Riccati equation has no solution ({exc})"
+    Re = C @ P @ C.T + R
+    K = sla.solve(Re.T, (A @ P @ C.T + S).T, assume_a="pos").T
+    rho = float(np.max(np.abs(np.linalg.eigvals(A - K @ C)))) if n else 0.0
+    if not np.isfinite(rho) or rho >= 1.0:
+        return None, None, f"the Kalman predictor is not stable (spectral radius {rho:.6g})"
+    return K, Re, ""
+
+
+def _predictor_residuals(
+    model: StateSpace, K: np.ndarray, y: np.ndarray, u: np.ndarray
+) -> np.ndarray:
+    """One-step prediction errors of the steady-state Kalman predictor, x_hat(0) = 0.
+
+    ``x_hat(t+1) = (A - K C) x_hat(t) + (B - K D) u(t) + K y(t)``,
+    ``e(t) = y(t) - C x_hat(t) - D u(t)``; in cache-sized chunks.
+    """
+    A, B, C, D = model.A, model.B, model.C, model.D
+    Fp = A - K @ C
+    Mu, My = (B - K @ D).T, K.T
+    e = np.empty_like(y)
+    x = np.zeros(A.shape[0])
+    for t0 in range(0, y.shape[0], _CHUNK):
+        t1 = min(y.shape[0], t0 + _CHUNK)
+        X, x = linear_recursion(Fp, u[t0:t1] @ Mu + y[t0:t1] @ My, x)
+        e[t0:t1] = y[t0:t1] - X @ C.T - u[t0:t1] @ D.T
+    return e
+
+
+def _bd_regression(
+    A: np.ndarray, C: np.ndarray, y: np.ndarray, u: np.ndarray, feedthrough: bool
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """B, D and x0 by least squares on the simulated response (linear in B, D, x0).
+
+    ``y(t) = C A^t x0 + sum_{s<t} C A^{t-1-s} B u(s) + D u(t) + e(t)``. The
+    regressors are simulated chunk by chunk and the problem is reduced by a
+    running QR of ``[Phi | y]``, so memory stays linear in the chunk.
+    """
+    N, ny = y.shape
+    nu = u.shape[1]
+    n = A.shape[0]
+    rho = float(np.max(np.abs(np.linalg.eigvals(A)))) if n else 0.0
+    if rho > 1.0 and N * math.log(rho) > math.log(_MAX_GROWTH):
+        raise IdentificationError(
+            f"bd_method='regression' simulates the model over the record, but A has spectral "
+            f"radius {rho:.6g} and grows by more than {_MAX_GROWTH:.0e} over {N} samples; "
+            "use bd_method='subspace' (the default), which needs no simulation"
+        )
+    nxc = n + n * nu  # state columns: x0 basis, then B entries (q-major)
+    nd = ny * nu if feedthrough else 0
+    npar = nxc + nd
+    R = np.empty((0, npar + 1))
+    state = np.zeros((n, nxc))
+    state[:, :n] = np.eye(n)
+    chunk = max(4096, 65536 // max(1, nxc))
+    for t0 in range(0, N, chunk):
+        t1 = min(N, t0 + chunk)
+        T = t1 - t0
+        W = np.zeros((T, n, nxc))
+        for q in range(nu):
+            for p in range(n):
+                W[:, p, n + q * n + p] = u[t0:t1, q]
+        X, state = linear_recursion(A, W, state)
+        Phi = np.zeros((T, ny, npar + 1))
+        Phi[:, :, :nxc] = np.einsum("lp,tpc->tlc", C, X)
+        if feedthrough:
+            for q in range(nu):
+                for l in range(ny):
+                    Phi[:, l, nxc + q * ny + l] = u[t0:t1, q]
+        Phi[:, :, npar] = y[t0:t1]
+        R = np.linalg.qr(np.concatenate([R, Phi.reshape(T * ny, npar + 1)]), mode="r")
+    theta = sla.lstsq(R[:npar, :npar], R[:npar, npar], check_finite=False)[0]
+    x0 = theta[:n]
+    B = theta[n:nxc].reshape(nu, n).T
+    D = theta[nxc:].reshape(nu, ny).T if feedthrough else np.zeros((ny, nu))
+    return B, D, x0
+
+
+# ------------------------------------------------------------------- options
+def _check_choice(value: Any, name: str, choices: tuple[str, ...]) -> str:
+    if value not in choices:
+        raise DataError(f"`{name}` must be one of {', '.join(map(repr, choices))}; got {value!r}")
+    return str(value)
+
+
+def _check_int(value: Any, name: str, low: int, allow_none: bool = True) -> int | None:
+    if value is None and allow_none:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
+        raise DataError(
+            f"`{name}` must be an integer >= {low}{' or None' if allow_none else ''}; "
+            f"got {value!r}"
+        )
+    return int(value)
+
+
+def _check_rank_tol(value: Any) -> float | None:
+    if value is None:
+        return None
+    v = check_positive(value, "rank_tol")
+    if v >= 1.0:
+        raise DataError(
+            f"`rank_tol` is relative to the largest singular value: 0 < rank_tol < 1; "
+            f"got {value!r}"
+        )
+    return v
+
+
+@dataclass(frozen=True)
+class _Options:
+    algorithm: str
+    order: int | None
+    horizon: int | None
+    max_horizon: int
+    dt: float
+    feedthrough: bool
+    weighting: str
+    variant: str | None
+    rank_tol: float | None
+    factorization: str
+    bd_method: str
+
+
+def _options(algorithm: str, **kw: Any) -> _Options:
+    if algorithm == "moesp":
+        weighting = _check_choice(kw["weighting"], "weighting", _MOESP_WEIGHTINGS)
+        variant = None
+    else:
+        weighting = _check_choice(kw["weighting"], "weighting", _N4SID_WEIGHTINGS)
+        variant = _check_choice(kw["variant"], "variant", _N4SID_VARIANTS)
+    max_h = _check_int(kw["max_horizon"], "max_horizon", 2)
+    return _Options(
+        algorithm=algorithm,
+        order=_check_int(kw["order"], "order", 1),
+        horizon=_check_int(kw["horizon"], "horizon", 2),
+        max_horizon=DEFAULT_MAX_HORIZON if max_h is None else max_h,
+        dt=check_positive(kw["dt"], "dt"),
+        feedthrough=bool(kw["feedthrough"]),
+        weighting=weighting,
+        variant=variant,
+        rank_tol=_check_rank_tol(kw["rank_tol"]),
+        factorization=_check_choice(kw["factorization"], "factorization", _FACTORIZATIONS),
+        bd_method=_check_choice(kw["bd_method"], "bd_method", _BD_METHODS),
+    )
+
+
+# ---------------------------------------------------------------- the driver
+def _fit(
+    acc: _LagGram | _HankelQR,
+    nu: int,
+    ny: int,
+    opt: _Options,
+    i_rows: int,
+    data: tuple[np.ndarray, np.ndarray] | None,
+    stacklevel: int = 4,
+) -> IdentificationResult:
+    """Everything after the pass over the data (shared by both entry points)."""
+    notes: list[str] = []
+    extras: dict[str, Any] = {}
+    st = _stats_from(acc, nu, ny, i_rows)
+    rank_tol = _DEFAULT_RANK_TOL[st.factorization] if opt.rank_tol is None else opt.rank_tol
+    rcond = _PROJ_RCOND[st.factorization]
+    i_min = _min_horizon(opt.order, ny)
+
+    # ---- horizon
+    if opt.horizon is not None:
+        i = opt.horizon
+        horizon_rule = "given"
+    else:
+        p_hat, aic = _arx_horizon(st, i_rows - 1, opt.feedthrough)
+        i = min(i_rows, max(p_hat + 1, i_min))
+        extras["arx_order"] = p_hat
+        extras["arx_aic"] = aic
+        horizon_rule = "auto"
+        notes.append(
+            f"horizon {i} chosen automatically: ARX order {p_hat} by AIC over 1..{i_rows - 1} "
+            f"(horizon = ARX order + 1, at least {i_min}, at most {i_rows})"
+        )
+        if p_hat >= i_rows - 1:
+            notes.append(
+                f"the ARX order hit its upper limit {i_rows - 1}: the data may need a longer "
+                "horizon than the record allows; pass horizon= or a longer record"
+            )
+    if i < i_min:
+        raise DataError(
+            f"`horizon`={i} is too short for order={opt.order} with {ny} output(s): "
+            f"need (horizon - 1) * ny >= order, i.e. horizon >= {i_min}"
+        )
+    F_full = st.F
+    st = _Stats(
+        F=F_full[: 2 * i * st.m],
+        nu=nu,
+        ny=ny,
+        i_rows=i_rows,
+        j=st.j,
+        n_samples=st.n_samples,
+        scale=st.scale,
+        mean=st.mean,
+        rank=st.rank,
+        factorization=st.factorization,
+    )
+    if opt.order is not None and opt.order > (i - 1) * ny:
+        raise DataError(
+            f"`order`={opt.order} exceeds (horizon - 1) * ny = {(i - 1) * ny}; "
+            f"increase `horizon` to at least {i_min}"
+        )
+
+    # ---- subspace step: A, C (and B, D for simple N4SID)
+    if opt.algorithm == "moesp":
+        core = _moesp_core(st, i, opt.weighting, opt.order, rank_tol, rcond)
+    else:
+        core = _n4sid_core(
+            st,
+            i,
+            opt.weighting,
+            opt.variant or "robust",
+            opt.order,
+            rank_tol,
+            rcond,
+            opt.feedthrough,
+        )
+    n = core.n
+    if core.order_auto:
+        notes.append(
+            f"order {n} chosen automatically: largest gap of the singular values "
+            f"(s_{n}/s_{n + 1} = {core.gap:.3g}, values below {rank_tol:.1e} x s_1 floored)"
+        )
+        if core.gap < 10.0:
+            notes.append(
+                f"order choice is marginal (gap ratio {core.gap:.3g} < 10); inspect "
+                "`singular_values` and pass `order=` explicitly"
+            )
+    ratio = float(core.s[n - 1] / core.s[0])
+    if ratio < _ILL_RATIO[st.factorization]:
+        msg = (
+            f"s_{n}/s_1 = {ratio:.2e} is below {_ILL_RATIO[st.factorization]:.0e}: the "
+            f"{st.factorization!r} factorisation does not resolve the weakest direction "
+            "reliably (data spanning many decades, e.g. an unstable open-loop record, or a "
+            "barely excited mode)"
+            + ("; use factorization='qr'" if st.factorization == "gram" else "")
+        )
+        warnings.warn(msg, IllConditionedWarning, stacklevel=stacklevel)
+        notes.append(msg)
+    A, Cs = core.A, core.C
+    if core.B is not None:
+        Bs, Ds = core.B, core.D
+    elif opt.algorithm == "moesp":
+        Bs, Ds = _bd_moesp(st, i, A, Cs, opt.feedthrough, rcond)
+    else:
+        Bs, Ds = _bd_robust(core.K_hat, A, Cs, i, nu, opt.feedthrough)
+    assert Ds is not None
+
+    # ---- back to physical units: z_s = z / scale.
+    s_u, s_y = st.scale[:nu], st.scale[nu:]
+    C = Cs * s_y[:, None]
+    B = Bs / s_u[None, :]
+    D = (Ds * s_y[:, None]) / s_u[None, :]
+    if opt.bd_method == "regression":
+        if data is None:
+            raise DataError(
+                "bd_method='regression' needs the signals in memory; the streaming "
+                "accumulator supports bd_method='subspace' only"
+            )
+        B, D, x0 = _bd_regression(A, C, data[0], data[1], opt.feedthrough)
+        extras["x0"] = x0
+        Bs, Ds = B * s_u[None, :], (D / s_y[:, None]) * s_u[None, :]
+    model = StateSpace(A, B, C, D, opt.dt)
+
+    # ---- noise model and fit (one-step-ahead; never an open-loop simulation)
+    cov, rho_v = _innovation_stats(st, i, A, Bs, Cs, Ds, rcond, core.Z)
+    y_rows = st.y_rows(i, i + 1)
+    y2 = np.einsum("ij,ij->i", st.F[y_rows], st.F[y_rows])  # second moment, scaled
+    var_y = np.maximum(y2 - st.mean[nu:] ** 2 / s_y**2, 0.0)
+    mse = np.einsum("ij,ij->i", rho_v, rho_v)
+    fit: dict[str, float] = {}
+    with np.errstate(divide="ignore", invalid="ignore"):
+        hfit = 100.0 * (1.0 - np.sqrt(mse / var_y))
+    fit["horizon_predictor_fit_percent"] = float(np.mean(hfit))
+    K_s, Re_s, why = _kalman_gain(A, Cs, cov)
+    sy_m = np.diag(s_y)
+    extras["noise_covariance"] = {
+        "Q": cov[:n, :n],
+        "S": cov[:n, n:] @ sy_m,
+        "R": sy_m @ cov[n:, n:] @ sy_m,
+    }
+    residuals = None
+    if K_s is None:
+        notes.append(f"no steady-state Kalman predictor: {why}; one-step fit not computed")
+    else:
+        assert Re_s is not None
+        K = K_s / s_y[None, :]
+        extras["kalman_gain"] = K
+        extras["innovation_covariance"] = sy_m @ Re_s @ sy_m
+        if data is not None:
+            y, u = data
+            residuals = _predictor_residuals(model, K, y, u)
+            yc = y - y.mean(axis=0)
+            num = np.sqrt(np.einsum("ij,ij->j", residuals, residuals))
+            den = np.sqrt(np.einsum("ij,ij->j", yc, yc))
+            with np.errstate(divide="ignore", invalid="ignore"):
+                f = 100.0 * (1.0 - num / den)
+            fit["one_step_fit_percent"] = float(np.mean(f))
+            if ny > 1:
+                for c in range(ny):
+                    fit[f"one_step_fit_percent_y{c + 1}"] = float(f[c])
+    if not model.is_stable():
+        notes.append(
+            "the model is unstable (poles outside the unit circle); it is reported as found"
+        )
+
+    continuous = None
+    try:
+        continuous = undiscretize(model)
+    except ModelError as exc:
+        notes.append(f"no continuous-time model: {exc}")
+
+    a = _char_poly(A)
+    params = {f"a{k + 1}": float(v) for k, v in enumerate(a)}
+    extras.update(
+        horizon=i,
+        order=n,
+        order_gap_ratio=core.gap,
+        factor_rank=st.rank,
+        hankel_rows=st.j,
+        channel_scale=st.scale,
+    )
+    options = {
+        "order": n,
+        "order_rule": "auto" if core.order_auto else "given",
+        "horizon": i,
+        "horizon_rule": horizon_rule,
+        "max_horizon": i_rows if horizon_rule == "auto" else opt.max_horizon,
+        "dt": opt.dt,
+        "feedthrough": opt.feedthrough,
+        "weighting": opt.weighting,
+        "rank_tol": rank_tol,
+        "factorization": st.factorization,
+        "bd_method": opt.bd_method,
+        "scale_channels": True,
+    }
+    if opt.variant is not None:
+        options["variant"] = opt.variant
+    logger.debug("%s: order %d, horizon %d, j=%d", opt.algorithm, n, i, st.j)
+    return IdentificationResult(
+        method=opt.algorithm,
+        model=model,
+        parameters=params,
+        covariance=None,
+        n_samples=st.n_samples,
+        options=options,
+        residuals=residuals,
+        fit=fit,
+        singular_values=core.s,
+        notes=tuple(notes),
+        continuous_model=continuous,
+        extras=extras,
+    )
+
+
+def _plan_in_memory(N: int, m: int, ny: int, opt: _Options) -> int:
+    """Window half-length ``i_rows`` of the Hankel rows for an in-memory fit."""
+    i_min = _min_horizon(opt.order, ny)
+    if opt.horizon is not None:
+        _check_rows(N, opt.horizon, m, f"horizon={opt.horizon}")
+        return opt.horizon
+    i_rows = _auto_max_horizon(N, m, opt.max_horizon)
+    if i_rows < i_min:
+        _check_rows(N, i_min, m, f"the shortest usable horizon ({i_min})")
+        i_rows = i_min
+    return i_rows
+
+
+def _fit_in_memory(algorithm: str, y: Any, u: Any, kw: dict[str, Any]) -> IdentificationResult:
+    opt = _options(algorithm, **kw)
+    y = as_signal(y, "y", min_samples=2)
+    N = y.shape[0]
+    u = as_signal(u, "u", n_samples=N)
+    ny, nu = y.shape[1], u.shape[1]
+    m = nu + ny
+    i_rows = _plan_in_memory(N, m, ny, opt)
+    acc: _LagGram | _HankelQR
+    if opt.factorization == "gram":
+        acc = _LagGram(m, 2 * i_rows - 1)
+    else:
+        acc = _HankelQR(m, 2 * i_rows)
+    for t0 in range(0, N, _CHUNK):  # the same accumulator a stream would use
+        acc.update(np.concatenate([u[t0 : t0 + _CHUNK], y[t0 : t0 + _CHUNK]], axis=1))
+    return _fit(acc, nu, ny, opt, i_rows, (y, u))
+
+
+# ------------------------------------------------------------- public API
+def fit_moesp(
+    y: Any,
+    u: Any,
+    *,
+    order: int | None = None,
+    horizon: int | None = None,
+    dt: float = 1.0,
+    feedthrough: bool = False,
+    weighting: str = "po",
+    rank_tol: float | None = None,
+    factorization: str = "gram",
+    bd_method: str = "subspace",
+    max_horizon: int | None = None,
+    rng: np.random.Generator | None = None,
+) -> IdentificationResult:
+    """MIMO state-space model by MOESP (PO-MOESP by default).
+
+    Implements ordinary MOESP (Verhaegen & Dewilde 1992), PI-MOESP and
+    PO-MOESP (Verhaegen 1994) on the LQ factor of the block-Hankel data
+    ``[U_f; W_p; Y_f]``: ``Gamma_i`` is the column space of ``L32`` (of ``L22``
+    for ordinary MOESP), ``A`` and ``C`` follow from its shift invariance, and
+    ``B``, ``D`` from the linear equations ``Gamma_perp^T L31 L11^{-1} =
+    Gamma_perp^T H_i(B, D)``, solved by least squares (``lstsq``).
+
+    Parameters
+    ----------
+    y : array_like, shape (N, ny)
+        Outputs, time first (1-D = one channel).
+    u : array_like, shape (N, nu)
+        Inputs, same N. For closed-loop data this is the plant input.
+    order : int, optional
+        Model order; chosen automatically when omitted (largest gap of the
+        singular values, see Notes).
+    horizon : int, optional
+        Block rows ``i`` of the past and of the future (the Hankel window is
+        ``2i`` samples). Default: chosen from the data (see Notes).
+    dt : float
+        Sample time of the model in seconds.
+    feedthrough : bool
+        Estimate ``D``; when False (default, strictly proper plants such as
+        sampled AMBs) ``D = 0``.
+    weighting : {"po", "pi", "ordinary"}
+        Instruments: past inputs and outputs (PO-MOESP, for noisy data; default),
+        past inputs only (PI-MOESP, output-error noise), none (ordinary MOESP:
+        noise-free data or white measurement noise).
+    rank_tol : float, optional
+        Singular values below ``rank_tol * s_1`` count as zero in the order choice.
+        Default 1e-6 (``factorization="gram"``) or 1e-10 (``"qr"``).
+    factorization : {"gram", "qr"}
+        ``"gram"``: structured Gram matrix + pivoted Cholesky (fast; the default).
+        ``"qr"``: tall-skinny Householder QR (about ``sqrt(eps)`` more accurate on
+        noise-free data, several times slower). See ``docs/subspace.md``.
+    bd_method : {"subspace", "regression"}
+        ``"subspace"`` (default): B, D from the factor, no simulation (works for
+        unstable models and in the streaming accumulator). ``"regression"``: least
+        squares on the simulated response in ``(x0, B, D)``; refuses a model that
+        grows by more than 1e12 over the record.
+    max_horizon : int, optional
+        Upper limit of the automatic horizon (default 40).
+    rng : numpy.random.Generator, optional
+        Unused: the method is deterministic. Accepted for a uniform ``fit_*`` API.
+
+    Returns
+    -------
+    IdentificationResult
+        ``model`` (discrete, ``dt``); ``parameters`` a1..an of ``det(zI - A) =
+        z^n + a1 z^{n-1} + ... + an`` (basis invariant; ``covariance`` is None);
+        ``singular_values`` those of ``L32`` used for the order; ``residuals`` the
+        steady-state Kalman one-step prediction errors; ``fit`` their fit
+        percentage, never an open-loop simulation fit; ``extras`` noise
+        covariances, Kalman gain, horizon and order details.
+
+    Raises
+    ------
+    DataError
+        NaN/inf, wrong shapes, too few samples for the horizon, an identically
+        zero channel, or an invalid option.
+    IdentificationError
+        No information in the data (all singular values zero), or
+        ``bd_method="regression"`` on a model that grows too fast.
+
+    Notes
+    -----
+    Automatic horizon: one pass collects the lagged products up to lag
+    ``2 i_max - 1`` with ``i_max = min(max_horizon, (N+1) // (2 + 10 m))`` (at
+    least 5 Hankel rows per column). ARX models of orders ``p = 1..i_max - 1``
+    are fitted from the same factor, the order ``p*`` minimising AIC is taken as
+    the memory the one-step predictor needs, and ``i = max(p* + 1, i_min)`` with
+    ``(i_min - 1) ny >= order``. The Hankel rows are then ``0..N - 2 i_max`` for
+    either factorisation, so the result does not depend on it beyond rounding.
+
+    Automatic order: singular values are scaled by ``s_1`` and floored at
+    ``rank_tol``; the order is the index of the largest ratio ``s_n / s_{n+1}``
+    for ``n <= (i - 1) ny``. A ratio below 10 is reported in ``notes``.
+
+    Channels are scaled to unit RMS before the SVD (the model is returned in
+    physical units), so the order choice does not depend on units. Means are
+    not removed: detrend the data first when its operating point is not zero.
+
+    In closed loop the future inputs are correlated with past noise, which biases
+    every open-loop subspace method; the bias shrinks with the signal-to-noise
+    ratio and is smaller with a long horizon (``docs/subspace.md``).
+
+    References
+    ----------
+    M. Verhaegen and P. Dewilde, "Subspace model identification Part 1. The
+    output-error state-space model identification class of algorithms," Int. J.
+    Control 56(5):1187-1210, 1992. M. Verhaegen, "Identification of the
+    deterministic part of MIMO state space models given in innovations form from
+    input-output data," Automatica 30(1):61-74, 1994.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from maglevid.lti import StateSpace
+    >>> sys = StateSpace([[0.9, 0.2], [-0.2, 0.9]], [[1.0], [0.0]], [[1.0, 0.0]], dt=1.0)
+    >>> u = np.random.default_rng(0).standard_normal((2000, 1))
+    >>> y, _ = sys.simulate(u)
+    >>> res = fit_moesp(y, u, order=2, horizon=5)
+    >>> np.allclose(np.sort_complex(res.model.poles()), np.sort_complex(sys.poles()))
+    True
+    """
+    del rng
+    return _fit_in_memory(
+        "moesp",
+        y,
+        u,
+        dict(
+            order=order,
+            horizon=horizon,
+            dt=dt,
+            feedthrough=feedthrough,
+            weighting=weighting,
+            variant=None,
+            rank_tol=rank_tol,
+            factorization=factorization,
+            bd_method=bd_method,
+            max_horizon=max_horizon,
+        ),
+    )
+
+
+def fit_n4sid(
+    y: Any,
+    u: Any,
+    *,
+    order: int | None = None,
+    horizon: int | None = None,
+    dt: float = 1.0,
+    feedthrough: bool = False,
+    weighting: str = "n4sid",
+    variant: str = "robust",
+    rank_tol: float | None = None,
+    factorization: str = "gram",
+    bd_method: str = "subspace",
+    max_horizon: int | None = None,
+    rng: np.random.Generator | None = None,
+) -> IdentificationResult:
+    """MIMO state-space model by N4SID (oblique projection).
+
+    Implements Van Overschee & De Moor (1994): the oblique projection ``O_i =
+    Y_f /_{U_f} W_p`` (Theorem 2), the SVD of ``W1 O_i W2`` with the weights of
+    the unifying theorem (1996, Ch. 4), and either the robust combined
+    algorithm (``A``, ``C`` from ``[Gamma_{i-1}^+ Z_{i+1}; Y_i] = [A; C]
+    Gamma_i^+ Z_i + K U_f``, then ``B``, ``D`` from ``K`` by least squares) or
+    the simple one (``[X_{i+1}; Y_i] = [A B; C D][X_i; U_i]``).
+
+    Parameters
+    ----------
+    y, u, order, horizon, dt, feedthrough, rank_tol, factorization, bd_method, max_horizon, rng
+        As in :func:`fit_moesp`.
+    weighting : {"n4sid", "moesp", "cva"}
+        ``W1 = I, W2 = I`` (N4SID, default); ``W1 = I, W2 = Pi_{U_f}^perp``
+        (MOESP); ``W1 = (Y_f Pi_perp Y_f^T)^{-1/2}, W2 = Pi_perp`` (CVA, needs
+        noisy data).
+    variant : {"robust", "simple"}
+        The robust combined algorithm (default) or the state-sequence one.
+
+    Returns
+    -------
+    IdentificationResult
+        As :func:`fit_moesp`; ``singular_values`` are those of ``W1 O_i W2``.
+
+    Raises
+    ------
+    DataError, IdentificationError
+        As :func:`fit_moesp`; also ``weighting="cva"`` on noise-free data.
+
+    Notes
+    -----
+    See :func:`fit_moesp` for the horizon and order rules and the closed-loop
+    caveat.
+
+    References
+    ----------
+    P. Van Overschee and B. De Moor, "N4SID: Subspace algorithms for the
+    identification of combined deterministic-stochastic systems," Automatica
+    30(1):75-93, 1994. P. Van Overschee and B. De Moor, Subspace Identification
+    for Linear Systems, Kluwer, 1996, Ch. 4.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from maglevid.lti import StateSpace
+    >>> sys = StateSpace([[0.9, 0.2], [-0.2, 0.9]], [[1.0], [0.0]], [[1.0, 0.0]], dt=1.0)
+    >>> u = np.random.default_rng(0).standard_normal((2000, 1))
+    >>> y, _ = sys.simulate(u)
+    >>> res = fit_n4sid(y, u, order=2, horizon=5)
+    >>> np.allclose(res.model.markov(6), sys.markov(6))
+    True
+    """
+    del rng
+    return _fit_in_memory(
+        "n4sid",
+        y,
+        u,
+        dict(
+            order=order,
+            horizon=horizon,
+            dt=dt,
+            feedthrough=feedthrough,
+            weighting=weighting,
+            variant=variant,
+            rank_tol=rank_tol,
+            factorization=factorization,
+            bd_method=bd_method,
+            max_horizon=max_horizon,
+        ),
+    )
+
+
+class SubspaceAccumulator:
+    """Block-Hankel statistics fed chunk by chunk; fit MOESP or N4SID at the end.
+
+    The memory held is independent of the record length: ``2 i_max`` lagged
+    ``m x m`` products and ``2 i_max`` head and tail samples (``"gram"``), or one
+    ``2 i m`` square triangular factor (``"qr"``). A chunk boundary changes
+    nothing but the order of summation, so :meth:`fit` equals :func:`fit_moesp`
+    / :func:`fit_n4sid` on the whole record to rounding, except that it has no
+    time-series ``residuals`` (the record is gone) and no ``bd_method=
+    "regression"``.
+
+    Parameters
+    ----------
+    ny, nu : int
+        Output and input channels.
+    horizon : int, optional
+        Fixed horizon. When omitted it is chosen at :meth:`fit` time by the
+        rule of :func:`fit_moesp`, from candidates up to ``max_horizon``.
+    max_horizon : int
+        Largest horizon :meth:`fit` may choose (default 40). For
+        ``factorization="gram"`` it is reduced at fit time to what the record
+        supports, exactly as the in-memory functions do; ``"qr"`` fixes the
+        window to ``2 * max_horizon`` at construction.
+    factorization : {"gram", "qr"}
+        See :func:`fit_moesp`.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from maglevid.lti import StateSpace
+    >>> sys = StateSpace([[0.9, 0.2], [-0.2, 0.9]], [[1.0], [0.0]], [[1.0, 0.0]], dt=1.0)
+    >>> u = np.random.default_rng(0).standard_normal((3000, 1))
+    >>> y, _ = sys.simulate(u)
+    >>> acc = SubspaceAccumulator(ny=1, nu=1, horizon=5)
+    >>> for k in range(0, 3000, 700):
+    ...     _ = acc.update(y[k:k + 700], u[k:k + 700])
+    >>> res = acc.fit(algorithm="moesp", order=2)
+    >>> np.allclose(res.model.markov(6), sys.markov(6))
+    True
+    """
+
+    def __init__(
+        self,
+        ny: int,
+        nu: int,
+        *,
+        horizon: int | None = None,
+        max_horizon: int = DEFAULT_MAX_HORIZON,
+        factorization: str = "gram",
+    ) -> None:
+        self.ny = _check_int(ny, "ny", 1, allow_none=False)
+        self.nu = _check_int(nu, "nu", 1, allow_none=False)
+        self.horizon = _check_int(horizon, "horizon", 2)
+        self.max_horizon = _check_int(max_horizon, "max_horizon", 2, allow_none=False)
+        self.factorization = _check_choice(factorization, "factorization", _FACTORIZATIONS)
+        i_top = self.horizon if self.horizon is not None else self.max_horizon
+        assert i_top is not None and self.ny is not None and self.nu is not None
+        m = self.ny + self.nu
+        self._acc: _LagGram | _HankelQR
+        if self.factorization == "gram":
+            self._acc = _LagGram(m, 2 * i_top - 1)
+        else:
+            self._acc = _HankelQR(m, 2 * i_top)
+
+    @property
+    def n_samples(self) -> int:
+        """Samples seen so far."""
+        return self._acc.n
+
+    def update(self, y: Any, u: Any) -> SubspaceAccumulator:
+        """Add the next chunk: ``y`` (c, ny) and ``u`` (c, nu), time first. Returns self."""
+        y = as_signal(y, "y", n_channels=self.ny)
+        u = as_signal(u, "u", n_samples=y.shape[0], n_channels=self.nu)
+        self._acc.update(np.concatenate([u, y], axis=1))
+        return self
+
+    def fit(
+        self,
+        *,
+        algorithm: str = "moesp",
+        order: int | None = None,
+        dt: float = 1.0,
+        feedthrough: bool = False,
+        weighting: str | None = None,
+        variant: str = "robust",
+        rank_tol: float | None = None,
+    ) -> IdentificationResult:
+        """Identify from the data seen so far.
+
+        Parameters
+        ----------
+        algorithm : {"moesp", "n4sid"}
+        order, dt, feedthrough, rank_tol
+            As in :func:`fit_moesp`.
+        weighting : str, optional
+            Default ``"po"`` for MOESP, ``"n4sid"`` for N4SID.
+        variant : {"robust", "simple"}
+            N4SID only.
+        """
+        algorithm = _check_choice(algorithm, "algorithm", ("moesp", "n4sid"))
+        if weighting is None:
+            weighting = "po" if algorithm == "moesp" else "n4sid"
+        opt = _options(
+            algorithm,
+            order=order,
+            horizon=self.horizon,
+            dt=dt,
+            feedthrough=feedthrough,
+            weighting=weighting,
+            variant=variant,
+            rank_tol=rank_tol,
+            factorization=self.factorization,
+            bd_method="subspace",
+            max_horizon=self.max_horizon,
+        )
+        assert self.ny is not None and self.nu is not None
+        m = self.ny + self.nu
+        N = self.n_samples
+        if self.horizon is not None:
+            _check_rows(N, self.horizon, m, f"horizon={self.horizon}")
+            i_rows = self.horizon
+        elif self.factorization == "gram":
+            i_rows = _plan_in_memory(N, m, self.ny, opt)
+            if i_rows > self.max_horizon:
+                raise DataError(
+                    f"order={order} needs horizon >= {i_rows}, above this accumulator's "
+                    f"max_horizon={self.max_horizon}"
+                )
+        else:
+            assert self.max_horizon is not None
+            _check_rows(N, self.max_horizon, m, f"max_horizon={self.max_horizon}")
+            i_rows = self.max_horizon
+        if isinstance(self._acc, _LagGram) and N < self._acc.min_samples():
+            raise DataError(f"{N} samples are too few for the lags kept ({self._acc.L})")
+        return _fit(self._acc, self.nu, self.ny, opt, i_rows, None, stacklevel=3)
+
+
+# --------------------------------------------------------------- registry
+def _method(algorithm: str):  # type: ignore[no-untyped-def]
+    fit = fit_moesp if algorithm == "moesp" else fit_n4sid
+
+    def run(data: Any, **options: Any) -> IdentificationResult:
+        if getattr(data, "u", None) is None:
+            raise DataError(
+                f"method {algorithm!r} needs the plant input `u`, which the recording lacks; "
+                "when it holds `u_f` and `r`, use data.with_plant_input()"
+            )
+        options.setdefault("dt", data.dt)
+        return fit(data.y_control, data.u, **options)
+
+    run.__name__ = f"identify_{algorithm}"
+    run.__doc__ = f"``{algorithm}`` on a ClosedLoopData: y_control and u, dt from the data."
+    return run
+
+
+#: Methods for ``maglevid identify --method NAME`` (see identify/registry.py).
+METHODS = {"moesp": _method("moesp"), "n4sid": _method("n4sid")}

@@ -1,0 +1,802 @@
+"""Closed-loop simulation of the voltage-controlled AMB (Gosiewski & Paszowski, Figs. 1-2).
+
+:func:`simulate_amb_loop` is the public entry point; it is also the ``amb``
+scenario of ``maglevid simulate`` (:data:`SCENARIO`, :func:`add_scenario_arguments`,
+:func:`run_scenario`).
+
+Signals (deviations from the nominal operating point, what the controller sees):
+
+* ``y = [x, i1 - i0, i2 - i0] + noise`` [m, A, A], sampled at ``t = k dt``;
+* ``u = u_f + r`` [V], the amplifier inputs *on top of* the bias voltages
+  ``u_bias_j = R_j i0 / kw_j`` of the nominal bearing, held over one period;
+* ``r`` the excitation, ``u_f`` the feedback (eq. (42)).
+
+Two plant models:
+
+* ``"linear"``: the ZOH-sampled linearisation of eqs. (3)-(4) of the real
+  (possibly faulty) bearing, at ``x = 0, i1 = i2 = i0`` -- the paper's
+  simulation; the true discrete model is exactly ``amb_state_space(plant, dt)``.
+* ``"nonlinear"``: eq. (1) with absolute currents, integrated between samples
+  under the zero-order hold by fixed-step RK4. A fault moves the equilibrium
+  (e.g. a weaker coil needs more current); the integral action brings the rotor
+  back to ``x = 0`` and the simulation starts at the loop's equilibrium (found
+  by :func:`nonlinear_equilibrium`), so the record has no start-up transient.
+  The true linear model is then the linearisation at *that* point, recorded in
+  ``metadata["operating_point_true"]``.
+
+The default controller and observer are designed on the *nominal* bearing
+(:func:`default_amb_controller`, :func:`default_amb_observer`), as in a real
+diagnostic setting where the fault is unknown.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+from collections.abc import Callable, Iterable, Sequence
+from typing import Any
+
+import numpy as np
+from scipy.optimize import root
+
+from maglevid._validation import check_positive
+from maglevid.control import (
+    IntegralStateFeedback,
+    Observer,
+    check_loop_matrix,
+    design_deadbeat_observer,
+    design_pole_placement,
+    loop_matrix,
+    loop_matrix_condition,
+)
+from maglevid.data import ClosedLoopData
+from maglevid.exceptions import DataError, ModelError
+from maglevid.physics.amb import (
+    C_AMB,
+    INPUT_NAMES,
+    OUTPUT_NAMES,
+    AMBParameters,
+    amb_state_space,
+)
+from maglevid.simulate.excitation import EXCITATION_KINDS, make_excitation
+from maglevid.simulate.loop import simulate_linear_loop
+
+__all__ = [
+    "DEFAULT_DT",
+    "DEFAULT_EXCITATION_STD",
+    "DEFAULT_NOISE_STD",
+    "DEFAULT_N_SAMPLES",
+    "DEFAULT_POLES_S",
+    "DEFAULT_SUBSTEPS",
+    "OBSERVER_MODELS",
+    "PLANT_MODELS",
+    "SCENARIO",
+    "SCENARIO_HELP",
+    "add_scenario_arguments",
+    "default_amb_controller",
+    "default_amb_observer",
+    "linearized_v",
+    "nonlinear_equilibrium",
+    "parse_fault",
+    "run_scenario",
+    "simulate_amb_loop",
+]
+
+logger = logging.getLogger(__name__)
+
+#: Control period [s]: 10 kHz, a usual AMB controller rate. The open-loop unstable
+#: pole of the nominal bearing is at 455 rad/s (z = exp(0.0455)); the fastest
+#: default closed-loop pole, 800 rad/s, is 0.08 rad per sample.
+DEFAULT_DT = 1e-4
+
+#: Record length (2 s at the default dt).
+DEFAULT_N_SAMPLES = 20_000
+
+#: Excitation standard deviation per amplifier input [V]. With the default
+#: design it moves the rotor by ~1.1 um rms (0.3 % of the 350 um gap) and the
+#: coil currents by ~2 mA rms (0.4 % of the bias): well inside the linear range
+#: and well above the default noise.
+DEFAULT_EXCITATION_STD = 1.0
+
+#: Measurement noise standard deviations of ``[x, i1, i2]`` [m, A, A]: 0.1 um
+#: (a good eddy-current sensor at 10 kHz) and 0.1 mA (a Hall/shunt current sensor).
+DEFAULT_NOISE_STD = (1e-7, 1e-4, 1e-4)
+
+#: s-plane poles [rad/s] of the default pole placement on the extended model
+#: (eq. (41)): five real poles. The design is deliberately *not* mirror-symmetric
+#: (see :func:`default_amb_controller`).
+DEFAULT_POLES_S = (-400.0, -600.0, -800.0, -100.0, -30.0)
+
+#: RK4 steps per control period of the nonlinear plant. The fastest open-loop
+#: pole (455 rad/s) gives h|lambda| = 0.011 per step, local error ~1e-12 relative.
+DEFAULT_SUBSTEPS = 4
+
+#: Plant models :func:`simulate_amb_loop` accepts.
+PLANT_MODELS = ("linear", "nonlinear")
+
+#: Whose A, B the observer of eq. (43) runs on (its gain G is always designed
+#: on the nominal bearing): ``"nominal"`` (a real controller) or ``"plant"``
+#: (the real bearing's ZOH model -- how the paper's examples are reproduced).
+OBSERVER_MODELS = ("nominal", "plant")
+
+#: Largest accepted unit-free loop-matrix condition for the default design.
+_DEFAULT_DESIGN_MAX_CONDITION = 1e3
+
+
+# ---------------------------------------------------------------------------
+# Default designs
+# ---------------------------------------------------------------------------
+def default_amb_controller(
+    nominal: AMBParameters, dt: float, *, poles_s: Sequence[float] = DEFAULT_POLES_S
+) -> IntegralStateFeedback:
+    """Default state feedback with integral action on the displacement.
+
+    Pole placement (``scipy.signal.place_poles``, YT) on the extended model of
+    eq. (41) built from the ZOH-sampled nominal bearing, ``E = [[1, 0, 0]]``,
+    closed-loop poles ``exp(poles_s dt)``.
+
+    Why this design: the identification (eqs. (44)-(51)) needs the loop matrix
+    ``[[C, 0], [-F, F_e]]`` invertible. A mirror-symmetric controller -- what LQR
+    with mirror-symmetric weights produces for the symmetric nominal bearing --
+    makes it singular (``u_f1 + u_f2`` then depends on the common-mode current
+    only); LQR with unequal input weights leaves it ill-conditioned (~1e5, the
+    two coils' gains stay nearly proportional). Pole placement with real,
+    distinct poles lets ``place_poles`` choose the eigenvectors for robustness,
+    which for this model gives clearly different velocity/integral gains on the
+    two coils: the unit-free condition number is ~5. The design is checked
+    (:func:`~maglevid.control.check_loop_matrix`, limit 1e3) and the condition
+    number is stored in ``info["loop_matrix_condition"]``.
+
+    With the deadbeat observer on the nominal model the loop stays stable for a
+    real bearing with any one of ``R1``, ``R2``, ``Ls1`` in (0, 3x), ``kw1 >= 0.17x``,
+    ``K1`` in (0, 2.4x), ``m >= 0.11x``, ``x0 >= 0.956x``, ``i0 <= 1.046x``
+    (the air gap and bias, which set the negative stiffness, are the sensitive ones).
+    """
+    sys = amb_state_space(nominal, dt)
+    poles_s = np.asarray(poles_s, dtype=complex)
+    ctrl = design_pole_placement(sys, poles=np.exp(poles_s * dt))
+    cond = check_loop_matrix(sys.C, ctrl.F, ctrl.Fe, max_condition=_DEFAULT_DESIGN_MAX_CONDITION)
+    info = dict(ctrl.info)
+    info.update(
+        {
+            "poles_s": [[float(p.real), float(p.imag)] for p in poles_s],
+            "loop_matrix_condition": cond,
+            "loop_matrix_condition_raw": float(
+                np.linalg.cond(loop_matrix(sys.C, ctrl.F, ctrl.Fe))
+            ),
+            "designed_on": "nominal",
+        }
+    )
+    return IntegralStateFeedback(ctrl.F, ctrl.Fe, ctrl.E, ctrl.method, info)
+
+
+def default_amb_observer(nominal: AMBParameters, dt: float) -> Observer:
+    """Deadbeat observer (2 steps) on the ZOH-sampled nominal bearing."""
+    return design_deadbeat_observer(amb_state_space(nominal, dt))
+
+
+# ---------------------------------------------------------------------------
+# Nonlinear plant
+# ---------------------------------------------------------------------------
+def linearized_v(p: AMBParameters, *, x: float, I1: float, I2: float) -> np.ndarray:
+    """v1..v9 of eq. (4) for eq. (1) linearised at displacement ``x`` and currents ``I1, I2``.
+
+    At ``x = 0, I1 = I2 = i0`` this is ``p.v()``. With gaps ``g1 = x0 - x``,
+    ``g2 = x0 + x`` and inductances ``L_j(x) = Ls_j + K_j / (2 g_j)``::
+
+        v1 = (K1 I1^2 / (2 g1^3) + K2 I2^2 / (2 g2^3)) / m
+        v2 = K1 I1 / (2 g1^2) / m         v3 = K2 I2 / (2 g2^2) / m
+        v4 = K1 I1 / (2 g1^2) / L1(x)     v6 = K2 I2 / (2 g2^2) / L2(x)
+        v5 = R1 / L1(x)   v7 = R2 / L2(x)   v8 = kw1 / L1(x)   v9 = kw2 / L2(x)
+
+    (at an equilibrium ``kw_j u_j = R_j I_j``, so the current equations have no
+    ``x`` term).
+    """
+    g1, g2 = p.x0 - x, p.x0 + x
+    L1, L2 = p.Ls1 + p.K1 / (2 * g1), p.Ls2 + p.K2 / (2 * g2)
+    ki1, ki2 = p.K1 * I1 / (2 * g1**2), p.K2 * I2 / (2 * g2**2)
+    ks = p.K1 * I1**2 / (2 * g1**3) + p.K2 * I2**2 / (2 * g2**3)
+    return np.array(
+        [
+            ks / p.m,
+            ki1 / p.m,
+            ki2 / p.m,
+            ki1 / L1,
+            p.R1 / L1,
+            ki2 / L2,
+            p.R2 / L2,
+            p.kw1 / L1,
+            p.kw2 / L2,
+        ]
+    )
+
+
+def _bias_voltage(nominal: AMBParameters) -> np.ndarray:
+    """``R_j i0 / kw_j`` of the nominal bearing: holds ``i_j = i0`` there."""
+    return np.array([nominal.R1 * nominal.i0 / nominal.kw1, nominal.R2 * nominal.i0 / nominal.kw2])
+
+
+def nonlinear_equilibrium(
+    plant: AMBParameters,
+    nominal: AMBParameters,
+    observer: Observer,
+    controller: IntegralStateFeedback,
+) -> dict[str, Any]:
+    """Rest point of the nonlinear loop (no excitation, no noise).
+
+    Unknowns: displacement ``x``, absolute currents ``I1, I2``, integral ``e``.
+    Equations: zero force (eq. (1)); ``kw_j (u_bias_j + u_fj) = R_j I_j``; and
+    ``E y = 0`` (a constant integral needs zero integrated error). The feedback at
+    rest follows from the observer's fixed point
+    ``x̂ = (I - A_o - G C_o)^-1 (B_o u_f - G y)``, ``u_f = -F x̂ + F_e e``.
+
+    Returns
+    -------
+    dict
+        ``x``, ``I1``, ``I2`` (plant), ``y`` (measured deviations), ``u_f``,
+        ``x_hat``, ``e`` and ``v`` (:func:`linearized_v` there).
+
+    Raises
+    ------
+    ModelError
+        When no rest point is found (the fault is beyond what the integral
+        action can compensate).
+    """
+    i0 = nominal.i0
+    ub = _bias_voltage(nominal)
+    Abar, Bo, G = observer.A_bar, observer.B, observer.G
+    F, Fe, E = controller.F, controller.Fe, controller.E
+    ne = E.shape[0]
+    W = np.linalg.solve(np.eye(observer.nx) - Abar, np.eye(observer.nx))
+    # u_f = (I + F W B_o)^-1 (F W G y + F_e e)
+    Mu = np.eye(2) + F @ W @ Bo
+    Py = np.linalg.solve(Mu, F @ W @ G)
+    Pe = np.linalg.solve(Mu, Fe)
+    e_scale = 1.0 / max(float(np.max(np.abs(Fe))), 1e-300)
+    f_scale = nominal.K1 * i0**2 / (4 * nominal.x0**2)
+    y_scale = np.array([nominal.x0, i0, i0])
+
+    def unpack(th: np.ndarray) -> tuple[float, float, float, np.ndarray]:
+        return th[0] * nominal.x0, th[1] * i0, th[2] * i0, th[3:] * e_scale
+
+    def resid(th: np.ndarray) -> np.ndarray:
+        x, I1, I2, e = unpack(th)
+        y = np.array([x, I1 - i0, I2 - i0])
+        uf = Py @ y + Pe @ e
+        g1, g2 = plant.x0 - x, plant.x0 + x
+        force = plant.K1 / 4 * (I1 / g1) ** 2 - plant.K2 / 4 * (I2 / g2) ** 2  # eq. (1)
+        cur = np.array([plant.kw1, plant.kw2]) * (ub + uf) - np.array(
+            [plant.R1, plant.R2]
+        ) * np.array([I1, I2])
+        return np.concatenate(
+            [
+                [force / f_scale],
+                cur / (np.array([plant.R1, plant.R2]) * i0),
+                (E @ y) / (E @ y_scale),
+            ]
+        )
+
+    th0 = np.concatenate([[0.0, 1.0, 1.0], np.zeros(ne)])
+    sol = root(resid, th0, method="hybr", options={"xtol": 1e-14})
+    res = float(np.max(np.abs(resid(sol.x))))
+    x, I1, I2, e = unpack(sol.x)
+    if res > 1e-9 or not (abs(x) < plant.x0 and I1 > 0 and I2 > 0):
+        raise ModelError(
+            "the nonlinear loop has no rest point with this plant and controller "
+            f"(residual {res:.3g}, x = {x:.3g} m, I1 = {I1:.3g} A, I2 = {I2:.3g} A): the fault is "
+            "beyond what the integral action can compensate"
+        )
+    y = np.array([x, I1 - i0, I2 - i0])
+    uf = Py @ y + Pe @ e
+    x_hat = W @ (Bo @ uf - G @ y)
+    return {
+        "x": float(x),
+        "I1": float(I1),
+        "I2": float(I2),
+        "y": y,
+        "u_f": uf,
+        "x_hat": x_hat,
+        "e": np.asarray(e, float),
+        "v": linearized_v(plant, x=float(x), I1=float(I1), I2=float(I2)),
+    }
+
+
+def _rk4_stepper(p: AMBParameters, h: float) -> Callable[..., tuple[float, float, float, float]]:
+    """One RK4 step of eq. (1) under a constant input, on Python floats.
+
+    The four stages are written out (no inner function calls): the step runs
+    ``substeps`` times per sample inside a Python loop, where call overhead and
+    small-array numpy calls would dominate. Same equations as
+    :func:`maglevid.physics.amb.amb_nonlinear_rhs` (tested against it).
+    """
+    x0, m = p.x0, p.m
+    q1, q2 = p.K1 / 4.0, p.K2 / 4.0  # force constants
+    h1, h2 = p.K1 / 2.0, p.K2 / 2.0  # flux constants K_j / 2
+    R1, R2, Ls1, Ls2, kw1, kw2 = p.R1, p.R2, p.Ls1, p.Ls2, p.kw1, p.kw2
+    hh, h6 = 0.5 * h, h / 6.0
+
+    def step(
+        x: float, dx: float, I1: float, I2: float, u1: float, u2: float
+    ) -> tuple[float, float, float, float]:
+        # eq. (1): m x'' = K1/4 (I1/g1)^2 - K2/4 (I2/g2)^2,
+        # (Ls_j + K_j/(2 g_j)) I_j' = kw_j u_j - R_j I_j -+ K_j I_j x' / (2 g_j^2)
+        a1 = kw1 * u1
+        a2 = kw2 * u2
+        # stage 1
+        g1 = x0 - x
+        g2 = x0 + x
+        f1 = I1 / g1
+        f2 = I2 / g2
+        k1x = dx
+        k1v = (q1 * f1 * f1 - q2 * f2 * f2) / m
+        k1a = (a1 - R1 * I1 - h1 * f1 * dx / g1) / (Ls1 + h1 / g1)
+        k1b = (a2 - R2 * I2 + h2 * f2 * dx / g2) / (Ls2 + h2 / g2)
+        # stage 2
+        xs, vs, i1s, i2s = x + hh * k1x, dx + hh * k1v, I1 + hh * k1a, I2 + hh * k1b
+        g1 = x0 - xs
+        g2 = x0 + xs
+        f1 = i1s / g1
+        f2 = i2s / g2
+        k2x = vs
+        k2v = (q1 * f1 * f1 - q2 * f2 * f2) / m
+        k2a = (a1 - R1 * i1s - h1 * f1 * vs / g1) / (Ls1 + h1 / g1)
+        k2b = (a2 - R2 * i2s + h2 * f2 * vs / g2) / (Ls2 + h2 / g2)
+        # stage 3
+        xs, vs, i1s, i2s = x + hh * k2x, dx + hh * k2v, I1 + hh * k2a, I2 + hh * k2b
+        g1 = x0 - xs
+        g2 = x0 + xs
+        f1 = i1s / g1
+        f2 = i2s / g2
+        k3x = vs
+        k3v = (q1 * f1 * f1 - q2 * f2 * f2) / m
+        k3a = (a1 - R1 * i1s - h1 * f1 * vs / g1) / (Ls1 + h1 / g1)
+        k3b = (a2 - R2 * i2s + h2 * f2 * vs / g2) / (Ls2 + h2 / g2)
+        # stage 4
+        xs, vs, i1s, i2s = x + h * k3x, dx + h * k3v, I1 + h * k3a, I2 + h * k3b
+        g1 = x0 - xs
+        g2 = x0 + xs
+        f1 = i1s / g1
+        f2 = i2s / g2
+        k4v = (q1 * f1 * f1 - q2 * f2 * f2) / m
+        k4a = (a1 - R1 * i1s - h1 * f1 * vs / g1) / (Ls1 + h1 / g1)
+        k4b = (a2 - R2 * i2s + h2 * f2 * vs / g2) / (Ls2 + h2 / g2)
+        return (
+            x + h6 * (k1x + 2.0 * k2x + 2.0 * k3x + vs),
+            dx + h6 * (k1v + 2.0 * k2v + 2.0 * k3v + k4v),
+            I1 + h6 * (k1a + 2.0 * k2a + 2.0 * k3a + k4a),
+            I2 + h6 * (k1b + 2.0 * k2b + 2.0 * k3b + k4b),
+        )
+
+    return step
+
+
+def _simulate_nonlinear(
+    plant: AMBParameters,
+    nominal: AMBParameters,
+    observer: Observer,
+    controller: IntegralStateFeedback,
+    *,
+    dt: float,
+    r: np.ndarray,
+    v: np.ndarray,
+    substeps: int,
+    eq: dict[str, Any],
+    progress: Callable[[Iterable[int]], Iterable[int]] | None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Sample-by-sample loop with eq. (1) integrated by RK4 under ZOH. Returns y, u_f."""
+    N = r.shape[0]
+    i0, x0 = nominal.i0, plant.x0
+    ub1, ub2 = (float(b) for b in _bias_voltage(nominal))
+    Abar, Bo, G = observer.A_bar, observer.B, observer.G
+    F, Fe, E = controller.F, controller.Fe, controller.E
+    nx, ne = Abar.shape[0], E.shape[0]
+    # The observer/controller in one product per sample. With q = [x̂(k); e(k-1); y(k); r(k)]:
+    #   e(k)    = e(k-1) - E y(k)                                     eq. (39)/(43)
+    #   u_f(k)  = -F x̂ + F_e e(k-1) - F_e E y(k)                      eq. (42)
+    #   x̂(k+1) = (Abar - B F) x̂ + B F_e e(k-1) - (B F_e E + G) y + B r   eq. (43)
+    # and [x̂(k+1); e(k); u_f(k)] = M q. For k = 0, e(-1) := e(0) + E y(0) gives e(0).
+    Z = np.zeros
+    M = np.block(
+        [
+            [Abar - Bo @ F, Bo @ Fe, -Bo @ Fe @ E - G, Bo],
+            [Z((ne, nx)), np.eye(ne), -E, Z((ne, 2))],
+            [-F, Fe, -Fe @ E, Z((2, 2))],
+        ]
+    )
+    step = _rk4_stepper(plant, dt / substeps)
+    Y = np.empty((N, 3))
+    UF = np.empty((N, 2))
+    x, dx, I1, I2 = float(eq["x"]), 0.0, float(eq["I1"]), float(eq["I2"])
+    y0 = np.array([x, I1 - i0, I2 - i0]) + v[0]
+    state = np.concatenate([eq["x_hat"], np.asarray(eq["e"]) + E @ y0]).tolist()
+    ns = nx + ne
+    chunk = 2000
+    starts: Iterable[int] = range(0, N, chunk)
+    if progress is not None:
+        starts = progress(starts)
+    # Python floats throughout the inner loop: numpy scalars are several times slower.
+    for start in starts:
+        stop = min(start + chunk, N)
+        vl, rl = v[start:stop].tolist(), r[start:stop].tolist()
+        ys, ufs = [], []
+        for j in range(stop - start):
+            (v0, v1, v2), (r0, r1) = vl[j], rl[j]
+            yk = [x + v0, I1 - i0 + v1, I2 - i0 + v2]  # y(k), measured at t = k dt
+            out = (M @ np.array(state + yk + rl[j])).tolist()
+            state = out[:ns]  # x̂(k+1), and e(k) as next sample's e(k-1)
+            uf1, uf2 = out[ns], out[ns + 1]
+            ys.append(yk)
+            ufs.append((uf1, uf2))
+            u1, u2 = ub1 + uf1 + r0, ub2 + uf2 + r1  # eq. (16), on the bias voltage
+            for _ in range(substeps):  # RK4 under zero-order hold
+                x, dx, I1, I2 = step(x, dx, I1, I2, u1, u2)
+            if not (abs(x) < x0 and math.isfinite(I1) and math.isfinite(I2)):
+                raise ModelError(
+                    f"the rotor reached the pole face at sample {start + j + 1} (x = {x:.3g} m, "
+                    f"gap {x0:.3g} m): the loop does not hold this bearing with this excitation"
+                )
+        Y[start:stop] = ys
+        UF[start:stop] = ufs
+    return Y, UF
+
+
+# ---------------------------------------------------------------------------
+# Public entry point
+# ---------------------------------------------------------------------------
+def _make_rng(rng: Any) -> tuple[np.random.Generator, int | None]:
+    if isinstance(rng, np.random.Generator):
+        return rng, None
+    if rng is None:
+        # A fresh 63-bit seed (fits every file format's integer), recorded in the metadata.
+        seed = int(np.random.SeedSequence().generate_state(1, dtype=np.uint64)[0] >> 1)
+        return np.random.default_rng(seed), seed
+    if isinstance(rng, (int, np.integer)) and not isinstance(rng, bool) and rng >= 0:
+        return np.random.default_rng(int(rng)), int(rng)
+    raise DataError(
+        f"`rng` must be a numpy Generator, a non-negative int seed or None; got {rng!r}"
+    )
+
+
+def _noise_std(noise_std: Any) -> np.ndarray:
+    s = np.asarray(noise_std, dtype=float).reshape(-1)
+    if s.size != 3 or not np.all(np.isfinite(s)) or np.any(s < 0):
+        raise DataError(
+            "`noise_std` must be 3 non-negative numbers (x [m], i1 [A], i2 [A]); "
+            f"got {noise_std!r}"
+        )
+    return s
+
+
+def simulate_amb_loop(
+    plant: AMBParameters,
+    *,
+    dt: float = DEFAULT_DT,
+    n_samples: int = DEFAULT_N_SAMPLES,
+    nominal: AMBParameters | None = None,
+    controller: IntegralStateFeedback | None = None,
+    observer: Observer | None = None,
+    excitation_std: float | Sequence[float] = DEFAULT_EXCITATION_STD,
+    excitation: str = "gaussian",
+    noise_std: Sequence[float] = DEFAULT_NOISE_STD,
+    plant_model: str = "linear",
+    substeps: int = DEFAULT_SUBSTEPS,
+    rng: Any = None,
+    observer_model: str = "nominal",
+    kernel: str = "auto",
+    progress: Callable[[Iterable[int]], Iterable[int]] | None = None,
+) -> ClosedLoopData:
+    """Simulate the AMB under observer-based state feedback with integral action.
+
+    Implements the loop of Gosiewski & Paszowski, Fig. 2: plant eq. (1) or
+    (3)-(7), observer eq. (43), control law eq. (42), excitation eq. (16), plus
+    white measurement noise. Time indexing: see :mod:`maglevid.simulate.loop`
+    and ``docs/control-and-simulation.md``.
+
+    Parameters
+    ----------
+    plant : AMBParameters
+        The real bearing (e.g. ``AMBParameters.nominal().with_fault(R1=1.2)``).
+    dt : float
+        Control period [s].
+    n_samples : int
+        Number of control periods N.
+    nominal : AMBParameters, optional
+        The bearing the controller and observer are designed on (default: ``plant``).
+    controller : IntegralStateFeedback, optional
+        Default :func:`default_amb_controller` on ``nominal``.
+    observer : Observer, optional
+        Default :func:`default_amb_observer` (deadbeat) on ``nominal``.
+    excitation_std : float or (2,) sequence
+        Excitation standard deviation per input [V].
+    excitation : {"gaussian", "prbs"}
+        White Gaussian or random binary (``+-excitation_std``) excitation.
+    noise_std : (3,) sequence
+        Measurement noise standard deviation of ``[x, i1, i2]`` [m, A, A].
+    plant_model : {"linear", "nonlinear"}
+        See the module notes.
+    substeps : int
+        RK4 steps per control period (nonlinear plant only).
+    rng : numpy.random.Generator, int or None
+        Randomness (excitation first, then noise). An int is a seed and is
+        recorded; ``None`` draws a fresh seed and records it.
+    observer_model : {"nominal", "plant"}
+        ``"nominal"`` (default): the observer runs on its own model (the
+        nominal bearing's, or that of the ``observer`` given) -- what a real
+        controller does. ``"plant"``: the observer keeps its gain ``G`` but runs
+        on the real bearing's ZOH model ``A, B`` (for the nonlinear plant: its
+        linearisation at ``i0``), as the paper's examples evidently do ("the
+        same actual observer gain ... in all examples"): then the exact ARX
+        model of eq. (47) holds with the real ``A, B``. With ``"nominal"`` and
+        a fault, eq. (47) with one lag is only approximate (see the docs).
+    kernel : {"auto", "block", "loop"}
+        Linear plant only: see :func:`~maglevid.simulate.kernel.simulate_lti`.
+    progress : callable, optional
+        Wraps an iterable of chunk start indices (e.g. a progress bar); used by
+        the nonlinear plant, whose loop runs in Python.
+
+    Returns
+    -------
+    ClosedLoopData
+        ``y`` (N, 3) measured ``[x, i1, i2]`` deviations, ``u``, ``r``, ``u_f``
+        (N, 2); ``loop`` with the controller, the observer (its own discrete
+        model), ``C``, the operating point and the nominal parameters;
+        ``metadata`` with the truth and the seed.
+
+    Raises
+    ------
+    DesignError
+        When the loop with this plant is unstable.
+    ModelError
+        Nonlinear plant: no rest point, or the rotor reaches the pole face.
+
+    Examples
+    --------
+    >>> from maglevid.physics.amb import AMBParameters
+    >>> p = AMBParameters.nominal().with_fault(R1=1.2)
+    >>> d = simulate_amb_loop(p, nominal=AMBParameters.nominal(), n_samples=500, rng=1)
+    >>> d.y.shape, d.u.shape, d.loop["observer"]["type"]
+    ((500, 3), (500, 2), 'deadbeat')
+    """
+    if not isinstance(plant, AMBParameters):
+        raise DataError(f"`plant` must be AMBParameters; got {type(plant).__name__}")
+    nominal = plant if nominal is None else nominal
+    if not isinstance(nominal, AMBParameters):
+        raise DataError(f"`nominal` must be AMBParameters; got {type(nominal).__name__}")
+    dt = check_positive(dt, "dt")
+    if isinstance(n_samples, bool) or int(n_samples) != n_samples or n_samples < 2:
+        raise DataError(f"`n_samples` must be an integer >= 2; got {n_samples!r}")
+    n_samples = int(n_samples)
+    if plant_model not in PLANT_MODELS:
+        raise DataError(f"`plant_model` must be one of {PLANT_MODELS}; got {plant_model!r}")
+    if excitation not in EXCITATION_KINDS:
+        raise DataError(f"`excitation` must be one of {EXCITATION_KINDS}; got {excitation!r}")
+    if isinstance(substeps, bool) or int(substeps) != substeps or substeps < 1:
+        raise DataError(f"`substeps` must be an integer >= 1; got {substeps!r}")
+    substeps = int(substeps)
+    noise = _noise_std(noise_std)
+    gen, seed = _make_rng(rng)
+
+    if controller is None:
+        controller = default_amb_controller(nominal, dt)
+    if observer is None:
+        observer = default_amb_observer(nominal, dt)
+    if observer.dt is not None and abs(observer.dt - dt) > 1e-12 * dt:
+        raise DataError(f"the observer was designed for dt={observer.dt:g} s, not dt={dt:g} s")
+    if observer_model not in OBSERVER_MODELS:
+        raise DataError(
+            f"`observer_model` must be one of {OBSERVER_MODELS}; got {observer_model!r}"
+        )
+    if observer_model == "plant":
+        # The paper's simulation: the same gain G, with the real bearing's A, B in eq. (43).
+        true = amb_state_space(plant, dt)
+        info = dict(observer.info)
+        info.update({"model": "plant", "gain_designed_on": "nominal"})
+        observer = Observer(observer.G, true.A, true.B, observer.C, observer.kind, dt, info)
+    if controller.F.shape != (2, observer.nx) or controller.ny != 3:
+        raise DataError(
+            f"controller has F {controller.F.shape}, E {controller.E.shape}; the bearing needs "
+            f"F (2, {observer.nx}) and E (ne, 3)"
+        )
+    cond = (
+        loop_matrix_condition(observer.C, controller.F, controller.Fe)
+        if (3 + 2 == observer.nx + controller.ne)
+        else float("inf")
+    )
+    if not cond <= 1e8:
+        logger.warning(
+            "the loop matrix [[C, 0], [-F, Fe]] is singular or ill-conditioned (%.3g): the "
+            "recording cannot be used for the identification of eqs. (44)-(51)",
+            cond,
+        )
+
+    r = make_excitation(n_samples, 2, std=excitation_std, kind=excitation, rng=gen)  # eq. (16)
+    # Noise drawn after the excitation, so r does not depend on noise_std.
+    v = gen.standard_normal((n_samples, 3)) * noise if np.any(noise) else np.zeros((n_samples, 3))
+
+    meta: dict[str, Any] = {
+        "simulated": True,
+        "truth": plant.to_dict(),
+        "truth_v": plant.v().tolist(),
+        "seed": seed,
+        "plant_model": plant_model,
+        "excitation": {"kind": excitation, "std": np.broadcast_to(excitation_std, (2,)).tolist()},
+        "noise_std": noise.tolist(),
+        "observer_model": observer_model,
+    }
+    if plant_model == "linear":
+        sig = simulate_linear_loop(
+            amb_state_space(plant, dt), observer, controller, r=r, noise=v, kernel=kernel
+        )
+        y, u_f, u = sig.y, sig.u_f, sig.u
+        x_hat0, e0 = sig.x_hat0, sig.e0
+    else:
+        eq = nonlinear_equilibrium(plant, nominal, observer, controller)
+        y, u_f = _simulate_nonlinear(
+            plant,
+            nominal,
+            observer,
+            controller,
+            dt=dt,
+            r=r,
+            v=v,
+            substeps=substeps,
+            eq=eq,
+            progress=progress,
+        )
+        u = u_f + r
+        x_hat0, e0 = eq["x_hat"], eq["e"]
+        meta["substeps"] = substeps
+        meta["operating_point_true"] = {
+            "x": eq["x"],
+            "I1": eq["I1"],
+            "I2": eq["I2"],
+            "y": eq["y"].tolist(),
+            "u_f": eq["u_f"].tolist(),
+            "v": eq["v"].tolist(),
+        }
+    meta["initial_state"] = {"x_hat": np.asarray(x_hat0).tolist(), "e": np.asarray(e0).tolist()}
+
+    loop = {
+        "controller": controller.to_dict(),
+        "observer": observer.to_dict(),
+        "C": C_AMB.tolist(),
+        "operating_point": {
+            "i0": nominal.i0,
+            "x0": nominal.x0,
+            "m": nominal.m,
+            "u_bias": _bias_voltage(nominal).tolist(),
+        },
+        "nominal": nominal.to_dict(),
+        "dt_design": dt,
+        "loop_matrix_condition": cond if math.isfinite(cond) else None,
+    }
+    return ClosedLoopData(
+        y=y,
+        dt=dt,
+        u=u,
+        r=r,
+        u_f=u_f,
+        names={"y": OUTPUT_NAMES, "u": INPUT_NAMES, "r": ("r1", "r2"), "u_f": ("uf1", "uf2")},
+        units={"y": ("m", "A", "A"), "u": ("V", "V"), "r": ("V", "V"), "u_f": ("V", "V")},
+        loop=loop,
+        metadata=meta,
+    )
+
+
+# ---------------------------------------------------------------------------
+# ``maglevid simulate amb``
+# ---------------------------------------------------------------------------
+SCENARIO = "amb"
+SCENARIO_HELP = (
+    "voltage-controlled two-coil magnetic bearing (Gosiewski & Paszowski) under observer-based "
+    "state feedback with integral action; controller and observer designed on the nominal "
+    "bearing, the simulated one may have faults"
+)
+
+
+def parse_fault(text: str) -> tuple[str, float]:
+    """``"R1=1.2"`` -> ``("R1", 1.2)`` (the ``--fault`` option of the command line)."""
+    if "=" not in text:
+        raise argparse.ArgumentTypeError(f"--fault {text!r}: expected NAME=FACTOR, e.g. R1=1.2")
+    name, value = text.split("=", 1)
+    try:
+        return name.strip(), float(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--fault {text!r}: FACTOR must be a number") from None
+
+
+def _parse_floats(text: str) -> list[float]:
+    try:
+        return [float(s) for s in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected comma-separated numbers; got {text!r}"
+        ) from None
+
+
+def add_scenario_arguments(parser: argparse.ArgumentParser) -> None:
+    """Options of ``maglevid simulate amb``."""
+    parser.add_argument(
+        "--fault",
+        action="append",
+        type=parse_fault,
+        default=[],
+        metavar="NAME=FACTOR",
+        help="multiply a parameter of the simulated bearing (R1, R2, Ls1, Ls2, K1, K2, kw1, kw2, "
+        "m, i0, x0), e.g. --fault R1=1.2 --fault K1=0.9; repeatable",
+    )
+    parser.add_argument(
+        "--noise",
+        type=_parse_floats,
+        default=list(DEFAULT_NOISE_STD),
+        metavar="SX,SI1,SI2",
+        help="measurement noise std of x [m], i1 [A], i2 [A] (default %(default)s)",
+    )
+    parser.add_argument(
+        "--excitation-std",
+        type=_parse_floats,
+        default=[DEFAULT_EXCITATION_STD],
+        metavar="V[,V]",
+        help="excitation std per amplifier input [V] (default %(default)s)",
+    )
+    parser.add_argument(
+        "--excitation", choices=EXCITATION_KINDS, default="gaussian", help="excitation signal"
+    )
+    parser.add_argument(
+        "--n-samples",
+        type=int,
+        default=DEFAULT_N_SAMPLES,
+        help="control periods (default %(default)s)",
+    )
+    parser.add_argument(
+        "--dt", type=float, default=DEFAULT_DT, help="control period [s] (default %(default)s)"
+    )
+    parser.add_argument(
+        "--seed", type=int, default=None, help="random seed (default: fresh, recorded)"
+    )
+    parser.add_argument(
+        "--plant", choices=PLANT_MODELS, default="linear", help="plant model (default %(default)s)"
+    )
+    parser.add_argument(
+        "--substeps",
+        type=int,
+        default=DEFAULT_SUBSTEPS,
+        help="RK4 steps per period (nonlinear plant)",
+    )
+    parser.add_argument(
+        "--observer-model",
+        choices=OBSERVER_MODELS,
+        default="nominal",
+        help="model the observer runs on: the nominal bearing's (a real controller, default) or "
+        "the simulated bearing's with the nominal gain (the paper's examples)",
+    )
+
+
+def run_scenario(args: argparse.Namespace) -> ClosedLoopData:
+    """Build the recording for ``maglevid simulate amb``."""
+    nominal = AMBParameters.nominal()
+    plant = nominal.with_fault(**dict(args.fault)) if args.fault else nominal
+    exc = args.excitation_std
+    progress = None
+    if args.plant == "nonlinear":
+        from functools import partial
+
+        from maglevid.cli._progress import progress as _bar
+
+        total = -(-int(args.n_samples) // 2000)
+        progress = partial(_bar, desc="simulating", total=total, args=args)
+    return simulate_amb_loop(
+        plant,
+        dt=args.dt,
+        n_samples=args.n_samples,
+        nominal=nominal,
+        excitation_std=exc[0] if len(exc) == 1 else exc,
+        excitation=args.excitation,
+        noise_std=args.noise,
+        plant_model=args.plant,
+        substeps=args.substeps,
+        observer_model=args.observer_model,
+        rng=args.seed,
+        progress=progress,
+    )

@@ -1,0 +1,80 @@
+"""Data-quality checks: each failure has a recording that triggers it, a clean one passes all."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from maglevid.diagnose.checks import (
+    check_excitation,
+    check_feedback_consistency,
+    check_length,
+    check_levitation,
+    check_saturation,
+    run_checks,
+)
+from maglevid.physics.amb import AMBParameters
+from maglevid.simulate import simulate_amb_loop
+
+NOMINAL = AMBParameters.nominal()
+
+
+@pytest.fixture(scope="module")
+def clean():
+    return simulate_amb_loop(NOMINAL, dt=1e-4, n_samples=4000, nominal=NOMINAL, rng=3)
+
+
+def test_clean_recording_passes_every_check(clean):
+    checks = run_checks(clean)
+    assert all(c.passed for c in checks), [c.message for c in checks if not c.passed]
+    fb = next(c for c in checks if c.name == "feedback consistency")
+    assert fb.value < 1e-9  # the simulator's feedback replays to round-off
+
+
+def test_too_short(clean):
+    c = check_length(clean.segment(0, 500))
+    assert not c.passed and "too short" in c.message and c.value == 500
+
+
+def test_too_little_excitation():
+    rec = simulate_amb_loop(
+        NOMINAL, dt=1e-4, n_samples=3000, nominal=NOMINAL, excitation_std=1e-4, rng=4
+    )
+    c = check_excitation(rec)
+    assert not c.passed and "too little excitation" in c.message
+    assert not check_excitation(rec.replace(r=None, u=rec.u)).passed
+
+
+def test_saturation(clean):
+    u = np.array(clean.u)
+    lim = np.quantile(u[:, 0], 0.97)
+    u[:, 0] = np.minimum(u[:, 0], lim)  # 3 % of samples clipped at one value
+    c = check_saturation(clean.replace(u=u))
+    assert not c.passed and "saturates" in c.message
+    assert c.value == pytest.approx(0.03, abs=0.005)
+    # With stated limits, the same test counts samples at or beyond them.
+    assert not check_saturation(clean, limits=[(-0.1, 0.1), (-0.1, 0.1)]).passed
+
+
+def test_lost_levitation(clean):
+    y = np.array(clean.y)
+    y[2000:, 0] = 0.8 * NOMINAL.x0  # rotor on the retainer bearing
+    c = check_levitation(clean.replace(y=y))
+    assert not c.passed and "levitation was lost" in c.message
+    y[:, 0] = 1e-6
+    assert "does not move" in check_levitation(clean.replace(y=y)).message
+
+
+def test_feedback_inconsistent_with_stated_controller(clean):
+    loop = clean.replace().loop
+    import copy
+
+    from maglevid.data import _thaw
+
+    bad = copy.deepcopy(_thaw(loop))
+    bad["controller"]["F"] = (1.1 * np.asarray(bad["controller"]["F"])).tolist()
+    c = check_feedback_consistency(clean.replace(loop=bad))
+    assert not c.passed and "inconsistent with the stated controller" in c.message
+    # Swapped output channels are caught the same way.
+    swapped = clean.replace(y=np.asarray(clean.y)[:, [0, 2, 1]])
+    assert not check_feedback_consistency(swapped).passed

@@ -1,0 +1,118 @@
+"""Building blocks of the subspace methods: Hankel accumulators, factor, fast recursion.
+
+Exact algebra, so ``rtol = 1e-12`` against direct (slow, obvious) computations;
+the direct Gram is itself rounded, so entries are compared relative to the
+largest entry.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from numpy.lib.stride_tricks import sliding_window_view
+
+from maglevid.identify._hankel import _HankelQR, _LagGram, factor_gram, lower_factor
+from maglevid.identify._recursion import linear_recursion
+
+
+def _hankel(z: np.ndarray, w: int) -> np.ndarray:
+    N, m = z.shape
+    return sliding_window_view(z, (w, m)).reshape(N - w + 1, w * m)
+
+
+CHUNKINGS = {
+    "whole": [500],
+    "irregular": [1, 2, 3, 50, 444],
+    "tiny": [7] * 71 + [3],
+    "ones": [1] * 500,
+}
+
+
+@pytest.mark.parametrize("chunks", list(CHUNKINGS.values()), ids=list(CHUNKINGS))
+@pytest.mark.parametrize("max_lag", [1, 3, 8])
+def test_lag_gram_equals_the_gram_of_the_hankel_rows_for_every_window(chunks, max_lag):
+    z = np.random.default_rng(0).standard_normal((500, 3)) + 0.5
+    acc = _LagGram(3, max_lag)
+    pos = 0
+    for c in chunks:
+        acc.update(z[pos : pos + c])
+        pos += c
+    assert acc.n == 500
+    for w in range(1, max_lag + 2):
+        H = _hankel(z, w)
+        G = H.T @ H
+        np.testing.assert_allclose(acc.gram(w), G, rtol=0, atol=1e-12 * np.abs(G).max())
+
+
+@pytest.mark.parametrize("chunks", list(CHUNKINGS.values())[:3], ids=list(CHUNKINGS)[:3])
+def test_tsqr_factor_reproduces_the_gram(chunks):
+    z = np.random.default_rng(1).standard_normal((500, 2))
+    acc = _HankelQR(2, 6)
+    pos = 0
+    for c in chunks:
+        acc.update(z[pos : pos + c])
+        pos += c
+    H = _hankel(z, 6)
+    G = H.T @ H
+    np.testing.assert_allclose(acc.R.T @ acc.R, G, rtol=0, atol=1e-12 * np.abs(G).max())
+
+
+def test_moments_track_rms_and_mean():
+    z = np.random.default_rng(2).standard_normal((100, 2)) * [1.0, 3.0] + [0.0, 2.0]
+    acc = _LagGram(2, 2)
+    acc.update(z[:37])
+    acc.update(z[37:])
+    np.testing.assert_allclose(acc.moments.mean(), z.mean(axis=0), rtol=1e-12)
+    np.testing.assert_allclose(acc.moments.rms(), np.sqrt((z**2).mean(axis=0)), rtol=1e-12)
+
+
+def test_pivoted_cholesky_factor_of_a_rank_deficient_gram_is_exact():
+    rng = np.random.default_rng(3)
+    X = rng.standard_normal((200, 4)) @ rng.standard_normal((4, 7))  # rank 4, 7 columns
+    G = X.T @ X / 200
+    F, rank = factor_gram(G)
+    assert rank == 4 and F.shape == (7, 4)
+    np.testing.assert_allclose(F @ F.T, G, rtol=0, atol=1e-12 * np.abs(G).max())
+    L = lower_factor(F)
+    assert L.shape == (7, 4)
+    assert np.allclose(np.triu(L, 1), 0)
+    np.testing.assert_allclose(L @ L.T, G, rtol=0, atol=1e-12 * np.abs(G).max())
+
+
+def _loop(F, W, x0):
+    x = x0.copy()
+    X = np.empty_like(W)
+    for t in range(W.shape[0]):
+        X[t] = x
+        x = F @ x + W[t]
+    return X, x
+
+
+@pytest.mark.parametrize(("N", "c"), [(1, 1), (7, 1), (64, 2), (1000, 1), (777, 5)])
+@pytest.mark.parametrize("radius", [0.7, 1.01])
+def test_linear_recursion_matches_the_sequential_loop(N, c, radius):
+    rng = np.random.default_rng(4)
+    n = 3
+    Q = np.linalg.qr(rng.standard_normal((n, n)))[0]
+    F = radius * Q  # spectral radius exactly `radius` (stable and unstable)
+    W = rng.standard_normal((N, n, c))
+    x0 = rng.standard_normal((n, c))
+    X, x_end = linear_recursion(F, W, x0)
+    X_ref, x_ref = _loop(F, W, x0)
+    scale = max(1.0, np.abs(X_ref).max())
+    np.testing.assert_allclose(X, X_ref, rtol=0, atol=1e-12 * scale)
+    np.testing.assert_allclose(x_end, x_ref, rtol=0, atol=1e-12 * max(1.0, np.abs(x_ref).max()))
+    X2, x2 = linear_recursion(F, W[:, :, 0], x0[:, 0])  # 2-D form
+    np.testing.assert_allclose(X2, X[:, :, 0], rtol=0, atol=1e-12 * scale)
+    np.testing.assert_allclose(x2, x_end[:, 0], rtol=0, atol=1e-12 * scale)
+
+
+def test_linear_recursion_continues_across_chunks():
+    rng = np.random.default_rng(5)
+    F = 0.9 * np.linalg.qr(rng.standard_normal((4, 4)))[0]
+    W = rng.standard_normal((1000, 4))
+    X_all, x_all = linear_recursion(F, W)
+    X1, x1 = linear_recursion(F, W[:333])
+    X2, x2 = linear_recursion(F, W[333:], x1)
+    np.testing.assert_allclose(np.concatenate([X1, X2]), X_all, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(x2, x_all, rtol=0, atol=1e-12)
