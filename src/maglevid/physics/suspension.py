@@ -349,17 +349,27 @@ def continuous_from_t_model(a: Any, b: Any, dt: float) -> tuple[np.ndarray, floa
 
 
 def physical_from_continuous(
-    s: Any, k: float, *, M: float, g: float = GRAVITY
+    s: Any, k: float, *, M: float, g: float = GRAVITY, R: float | None = None
 ) -> dict[str, float]:
-    """Physical parameters from the continuous poles ``s`` and numerator ``k`` (given ``M``).
+    """Physical parameters from the continuous poles ``s`` and numerator ``k``.
 
     With ``G(s) = k / (s^3 + c1 s^2 + c2 s + c3)`` and eq. (27)::
 
         c1 = R/L,  c2 = (eta^2 - alpha L)/(M L),  c3 = -alpha R/(M L),  k = -eta/(M L)
-        => alpha = -M c3/c1,  L = (c2 + alpha/M)/(k^2 M),  R = c1 L,  eta = -k M L
 
-    and, through the force balance (26), ``gap = 2 M g/alpha``,
-    ``I = 2 M g/eta``, ``Q = eta gap^2/I``, ``L_inf = L - Q/gap``.
+    Given ``M`` only, all four follow::
+
+        alpha = -M c3/c1,  L = (c2 + alpha/M)/(k^2 M),  R = c1 L,  eta = -k M L
+
+    but ``c2 + alpha/M`` is a small difference of large numbers (150 of 1870
+    1/s^2 for the nominal plant), so ``L``, ``R`` and ``eta`` are then poorly
+    determined. Given ``M`` and ``R`` (both printed in Section 5.1), ``c2`` is
+    not needed::
+
+        L = R/c1,  alpha = -M c3/c1,  eta = -k M L
+
+    Through the force balance (26): ``gap = 2 M g/alpha``, ``I = 2 M g/eta``,
+    ``Q = eta gap^2/I``, ``L_inf = L - Q/gap``.
     """
     s = np.asarray(s).ravel()
     if s.size != 3:
@@ -373,8 +383,12 @@ def physical_from_continuous(
             f"(need R/L = {c1:.4g} > 0 and -alpha R/(M L) = {c3:.4g} < 0, k = {k:.4g} != 0)"
         )
     alpha = -M * c3 / c1
-    L = (c2 + alpha / M) / (k**2 * M)
-    R = c1 * L
+    if R is None:
+        L = (c2 + alpha / M) / (k**2 * M)
+        R = c1 * L
+    else:
+        R = check_positive(R, "R")
+        L = R / c1
     eta = -k * M * L
     gap = 2 * M * g / alpha
     I = 2 * M * g / eta
@@ -391,7 +405,9 @@ def physical_from_continuous(
     }
 
 
-def physical_from_t_model(a: Any, b: Any, dt: float, *, M: float, g: float = GRAVITY) -> dict:
+def physical_from_t_model(
+    a: Any, b: Any, dt: float, *, M: float, g: float = GRAVITY, R: float | None = None
+) -> dict[str, float]:
     """:func:`physical_from_continuous` of :func:`continuous_from_t_model` (one call)."""
     s, k = continuous_from_t_model(a, b, dt)
-    return physical_from_continuous(s, k, M=M, g=g)
+    return physical_from_continuous(s, k, M=M, g=g, R=R)
