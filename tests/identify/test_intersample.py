@@ -310,3 +310,17 @@ def test_nonlinear_plant_recording():
     # the linearisation is the truth; the nonlinearity (5 % RMS, docs/sun.md) may add
     # a bias of the order of the standard error
     assert abs(res.parameters["pole_z"] - max(truth["poles"])) < 5 * res.std_errors()["pole_z"]
+
+
+def test_cli_identify_picks_intersample_for_a_multirate_recording(tmp_path, capsys):
+    import json
+
+    from maglevid.cli.main import main
+
+    out = tmp_path / "rec.npz"
+    assert main(["simulate", "suspension", "--p", "3", "--duration", "6", "--out", str(out)]) == 0
+    capsys.readouterr()
+    assert main(["--json", "identify", str(out)]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["method"] == "intersample"
+    assert res["parameters"]["pole_z"] > 1.0 and res["std_errors"]["a1"] > 0

@@ -115,6 +115,8 @@ AUTO_PREFILTERS: tuple[float | None, ...] = (None, 0.2, 0.1, 0.05, 0.03)
 REFLECT_BAND = 1.25
 #: Residual evaluations of the screening run of each Step 1b start.
 SCREEN_NFEV = 24
+#: Starts screened per number of roots outside the unit circle.
+PER_GROUP = 3
 #: Fewest control periods per estimated parameter.
 MIN_PERIODS_PER_PARAMETER = 20
 
@@ -281,8 +283,7 @@ class _OE:
         return np.r_[1.0, sol.x], float(2 * sol.cost), int(sol.nfev)
 
     def cost(self, a: np.ndarray) -> float:
-        _, R, _ = self.inner(a)
-        return float(np.sum(R**2))
+        return float(np.sum(self.residuals(np.asarray(a, dtype=float)[1:]) ** 2))
 
     def jacobian(self, a: np.ndarray, theta: np.ndarray) -> np.ndarray:
         """Jacobian of all residuals w.r.t. ``[a_1..a_n, B_1, h_1, B_2, h_2, ...]``."""
@@ -311,21 +312,47 @@ class _OE:
 
 
 def _reflections(a: np.ndarray) -> list[np.ndarray]:
-    """``a`` and the polynomials with some real roots near |z| = 1 reflected (1/z)."""
+    """``a`` and its variants with roots near |z| = 1 reflected to ``1/conj(z)``.
+
+    Real roots are reflected one by one, a complex pair together; a complex pair
+    close to the real axis (angle below 0.1 rad) is also tried as a double real
+    root at its modulus and at the reflected modulus. The bilateral cost cannot
+    move a root across the unit circle, so the starts must cover both sides.
+    """
     r = np.roots(a)
-    idx = [
-        i
-        for i in range(r.size)
-        if abs(r[i].imag) <= 1e-9 * abs(r[i]) and 1 / REFLECT_BAND < abs(r[i]) < REFLECT_BAND
-    ]
+    groups: list[list[np.ndarray]] = []
+    used = np.zeros(r.size, bool)
+    for i in range(r.size):
+        if used[i] or not (1 / REFLECT_BAND < abs(r[i]) < REFLECT_BAND):
+            continue
+        if abs(r[i].imag) <= 1e-9 * abs(r[i]):
+            used[i] = True
+            groups.append([np.array([i]), np.array([1.0 / r[i].real])])
+            continue
+        j = next(
+            (
+                k
+                for k in range(r.size)
+                if k != i and not used[k] and np.isclose(r[k], np.conj(r[i]))
+            ),
+            None,
+        )
+        if j is None:  # pragma: no cover - np.roots of a real polynomial pairs its roots
+            continue
+        used[i] = used[j] = True
+        m = abs(r[i])
+        opts = [np.array([1 / np.conj(r[i]), 1 / r[i]])]
+        if abs(np.angle(r[i])) < 0.1:
+            opts += [np.array([m, m]), np.array([1 / m, 1 / m])]
+        groups.append([np.array([i, j]), *opts])
     out = []
-    for k in range(len(idx) + 1):
-        for sub in itertools.combinations(idx, k):
-            rr = r.copy()
-            for i in sub:
-                rr[i] = 1.0 / rr[i]
-            out.append(np.real(np.poly(rr)))
-    return out
+    for choice in itertools.product(*[range(len(g)) for g in groups]):
+        rr = r.astype(complex).copy()
+        for g, c in zip(groups, choice):
+            if c:
+                rr[g[0]] = g[c]
+        out.append(np.real(np.poly(rr)))
+    return out or [np.asarray(a, dtype=float)]
 
 
 # ----------------------------------------------------------------- helpers
@@ -617,10 +644,24 @@ def fit_intersample(
                 inits.append((f"lowpass {cut:g}", np.real(np.poly(r.model.A))))
             except IdentificationError as exc:
                 notes.append(f"subspace initialisation on low-passed data ({cut:g}) failed: {exc}")
-        # Every start gets a short run; the two best are finished (the wrong basins
+        # Starts are grouped by how many roots lie outside the unit circle (the
+        # bilateral cost is discontinuous where a root crosses it, so each group is
+        # its own search region); the PER_GROUP starts of lowest cost in each group
+        # get a short run, and the two best after it are finished (the wrong basins
         # of this problem are far apart in cost, docs/sun.md).
+        groups: dict[int, list[tuple[float, str, np.ndarray]]] = {}
         for label, a0 in inits:
             for start in _reflections(a0):
+                n_out = int(np.sum(np.abs(np.roots(start)) > 1.0))
+                try:
+                    c0 = oe.cost(start)
+                except (np.linalg.LinAlgError, ValueError):
+                    continue
+                if np.isfinite(c0):
+                    groups.setdefault(n_out, []).append((c0, label, start))
+        for members in groups.values():
+            members.sort(key=lambda m: m[0])
+            for _, label, start in members[:PER_GROUP]:
                 try:
                     a_fit, cost, _ = oe.fit(start, max_nfev=SCREEN_NFEV)
                 except (np.linalg.LinAlgError, ValueError) as exc:
