@@ -173,6 +173,14 @@ def test_subspace_intersample_numerators_bias_eq15(fit3, record3):
     assert err_sub > 5 * err_ls
 
 
+def test_n4sid_step1_option(record3):
+    res = fit_intersample(record3.segment(0, 3000), subspace="n4sid")
+    truth = record3.metadata["truth"]
+    se = res.std_errors()
+    assert res.options["subspace"] == "n4sid" and res.parameters["pole_z"] > 1
+    assert abs(res.parameters["a1"] - truth["a"][0]) < 4 * se["a1"]
+
+
 def test_iv_numerator_is_consistent_and_has_a_covariance(record3):
     res = fit_intersample(record3, numerator="iv")
     truth = record3.metadata["truth"]["b"]
