@@ -250,7 +250,14 @@ def parse_tolerances(value: Any) -> float | Mapping[str, float] | None:
     if isinstance(value, str):
         items = value.replace(";", " ").replace(",", " ").split()
         if len(items) == 1 and "=" not in items[0]:
-            return parse_tolerances(_float("tolerances", items[0]))
+            try:
+                number = float(items[0])
+            except ValueError:
+                raise DataError(
+                    f"tolerances {value!r}: expected one fraction (0.05) or NAME=FRACTION "
+                    "items (R1=0.1 Ls1=0.05)"
+                ) from None
+            return parse_tolerances(_float("tolerances", number))
         out: dict[str, float] = {}
         for item in items:
             name, sep, v = item.partition("=")

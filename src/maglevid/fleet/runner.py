@@ -29,6 +29,7 @@ import logging
 import math
 import os
 import time
+import uuid
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, replace
@@ -40,10 +41,13 @@ from maglevid.exceptions import DataError
 from maglevid.fleet.jobs import FleetJob, collect_jobs
 from maglevid.fleet.summary import FleetSummary, summarize_fleet
 from maglevid.fleet.worker import (
+    REPORT_VERDICTS,
     UNREADABLE_METHOD,
     BatchContext,
     RecordingOutcome,
     diagnose_batch,
+    drop_kept,
+    write_kept_report,
 )
 
 __all__ = ["Batch", "default_n_workers", "plan_batches", "run_fleet"]
@@ -329,59 +333,61 @@ def run_fleet(
     with open_history(location, schema=schema) as st:  # creates and migrates before workers
         machines = sorted({jobs[i].machine for i in unique})
         known, earlier, by_key = _stored_keys(st, machines)
+        for name in sorted({jobs[i].machine for i in unique if jobs[i].baseline == "history"}):
+            # The pipeline reads a "history" baseline with latest_estimates(), which
+            # raises for a machine the store has never seen instead of returning
+            # nothing (then it would compare with the design): register it first.
+            if name not in earlier:
+                st.add_machine(name)
         t_read = time.perf_counter()
 
         todo = [jobs[i] for i in unique]
+        run_id = uuid.uuid4().hex
         with _cluster(scheduler, n_workers) as (client, n_live, address, local):
             _check_store_reachable(location, client, local)
             size = batch_size if batch_size is not None else _auto_batch_size(len(todo), n_live)
             independent, chains = plan_batches(todo, batch_size=size)
-            latest_per_machine: dict[str, int] = {}
-            for k, job in enumerate(todo):  # the report goes with the machine's latest recording
-                j = latest_per_machine.get(job.machine)
-                if j is None or _time_key(job) >= _time_key(todo[j]):
-                    latest_per_machine[job.machine] = k
             ctx_common = {
                 "store": location,
                 "schema": schema,
                 "reports_dir": reports_dir,
                 "diagnose_fn": diagnose_fn,
+                "run_id": run_id,
             }
-            stream = _execute(
-                client,
-                todo,
-                independent,
-                chains,
-                ctx_common,
-                known,
-                set(latest_per_machine.values()),
-                retries,
-            )
+            stream = _execute(client, todo, independent, chains, ctx_common, known, retries)
             if progress is not None:
                 stream = iter(progress(stream, len(todo)))
-            for k, out in stream:
+            diagnosed_on: dict[str, str | None] = {}
+            for k, out, worker_address in stream:
                 i = unique[k]
                 if out.status == "skipped":
                     out = _fill_skipped(out, jobs[i], by_key)
                 outcomes[i] = out
+                diagnosed_on[out.recording] = worker_address
             t_done = time.perf_counter()
-            workers = n_live
 
-        final = [o for o in outcomes if o is not None]
-        if len(final) != len(jobs):  # every job yields one outcome: a bug if not
-            raise RuntimeError(f"{len(jobs) - len(final)} recordings have no outcome")
-        tol = {job.machine: job.tolerances for job in jobs}
-        summary = summarize_fleet(
-            final,
-            st,
-            earlier=earlier,
-            tolerances=tol,
-            alpha=alpha,
+            final = [o for o in outcomes if o is not None]
+            if len(final) != len(jobs):  # every job yields one outcome: a bug if not
+                raise RuntimeError(f"{len(jobs) - len(final)} recordings have no outcome")
+            summary = summarize_fleet(
+                final,
+                st,
+                earlier=earlier,
+                tolerances={job.machine: job.tolerances for job in jobs},
+                alpha=alpha,
+            )
+            t_summary = time.perf_counter()
+            if reports_dir is not None:
+                summary = _write_reports(
+                    client, summary, diagnosed_on, run_id, reports_dir, location, schema
+                )
+        summary = replace(
+            summary,
             run={
                 "started_at": started.isoformat(timespec="seconds"),
                 "scheduler": address,
                 "local_cluster": local,
-                "n_workers": workers,
+                "n_workers": n_live,
                 "batch_size": size,
                 "n_jobs": len(jobs),
                 "n_tasks": len(independent) + sum(len(c) for c in chains.values()),
@@ -389,11 +395,82 @@ def run_fleet(
                 "seconds_total": time.perf_counter() - t_start,
                 "seconds_store_read": t_read - t_start,
                 "seconds_diagnosis": t_done - t_read,
-                "seconds_summary": time.perf_counter() - t_done,
+                "seconds_summary": t_summary - t_done,
+                "seconds_reports": time.perf_counter() - t_summary,
                 "reports": reports_dir,
             },
         )
     return summary
+
+
+def _write_reports(
+    client: Any,
+    summary: FleetSummary,
+    diagnosed_on: Mapping[str, str | None],
+    run_id: str,
+    reports_dir: str,
+    location: str,
+    schema: str | None,
+) -> FleetSummary:
+    """Reports of the machines whose latest diagnosis (made in this run) is faulty.
+
+    "Latest" is by recording time, known only once every recording is
+    diagnosed; the Diagnosis stays on the worker that made it, which writes the
+    report (:func:`~maglevid.fleet.worker.write_kept_report`). A machine whose
+    worker has restarted since gets no report (logged).
+    """
+    live = set(client.scheduler_info().get("workers", {}))
+    futures = {}
+    for m in summary.machines:
+        latest = m.latest
+        if (
+            not latest
+            or not latest["in_this_run"]
+            or latest["verdict_code"] not in REPORT_VERDICTS
+        ):
+            continue
+        addr = diagnosed_on.get(latest["recording"])
+        if addr not in live:
+            logger.warning(
+                "no report for %s: the worker that diagnosed %s is gone",
+                m.name,
+                latest["recording"],
+            )
+            continue
+        futures[m.name] = client.submit(
+            write_kept_report,
+            run_id,
+            m.name,
+            latest["recording"],
+            reports_dir,
+            location,
+            schema,
+            workers=[addr],
+            allow_other_workers=False,
+            pure=False,
+        )
+    paths: dict[str, str] = {}
+    for name, fut in futures.items():
+        try:
+            path = fut.result()
+        except Exception as exc:  # a report must not cost the run
+            logger.warning("report of %s failed: %s", name, exc)
+            continue
+        if path is not None:
+            paths[name] = path
+    try:
+        client.run(drop_kept, run_id)
+    except Exception:  # a worker that died has nothing kept anyway
+        logger.debug("dropping the kept diagnoses failed", exc_info=True)
+    by_machine = {m.name: m.latest["recording"] for m in summary.machines if m.name in paths}
+    outcomes = tuple(
+        replace(o, report=paths[o.machine])
+        if o.machine in paths and o.recording == by_machine[o.machine] and o.status == "diagnosed"
+        else o
+        for o in summary.outcomes
+    )
+    machines = tuple(replace(m, report=paths.get(m.name, m.report)) for m in summary.machines)
+    return replace(summary, outcomes=outcomes, machines=machines)
 
 
 class _cluster:
@@ -457,10 +534,9 @@ def _execute(
     chains: Mapping[str, Sequence[Batch]],
     ctx_common: Mapping[str, Any],
     known: Mapping[str, frozenset],
-    report_jobs: set[int],
     retries: int,
-) -> Iterator[tuple[int, RecordingOutcome]]:
-    """Submit the batches; yield ``(job index, outcome)`` as they complete."""
+) -> Iterator[tuple[int, RecordingOutcome, str | None]]:
+    """Submit the batches; yield ``(job index, outcome, worker address)`` as they complete."""
     from distributed import as_completed
 
     contexts: dict[str, Any] = {}
@@ -476,12 +552,10 @@ def _execute(
 
     def submit(batch: Batch, split: bool = False) -> Any:
         sub = [jobs[i] for i in batch.jobs]
-        report_for = [n for n, i in enumerate(batch.jobs) if i in report_jobs]
         fut = client.submit(
             diagnose_batch,
             sub,
             context(sub[0].machine),
-            report_for,
             retries=retries,
             pure=False,
             key=f"fleet-{sub[0].machine}-{batch.jobs[0]}-{len(batch.jobs)}-{int(split)}-"
@@ -499,7 +573,7 @@ def _execute(
         for fut in ac:
             batch, split = pending.pop(fut)
             try:
-                results = fut.result()
+                worker_address, results = fut.result()
             except Exception as exc:  # the batch could not run (worker deaths, broken worker)
                 if len(batch.jobs) > 1 and not split:
                     logger.warning(
@@ -515,10 +589,11 @@ def _execute(
                         queues[batch.chain].extendleft(reversed(singles))
                         ac.add(submit(queues[batch.chain].popleft(), split=True))
                     continue
-                results = [_lost(jobs[i], exc) for i in batch.jobs]
+                worker_address, results = None, [_lost(jobs[i], exc) for i in batch.jobs]
             finally:
                 fut.release()
-            yield from zip(batch.jobs, results)
+            for i, out in zip(batch.jobs, results):
+                yield i, out, worker_address
             if batch.chain is not None and queues[batch.chain]:
                 ac.add(submit(queues[batch.chain].popleft()))
     finally:

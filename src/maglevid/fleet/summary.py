@@ -49,6 +49,8 @@ CHANGED_VERDICTS: tuple[str, ...] = ("fault", "unexplained_change")
 MIN_DRIFT_POINTS = 4
 
 _DAY = 86400.0
+#: Seconds since 1970 of 0001-01-02 and 9999-12-30: what a datetime can show.
+_MIN_TIME, _MAX_TIME = -62135510400.0, 253402128000.0
 
 
 def _iso(t: float) -> str:
@@ -167,8 +169,13 @@ def machine_drifts(
             out.append({"parameter": name, "method": meth, "skipped": str(exc)})
             continue
         crossing = None
+        notes = list(r.notes)
         if r.projected_crossing_time is not None and math.isfinite(r.projected_crossing_time):
-            crossing = _iso(t0 + r.projected_crossing_time * _DAY)
+            when = t0 + r.projected_crossing_time * _DAY
+            if _MIN_TIME <= when <= _MAX_TIME:
+                crossing = _iso(when)
+            else:  # a nearly flat trend meets its limit beyond any calendar
+                notes.append("the projected crossing is beyond the years 1-9999")
         out.append(
             {
                 "parameter": name,
@@ -184,7 +191,7 @@ def machine_drifts(
                 "projected_crossing": crossing,
                 "first": _iso(t0),
                 "last": _iso(float(t.max())),
-                "notes": list(r.notes),
+                "notes": notes,
             }
         )
     return out

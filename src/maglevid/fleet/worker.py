@@ -41,7 +41,9 @@ __all__ = [
     "BatchContext",
     "RecordingOutcome",
     "diagnose_batch",
+    "drop_kept",
     "report_file_name",
+    "write_kept_report",
 ]
 
 logger = logging.getLogger(__name__)
@@ -167,8 +169,9 @@ class BatchContext:
     """Everything a batch needs besides its jobs (sent once per batch, small).
 
     ``known`` maps a machine to the (content hash, method, options hash) keys
-    the store held when the run started; ``report_for`` holds the indices (in
-    the batch) of the jobs whose diagnosis gets a report when it is faulty.
+    the store held when the run started. With ``reports_dir`` the worker keeps
+    the latest faulty :class:`~maglevid.diagnose.diagnosis.Diagnosis` of each
+    machine it diagnosed (under ``run_id``) for :func:`write_kept_report`.
     """
 
     store: str
@@ -176,7 +179,7 @@ class BatchContext:
     known: Mapping[str, frozenset[tuple[str, str, str]]] = field(default_factory=dict)
     reports_dir: str | None = None
     diagnose_fn: Callable[..., Any] | None = None
-    tolerance_default: float | None = None
+    run_id: str = ""
 
 
 # -- one store connection per worker process and thread ------------------------------------
@@ -377,21 +380,54 @@ def _record_unreadable(
     )
 
 
-def _write_report(job: FleetJob, diag: Any, ctx: BatchContext, store: Any) -> str | None:
-    """The machine's report (with its parameter trends) in ``ctx.reports_dir``."""
+# -- reports: the faulty diagnoses a worker keeps until the client asks for a report -------
+
+_KEPT: dict[tuple[str, str], tuple[datetime, str, Any]] = {}
+_KEPT_LOCK = threading.Lock()
+
+
+def _keep(ctx: BatchContext, job: FleetJob, when: datetime, diag: Any) -> None:
+    """Keep ``diag`` if it is the machine's latest faulty diagnosis on this worker so far."""
+    key = (ctx.run_id, job.machine)
+    with _KEPT_LOCK:
+        old = _KEPT.get(key)
+        if old is None or (when, job.recording) >= old[:2]:
+            _KEPT[key] = (when, job.recording, diag)
+
+
+def write_kept_report(
+    run_id: str, machine: str, recording: str, reports_dir: str, store: str, schema: str | None
+) -> str | None:
+    """Write the report of the diagnosis this worker kept for ``machine`` (a Dask task).
+
+    Runs on the worker that diagnosed ``recording``: the Diagnosis (models,
+    identification, isolation) never travels to the client. Returns the path,
+    or ``None`` when this worker no longer holds that diagnosis (it restarted,
+    or kept a later one). The report includes the machine's parameter trends.
+    """
     from maglevid.fleet.summary import report_trends
     from maglevid.report import write_report
 
-    path = Path(ctx.reports_dir or ".") / report_file_name(job.machine)
-    try:
-        trends = report_trends(store, job.machine, method=diag.method)
-        return str(write_report(diag, path, trends=trends or None))
-    except Exception:  # a report must not cost the diagnosis: logged, outcome kept
-        logger.exception("report of %s (%s) failed", job.machine, job.recording)
+    with _KEPT_LOCK:
+        kept = _KEPT.get((run_id, machine))
+    if kept is None or kept[1] != recording:
         return None
+    diag = kept[2]
+    path = Path(reports_dir) / report_file_name(machine)
+    trends = report_trends(_store(store, schema), machine, method=diag.method)
+    return str(write_report(diag, path, trends=trends or None))
 
 
-def _diagnose_one(job: FleetJob, ctx: BatchContext, with_report: bool) -> RecordingOutcome:
+def drop_kept(run_id: str) -> int:
+    """Forget the diagnoses kept for run ``run_id`` (run on every worker at the end)."""
+    with _KEPT_LOCK:
+        keys = [k for k in _KEPT if k[0] == run_id]
+        for k in keys:
+            del _KEPT[k]
+    return len(keys)
+
+
+def _diagnose_one(job: FleetJob, ctx: BatchContext) -> RecordingOutcome:
     from maglevid.diagnose.history import hash_options
     from maglevid.diagnose.pipeline import choose_method, recording_hash
     from maglevid.io import read_recording
@@ -458,24 +494,24 @@ def _diagnose_one(job: FleetJob, ctx: BatchContext, with_report: bool) -> Record
             seconds=time.perf_counter() - t0,
             **base,
         )
-    out = _from_diagnosis(job, diag, recorded_at=when, seconds=time.perf_counter() - t0)
-    if with_report and ctx.reports_dir and diag.verdict_code in REPORT_VERDICTS:
-        report = _write_report(job, diag, ctx, store)
-        if report is not None:
-            from dataclasses import replace
-
-            out = replace(out, report=report, seconds=time.perf_counter() - t0)
-    return out
+    if ctx.reports_dir and diag.verdict_code in REPORT_VERDICTS:
+        _keep(ctx, job, when, diag)
+    return _from_diagnosis(job, diag, recorded_at=when, seconds=time.perf_counter() - t0)
 
 
 def diagnose_batch(
-    jobs: Sequence[FleetJob], ctx: BatchContext, report_for: Sequence[int] = ()
-) -> list[RecordingOutcome]:
-    """Diagnose ``jobs`` one after the other; one outcome per job, in order.
+    jobs: Sequence[FleetJob], ctx: BatchContext
+) -> tuple[str | None, list[RecordingOutcome]]:
+    """Diagnose ``jobs`` one after the other: ``(worker address, one outcome per job)``.
 
     The Dask task of a fleet run. It raises only if the worker itself is
-    broken: every recording's failure is an outcome. ``report_for``: indices
-    of the jobs whose faulty diagnosis gets an HTML report.
+    broken: every recording's failure is an outcome. The address tells the
+    client where a kept faulty diagnosis is (``None`` outside a Dask worker).
     """
-    wanted = set(report_for)
-    return [_diagnose_one(job, ctx, i in wanted) for i, job in enumerate(jobs)]
+    try:
+        from distributed import get_worker
+
+        address: str | None = get_worker().address
+    except (ImportError, ValueError):  # called directly, not as a Dask task
+        address = None
+    return address, [_diagnose_one(job, ctx) for job in jobs]
