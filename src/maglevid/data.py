@@ -256,6 +256,10 @@ class ClosedLoopData:
                 kw[table] = {k: v for k, v in kw[table].items() if k == "y" or kw[k] is not None}
         return ClosedLoopData(**kw)
 
+    def with_metadata(self, **items: Any) -> ClosedLoopData:
+        """Copy with metadata entries added or replaced (e.g. ``machine=``)."""
+        return self.replace(metadata={**_thaw(self.metadata), **items})
+
     def segment(self, start: int, stop: int | None = None) -> ClosedLoopData:
         """Control periods ``start:stop`` as a new recording (time origin kept)."""
         n = self.n_samples

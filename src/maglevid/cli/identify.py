@@ -59,9 +59,9 @@ def _parse_options(items: list[str]) -> dict[str, Any]:
 
 
 def _default_method(data: Any) -> str:
-    if data.p > 1:
-        return "intersample"
-    return "deadbeat-arx"
+    from maglevid.diagnose.pipeline import choose_method
+
+    return choose_method(data)[0]  # "physical" for AMB recordings (observer-independent)
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
@@ -72,6 +72,11 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
 
     data = read_recording(args.recording, mapping=args.mapping)
     method = args.method or _default_method(data)
+    from maglevid.diagnose.levitator import is_levitator, levitator_checks
+
+    if method == "greybox-levitator" and is_levitator(data) and "segments" not in options:
+        # A rig log: identify on the segments where the ball levitates under control.
+        options["segments"] = levitator_checks(data)[1]
     result = get_method(method)(data, **options)
     out = result.to_dict()
     out["recording"] = args.recording
@@ -84,10 +89,15 @@ def format_text(result: dict[str, Any]) -> str:
     lines = [f"recording: {result['recording']}", f"method: {result['method']}"]
     lines.append(f"samples: {result['n_samples']}")
     se = result.get("std_errors") or {}
-    lines.append(f"{'parameter':>14} {'estimate':>14} {'std. error':>12}")
+    ci = result.get("ci95") or {}
+    lines.append(f"{'parameter':>14} {'estimate':>14} {'std. error':>12}   95 % interval")
     for k, v in result["parameters"].items():
         e = se.get(k)
-        lines.append(f"{k:>14} {v:>14.6g} {(e if e is not None else float('nan')):>12.3g}")
+        lo, hi = ci.get(k) or (None, None)
+        band = f"[{lo:.6g}, {hi:.6g}]" if isinstance(lo, float) and isinstance(hi, float) else ""
+        lines.append(
+            f"{k:>14} {v:>14.6g} {(e if e is not None else float('nan')):>12.3g}   {band}"
+        )
     if result.get("poles") is not None:
         p = result["poles"]
         re, im = (p["re"], p["im"]) if isinstance(p, dict) else (p, [0.0] * len(p))

@@ -13,7 +13,7 @@ from typing import Any
 from maglevid._plugins import modules_with
 
 COMMAND = "reproduce"
-HELP = "reproduce a paper's tables and figures (gosiewski, sun)"
+HELP = "reproduce a paper's tables and figures (gosiewski, sun, rigs)"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -178,7 +178,7 @@ class FaultHypothesis:
         for k, f, se in zip(self.parameters, self.factors, self.factor_std_errors):
             what, up, down = HYPOTHESES[k]
             parts.append(
-                f"{what} {100 * (f - 1):+.1f} % ± {100 * se:.1f} % ({up if f > 1 else down})"
+                f"{what} {100 * (f - 1):+.1f} % ± {100 * se:.2g} % ({up if f > 1 else down})"
             )
         return "; ".join(parts)
 

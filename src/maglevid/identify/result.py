@@ -159,6 +159,7 @@ class IdentificationResult:
             "options": _jsonable(self.options),
             "parameters": dict(self.parameters),
             "std_errors": _jsonable(self.std_errors()),
+            "ci95": _jsonable({k: list(v) for k, v in self.confidence_intervals(0.95).items()}),
             "covariance": None if self.covariance is None else self.covariance.tolist(),
             "model": None if self.model is None else self.model.to_dict(),
             "continuous_model": None

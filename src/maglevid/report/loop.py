@@ -97,10 +97,14 @@ def controller_state_space(spec: Any, *, plant: StateSpace | None = None) -> Sta
             + (str(sorted(spec)) if isinstance(spec, Mapping) else type(spec).__name__)
         )
     ctrl, obs = spec["controller"], spec["observer"]
-    if obs.get("type", "prediction") != "prediction":
+    # Every observer maglevid designs (deadbeat, Kalman, pole placement, given) is
+    # the prediction form of eq. (43); "type" records how its gain was designed.
+    from maglevid.control.observer import OBSERVER_KINDS
+
+    if obs.get("type", "prediction") not in ("prediction", *OBSERVER_KINDS):
         raise DataError(
             f"observer type {obs.get('type')!r} is not supported; expected 'prediction' "
-            "(x^(k+1) = (A + G C) x^(k) + B u(k) - G y(k), eq. (43))"
+            f"or one of {OBSERVER_KINDS} (x^(k+1) = (A + G C) x^(k) + B u(k) - G y(k), eq. (43))"
         )
     if {"A", "B", "C"} <= set(obs):
         A = as_matrix(obs["A"], "loop['observer']['A']")

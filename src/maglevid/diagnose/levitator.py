@@ -1,0 +1,137 @@
+"""Diagnosis of a single-magnet levitator (steel ball under an electromagnet).
+
+A real rig's log (e.g. the UAQ levitator, read with the ``uaq-levitador``
+preset) has no known excitation and no state-feedback loop, so the AMB route
+(v1..v9 and fault isolation) does not apply. What can be diagnosed is the
+physics of the single-magnet model: the grey-box estimate of the inductance
+length scale ``a`` (which includes any offset of the gap sensor) and the
+unstable pole ``sqrt(2 g / (a + y0))`` of the current-driven plant at the
+operating gap, compared with the published (or an earlier) parameter set.
+
+Only the segments where the ball levitates under control are used
+(:func:`maglevid.diagnose.quality.find_levitation_segments`): lift-off, falls,
+sticking to the magnet and saturation are cut out first.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from maglevid.data import ClosedLoopData
+from maglevid.diagnose.diagnosis import QualityCheck
+
+__all__ = [
+    "LEVITATING_RANGE",
+    "MIN_LEVITATING_SECONDS",
+    "is_levitator",
+    "levitator_baseline",
+    "levitator_checks",
+]
+
+#: Gap range [m] counted as levitating (the UAQ README's 2-10 mm).
+LEVITATING_RANGE = (2e-3, 10e-3)
+
+#: Largest tracking error |yd - y| [m] inside a usable segment.
+MAX_TRACKING = 2e-3
+
+#: Fewest seconds of usable levitation for a diagnosis: the grey box fits the
+#: ~7 Hz unstable mode, so 10 s hold ~70 of its periods.
+MIN_LEVITATING_SECONDS = 10.0
+
+
+def is_levitator(data: ClosedLoopData) -> bool:
+    """A single-magnet levitator log: [gap, current] outputs and the magnet's inductance law."""
+    plant = data.metadata.get("plant") if hasattr(data.metadata, "get") else None
+    return bool(
+        data.ny == 2
+        and isinstance(plant, Mapping)
+        and "inductance_model" in plant
+        and {"k0_H", "k_H", "a_m"} <= set(plant)
+    )
+
+
+def levitator_baseline(data: ClosedLoopData) -> Any:
+    """The published parameter set stored with the recording (``metadata['plant']``)."""
+    from maglevid.physics.levitator import LevitatorParameters
+
+    plant = data.metadata["plant"]
+    return LevitatorParameters(
+        m=float(plant.get("m_kg", 0.018)),
+        R=float(plant.get("R_ohm", 2.72)),
+        k0=float(plant["k0_H"]),
+        k=float(plant["k_H"]),
+        a=float(plant["a_m"]),
+    )
+
+
+def _reference(data: ClosedLoopData) -> np.ndarray | None:
+    extras = data.metadata.get("extra_signals") if hasattr(data.metadata, "get") else None
+    if extras and "yd" in extras:
+        vals = np.asarray(extras["yd"]["values"], dtype=float)
+        return vals[:: data.p] if vals.size == data.y.shape[0] and data.p > 1 else vals
+    return None
+
+
+def levitator_checks(
+    data: ClosedLoopData,
+) -> tuple[tuple[QualityCheck, ...], list[tuple[int, int]]]:
+    """Quality checks of a levitator log and the usable (levitating) segments."""
+    from maglevid.diagnose.quality import find_levitation_segments
+
+    limits = data.metadata.get("u_range_V")
+    limits = None if limits is None else tuple(float(v) for v in np.asarray(limits).ravel()[:2])
+    rep = find_levitation_segments(
+        data.y_control[:, 0],
+        dt=data.dt,
+        position_range=LEVITATING_RANGE,
+        command=None if data.u is None else data.u[:, 0],
+        command_limits=limits,
+        reference=_reference(data),
+        max_tracking_error=MAX_TRACKING if _reference(data) is not None else None,
+    )
+    segs = rep.bounds()
+    seconds = sum(b - a for a, b in segs) * data.dt
+    total = data.n_samples * data.dt
+    lost = rep.excluded_by_reason()
+    why = ", ".join(f"{k} {v:.1f} s" for k, v in lost.items() if v > 0) or "nothing"
+    ok = seconds >= MIN_LEVITATING_SECONDS
+    checks = (
+        QualityCheck(
+            name="levitation",
+            passed=ok,
+            value=seconds,
+            threshold=MIN_LEVITATING_SECONDS,
+            message=(
+                f"{seconds:.1f} s of {total:.1f} s levitating under control in {len(segs)} "
+                f"segment(s); excluded: {why}"
+                + ("" if ok else ": too little usable levitation to identify the plant")
+            ),
+        ),
+    )
+    return checks, segs
+
+
+def levitator_estimates(result: Any) -> tuple[dict[str, tuple[float, float]], float]:
+    """``{name: (value, se)}`` of the diagnosed levitator quantities, and the operating gap."""
+    se = result.std_errors()
+    p = result.parameters
+    y_ref = float(result.options.get("y_ref"))
+    keys = [k for k in ("pole_rad_s", "a", "k", "current_gain", "i0") if k in p]
+    return {k: (p[k], se[k]) for k in keys}, y_ref
+
+
+def levitator_baseline_values(base: Any, y_ref: float) -> dict[str, tuple[float, float]]:
+    """The baseline's pole, ``a``, ``k``, current gain and equilibrium current at ``y_ref``."""
+    from maglevid.physics.levitator import current_gain, equilibrium, unstable_pole
+
+    i0 = equilibrium(base, y_ref)[0]
+    return {
+        "pole_rad_s": (unstable_pole(base, y_ref), 0.0),
+        "a": (base.a, 0.0),
+        "k": (base.k, 0.0),
+        "current_gain": (current_gain(base, y_ref), 0.0),
+        "i0": (float(i0), 0.0),
+    }

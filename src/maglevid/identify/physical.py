@@ -1,0 +1,485 @@
+"""Physical AMB parameters from closed-loop data without trusting the observer.
+
+The method for the real diagnostic case. The deadbeat method of
+:mod:`maglevid.identify.deadbeat` identifies the *observer/controller*; it is
+exact only when the observer's model is the plant that runs. In a diagnosis
+the observer was built on the nominal bearing and the bearing has changed,
+so the observer state is not the plant state and that method is biased even
+without noise; and a mirror-symmetric controller makes ``[[C, 0], [-F, Fe]]``
+singular, so it cannot be used at all. This module identifies the *plant*
+``u -> y`` directly. Whatever the controller and observer do, the plant obeys
+its own difference equation, so the estimate is exact without noise for any
+(linear) controller, and with instrumental variables from ``r`` it is
+consistent under measurement noise.
+
+1. An exact plant ARX with full-rank regressors
+-----------------------------------------------
+The plant has ``n = 4`` states and ``ny = 3`` outputs ``[x, i1, i2]``; only the
+velocity is hidden. ``x(k-1)`` follows from ``[y(k); x_pos(k-1)]`` and ``u(k-1)``::
+
+    [y(k); x_pos(k-1)] = [C A; e_0^T] x(k-1) + [C B; 0] u(k-1)
+
+where ``[C A; e_0^T]`` is invertible (position responds to velocity:
+``A[0, 1] != 0``). Hence ``x(k) = A x(k-1) + B u(k-1)`` and
+``y(k+1) = C A x(k) + C B u(k)`` are exact linear functions of
+
+    phi(k) = [y(k), x_pos(k-1), u(k), u(k-1)]           (3 + 1 + 2 + 2 = 8)
+
+    y(k+1) = Theta phi(k),  Theta = [Theta_y, theta_h, Theta_u0, Theta_u1].
+
+The full ARX(2) with all of ``y(k-1)`` would be exact too, but its regressors
+are exactly collinear (``y(k) - (CA)_meas y(k-1) - CB u(k-1)`` is a multiple of
+the velocity in all three rows); dropping the lagged currents removes that and
+leaves 8 linearly independent regressors.
+
+2. A minimal realization from Theta
+-----------------------------------
+Write ``x(k) = Psi [y(k); x_pos(k-1); u(k-1)]``. Rows 0, 2, 3 of ``Psi`` just copy
+``y(k)``; only the velocity row ``psi^T`` is unknown. So
+``Theta`` restricted to ``[x_pos(k-1), u(k-1)]`` is ``(C A)[:, 1] psi_{pos,u}^T``:
+the ``3 x 3`` matrix ``H = [theta_h, Theta_u1]`` has rank one, ``H = a w^T``.
+With ``h(k) = w^T [x_pos(k-1); u(k-1)]``, scaled so that ``w_0 = 1``, the model
+is the 4-state system::
+
+    y(k+1) = Theta_y y(k) + a h(k) + Theta_u0 u(k)
+    h(k+1) = w_0 x_pos(k) + w_u^T u(k)
+
+    Atilde = [[Theta_y, a], [w_0 e_0^T, 0]],  Btilde = [Theta_u0; w_u^T],  Ctilde = [I, 0].
+
+Without noise ``H`` has rank one exactly; with noise its rank-one part (the
+leading singular pair of ``H`` with rows and columns scaled to unit RMS
+signals) is the consistent reduced-rank estimate.
+
+3. The transformation to physical coordinates
+---------------------------------------------
+``x = T xi`` with ``x = [x, dx/dt, i1, i2]``. ``C T = Ctilde`` fixes rows 0, 2, 3 of
+``T`` (the measured states). The velocity is the time derivative of the
+position, ``dx/dt = Ctilde_0 d(xi)/dt = Ctilde_0 (Atilde_c xi + Btilde_c u)``; in
+physical coordinates ``B_c`` has no position row (eq. (3)), so ``Ctilde_0
+Btilde_c = 0`` and row 1 of ``T`` is ``Ctilde_0 Atilde_c`` with ``Atilde_c =
+ln(Atilde)/dt`` (eq. (8))::
+
+    T = [Ctilde_0; Ctilde_0 Atilde_c; Ctilde_1; Ctilde_2],
+    A = T Atilde T^-1,  B = T Btilde,  A_c = T Atilde_c T^-1 (row 0 = [0, 1, 0, 0]).
+
+``T`` is unique: the measured states fix three rows, the kinematic identity
+``d/dt x = velocity`` the fourth. It applies to the discrete model as well
+(a state transformation commutes with the zero-order hold). ``Ctilde_0
+Btilde_c`` is a check (it appears as ``B_c[0]`` and enters the structure
+residual).
+
+Any other 4-state realization with these outputs (subspace, ERA) is put into
+physical coordinates the same way: :func:`to_physical_coordinates`.
+
+4. Instruments
+--------------
+See :mod:`maglevid.identify.iv`: ``"loop"`` simulates the known controller and
+observer around the nominal (observer) model driven by the recorded ``r`` and
+uses the same regressors built from those noise-free signals (basic IV);
+``"lags"`` uses lags of ``r`` (two-stage least squares).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from maglevid.data import ClosedLoopData
+from maglevid.exceptions import DataError, IdentificationError, ModelError
+from maglevid.identify.arx import solve_linear_regression
+from maglevid.identify.iv import lagged_excitation, simulate_loop_signals
+from maglevid.identify.result import IdentificationResult
+from maglevid.identify.uncertainty import amb_result
+from maglevid.lti import StateSpace, undiscretize
+from maglevid.physics.amb import C_AMB, INPUT_NAMES, OUTPUT_NAMES, STATE_NAMES
+
+__all__ = [
+    "METHODS",
+    "fit_physical",
+    "format_percentage_index",
+    "percentage_index",
+    "physical_transformation",
+    "plant_regression",
+    "realize_plant_arx",
+    "to_physical_coordinates",
+]
+
+logger = logging.getLogger(__name__)
+
+#: Index of the position among the outputs ``[x, i1, i2]``.
+POSITION = 0
+
+
+def plant_regression(y: np.ndarray, u: np.ndarray, *, start: int) -> tuple[np.ndarray, np.ndarray]:
+    """``y(k+1)`` and ``phi(k) = [y(k), x_pos(k-1), u(k), u(k-1)]``, rows ``k = start .. N-2``.
+
+    See the module notes, section 1.
+    """
+    N = y.shape[0]
+    if not 1 <= start < N - 1:
+        raise DataError(f"`start` must be in 1..{N - 2}; got {start}")
+    cur = slice(start, N - 1)
+    prev = slice(start - 1, N - 2)
+    phi = np.hstack([y[cur], y[prev, POSITION : POSITION + 1], u[cur], u[prev]])
+    return y[start + 1 :], phi
+
+
+def realize_plant_arx(
+    theta: np.ndarray,
+    *,
+    ny: int,
+    nu: int,
+    y_scale: np.ndarray | None = None,
+    h_scale: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Minimal 4-state realization of the plant ARX (module notes, section 2).
+
+    Parameters
+    ----------
+    theta : ndarray
+        ``Theta`` (``ny x (ny + 1 + 2 nu)``), flat or 2-D.
+    ny, nu : int
+    y_scale : ndarray, shape (ny,), optional
+        RMS of the outputs (row scaling of ``H`` before its rank-one split).
+    h_scale : ndarray, shape (1 + nu,), optional
+        RMS of ``[x_pos, u]`` (column scaling).
+
+    Returns
+    -------
+    Atilde, Btilde, Ctilde : ndarray
+        The realization (``Ctilde = [I, 0]``).
+    h_singular_values : ndarray
+        Singular values of the scaled ``H``; the second relative to the first
+        measures how far the estimate is from the rank-one structure.
+    """
+    Theta = np.asarray(theta, dtype=float).reshape(ny, ny + 1 + 2 * nu)
+    Ty = Theta[:, :ny]
+    H = np.hstack([Theta[:, ny : ny + 1], Theta[:, ny + 1 + nu :]])  # [theta_h, Theta_u1]
+    Tu0 = Theta[:, ny + 1 : ny + 1 + nu]
+    ry = np.ones(ny) if y_scale is None else np.asarray(y_scale, dtype=float)
+    ch = np.ones(1 + nu) if h_scale is None else np.asarray(h_scale, dtype=float)
+    U, s, Vt = np.linalg.svd(H / ry[:, None] * ch[None, :])
+    a = U[:, 0] * s[0] * ry  # H ~ a w^T
+    w = Vt[0] / ch
+    # Fix the scale (and sign) of the hidden state h by w_0 = 1, so that the
+    # realization is a continuous function of Theta (the delta method
+    # differentiates it); w_0 != 0 because the lagged position carries the velocity.
+    if w[0] == 0:
+        raise IdentificationError(
+            "the lagged position has no weight in the plant ARX: the velocity is not "
+            "reconstructed and the model is not the AMB of eq. (3)"
+        )
+    a, w = a * w[0], w / w[0]
+    n = ny + 1
+    At = np.zeros((n, n))
+    At[:ny, :ny] = Ty
+    At[:ny, ny] = a
+    At[ny, POSITION] = w[0]
+    Bt = np.vstack([Tu0, w[1:][None, :]])
+    Ct = np.hstack([np.eye(ny), np.zeros((ny, 1))])
+    return At, Bt, Ct, s
+
+
+def physical_transformation(Ac_tilde: np.ndarray, C_tilde: np.ndarray) -> np.ndarray:
+    """``T`` with ``x_phys = T xi`` for states ``[x, dx/dt, i1, i2]`` (module notes, section 3).
+
+    ``T = [Ctilde_0; Ctilde_0 Atilde_c; Ctilde_1; Ctilde_2]``.
+
+    Raises
+    ------
+    IdentificationError
+        ``T`` is singular: the derivative of the position adds nothing to the
+        measured states (velocity unobservable from position).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from maglevid.physics.amb import AMBParameters, amb_matrices, C_AMB
+    >>> Ac, Bc = amb_matrices(AMBParameters.nominal())
+    >>> S = np.array([[2.0, 1, 0, 0], [0, 3, 0, 1], [1, 0, 1, 0], [0, 0, 0, 1]])
+    >>> T = physical_transformation(np.linalg.solve(S, Ac @ S), C_AMB @ S)
+    >>> np.allclose(T, S)
+    True
+    """
+    c0 = C_tilde[POSITION]
+    rows = [c0, c0 @ Ac_tilde] + [C_tilde[j] for j in range(C_tilde.shape[0]) if j != POSITION]
+    T = np.vstack(rows)
+    s = np.linalg.svd(T / np.linalg.norm(T, axis=1, keepdims=True), compute_uv=False)
+    if s[-1] < 1e-12 * s[0]:
+        raise IdentificationError(
+            "the physical transformation is singular: the identified position does not "
+            "depend on a state beyond the measured ones (velocity unobservable)"
+        )
+    return T
+
+
+def to_physical_coordinates(model: StateSpace) -> tuple[StateSpace, StateSpace]:
+    """Any 4-state AMB realization with outputs ``[x, i1, i2]`` in physical coordinates.
+
+    For models identified in arbitrary coordinates, e.g. by
+    :func:`maglevid.identify.subspace.fit_moesp` or ERA: ``T`` of the module
+    notes (section 3) from the continuous model, applied to both.
+
+    Parameters
+    ----------
+    model : StateSpace
+        Discrete (ZOH) or continuous model, 4 states, 3 outputs ``[x, i1, i2]``.
+
+    Returns
+    -------
+    discrete, continuous : StateSpace
+        In states ``[x, dx/dt, i1, i2]`` with ``C = [[1,0,0,0],[0,0,1,0],[0,0,0,1]]``
+        (``discrete`` is ``None`` for a continuous input); read v1..v9 off the
+        continuous one with :func:`maglevid.physics.amb.v_from_matrices`.
+
+    Raises
+    ------
+    IdentificationError
+        No real logarithm (discrete input) or a singular transformation.
+    """
+    if model.nx != 4 or model.ny != 3:
+        raise DataError(
+            f"an AMB model has 4 states and outputs [x, i1, i2]; got nx={model.nx}, ny={model.ny}"
+        )
+    try:
+        cont = undiscretize(model) if model.is_discrete else model
+    except ModelError as exc:
+        raise IdentificationError(f"no continuous counterpart of the model: {exc}") from exc
+    T = physical_transformation(cont.A, cont.C)
+    names = {"state_names": STATE_NAMES, "input_names": INPUT_NAMES, "output_names": OUTPUT_NAMES}
+    Ti = np.linalg.inv(T)
+    phys_c = StateSpace(T @ cont.A @ Ti, T @ cont.B, cont.C @ Ti, cont.D, None, **names)
+    if not model.is_discrete:
+        return None, phys_c  # type: ignore[return-value]
+    phys_d = StateSpace(T @ model.A @ Ti, T @ model.B, model.C @ Ti, model.D, model.dt, **names)
+    return phys_d, phys_c
+
+
+def _plant_signals(data: ClosedLoopData) -> tuple[np.ndarray, np.ndarray]:
+    if not isinstance(data, ClosedLoopData):
+        raise DataError(f"`data` must be a ClosedLoopData; got {type(data).__name__}")
+    if data.p != 1:
+        raise DataError(
+            f"the physical method needs one output sample per control period; got p={data.p}"
+        )
+    if data.u is None and data.u_f is not None and data.r is not None:
+        data = data.with_plant_input()
+    if data.u is None:
+        raise DataError("the physical method needs the plant input u (or u_f and r)")
+    if data.ny != 3 or data.nu != 2:
+        raise DataError(
+            f"the AMB model has outputs [x, i1, i2] and inputs [u1, u2]; the recording has "
+            f"{data.ny} outputs and {data.nu} inputs"
+        )
+    C = data.loop.get("C") if isinstance(data.loop, Mapping) else None
+    if C is not None and not np.allclose(np.asarray(C, dtype=float), C_AMB):
+        raise DataError(
+            "the physical method expects y = [x, i1, i2] (C = [[1,0,0,0],[0,0,1,0],[0,0,0,1]]); "
+            f"the loop's C is {np.asarray(C).tolist()}"
+        )
+    return np.asarray(data.y), np.asarray(data.u)
+
+
+def fit_physical(
+    data: ClosedLoopData,
+    *,
+    estimator: str = "iv",
+    instruments: str = "auto",
+    skip: int = 10,
+    instrument_lags: int = 30,
+    covariance: str = "white-noise",
+    hac_lags: int = 4,
+    m: float | None = None,
+    i0: float | None = None,
+) -> IdentificationResult:
+    """Physical AMB model from the plant ARX, observer-independent (module notes).
+
+    Parameters
+    ----------
+    data : ClosedLoopData
+        ``y = [x, i1, i2]``, ``u`` (or ``u_f`` and ``r``); ``r`` and, for
+        ``instruments="loop"``, ``data.loop`` with the controller and observer.
+    estimator : {"iv", "ls"}
+        ``"iv"`` (default): consistent under measurement noise. ``"ls"``: least
+        squares, exact without noise, biased with it.
+    instruments : {"auto", "loop", "lags"}
+        ``"auto"``: ``"loop"`` when the loop's controller and observer are
+        recorded, else ``"lags"``.
+    skip : int
+        Samples dropped at the start.
+    instrument_lags : int
+        Lags of ``r`` for ``instruments="lags"``.
+    covariance : {"white-noise", "hac"}
+        How the covariance of the ARX coefficients is obtained. ``"white-noise"``
+        (default): the equation error is ``w(k+1) - Theta_y w(k) - theta_h
+        w_pos(k-1)`` for white measurement noise ``w``, and the covariance is
+        written exactly in terms of ``Cov(w)`` fitted to the residuals
+        (:func:`maglevid.identify.arx.white_noise_covariance`). ``"hac"``: a
+        lag-window estimate for any short-memory equation error (disturbances
+        too), but it overstates the standard errors on this plant (see
+        :mod:`maglevid.identify.arx`).
+    hac_lags : int
+        Lag window for ``covariance="hac"``.
+    m, i0 : float, optional
+        Mass and bias current; default ``data.loop["operating_point"]``.
+
+    Returns
+    -------
+    IdentificationResult
+        Discrete and continuous model in physical coordinates, v1..v9 and
+        physical parameters with covariance (delta method through the
+        realization and the transformation), the plant ARX coefficients and the
+        rank-one check in ``extras``.
+
+    Raises
+    ------
+    DataError
+        Wrong signals or too short a record.
+    IdentificationError
+        Rank-deficient regression, no real logarithm, or singular ``T``.
+    """
+    if estimator not in ("ls", "iv"):
+        raise DataError(f"`estimator` must be 'ls' or 'iv'; got {estimator!r}")
+    if instruments not in ("auto", "loop", "lags"):
+        raise DataError(f"`instruments` must be 'auto', 'loop' or 'lags'; got {instruments!r}")
+    y, u = _plant_signals(data)
+    ny, nu = y.shape[1], u.shape[1]
+    N = y.shape[0]
+    start = max(int(skip), 1)
+    kind = None
+    notes: list[str] = []
+    if estimator == "iv":
+        if data.r is None:
+            raise DataError("estimator='iv' needs the excitation r in the recording")
+        kind = instruments
+        if kind == "auto":
+            loop = data.loop
+            known = isinstance(loop.get("observer"), Mapping) and isinstance(
+                loop.get("controller"), Mapping
+            )
+            kind = "loop" if known else "lags"
+            if not known:
+                notes.append(
+                    "the loop's controller/observer are not recorded: instruments are lags of r "
+                    "(consistent but less efficient than the nominal-loop instruments)"
+                )
+        if kind == "lags":
+            start = max(start, int(instrument_lags))
+    n_reg = ny + 1 + 2 * nu
+    if N - 1 - start <= 3 * n_reg:
+        raise DataError(
+            f"the recording has {N} samples; the plant ARX needs well over {start + 1 + 3 * n_reg}"
+        )
+    lhs, phi = plant_regression(y, u, start=start)
+    Z = None
+    if kind == "loop":
+        sim = simulate_loop_signals(data.loop, data.r, dt=data.dt)
+        _, Z = plant_regression(sim["y"], sim["u"], start=start)
+    elif kind == "lags":
+        Z = lagged_excitation(data.r, lags=int(instrument_lags), start=start, stop=N - 1)
+    ynames = data.channel_names("y")
+    unames = data.channel_names("u")
+    labels = (
+        [f"{n}(k)" for n in ynames]
+        + [f"{ynames[POSITION]}(k-1)"]
+        + [f"{n}(k)" for n in unames]
+        + [f"{n}(k-1)" for n in unames]
+    )
+    noise_ma = None
+    if covariance == "white-noise":
+
+        def noise_ma(Theta: np.ndarray) -> list[np.ndarray]:
+            # eps(k) = w(k+1) - Theta_y w(k) - theta_h w_pos(k-1) (module notes, section 1)
+            C2 = np.zeros((ny, ny))
+            C2[:, POSITION] = -Theta[:, ny]
+            return [np.eye(ny), -Theta[:, :ny], C2]
+
+    elif covariance != "hac":
+        raise DataError(f"`covariance` must be 'white-noise' or 'hac'; got {covariance!r}")
+    fit = solve_linear_regression(
+        lhs, phi, instruments=Z, hac_lags=hac_lags, labels=labels, noise_ma=noise_ma
+    )
+    y_scale = np.sqrt(np.mean(y**2, axis=0))
+    h_scale = np.sqrt(np.mean(np.hstack([y[:, POSITION : POSITION + 1], u]) ** 2, axis=0))
+    dt = data.dt
+
+    Ct = np.hstack([np.eye(ny), np.zeros((ny, 1))])
+
+    def to_discrete(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        At, Bt, _, _ = realize_plant_arx(theta, ny=ny, nu=nu, y_scale=y_scale, h_scale=h_scale)
+        return At, Bt
+
+    def to_physical(Atc: np.ndarray, Btc: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        T = physical_transformation(Atc, Ct)
+        return T @ np.linalg.solve(T.T, Atc.T).T, T @ Btc, T  # T Atc T^-1, T Btc
+
+    _, _, _, hs = realize_plant_arx(
+        fit.coefficients, ny=ny, nu=nu, y_scale=y_scale, h_scale=h_scale
+    )
+    rank_one = float(hs[1] / hs[0])
+    if rank_one > 1e-2:
+        notes.append(
+            f"the lagged-input block of the plant ARX is far from rank one (s2/s1 = "
+            f"{rank_one:.3g}); the plant may not be the 4-state AMB model of eq. (3)"
+        )
+    return amb_result(
+        method="physical",
+        to_discrete=to_discrete,
+        to_physical=to_physical,
+        fit=fit,
+        Y=lhs,
+        lhs_names=list(ynames),
+        dt=dt,
+        loop=data.loop,
+        n_samples=lhs.shape[0],
+        options={
+            "estimator": estimator,
+            "instruments": kind,
+            "skip": int(skip),
+            "instrument_lags": int(instrument_lags),
+            "covariance": covariance,
+            "hac_lags": int(hac_lags),
+            "m": m,
+            "i0": i0,
+        },
+        notes=notes,
+        extras={"rank_one_ratio": rank_one, "h_singular_values": hs},
+        m=m,
+        i0=i0,
+    )
+
+
+# ---------------------------------------------------------------- percentage indices
+
+
+def percentage_index(estimate: Any, reference: Any) -> np.ndarray:
+    """``(estimate - reference) / reference * 100`` elementwise (array division).
+
+    The paper's ``A_p``, ``B_p`` (Gosiewski & Paszowski, Example I). Elements
+    where the reference is a structural zero are NaN (the paper prints x).
+    """
+    est = np.asarray(estimate, dtype=float)
+    ref = np.asarray(reference, dtype=float)
+    if est.shape != ref.shape:
+        raise DataError(f"estimate {est.shape} and reference {ref.shape} differ in shape")
+    out = np.full(ref.shape, np.nan)
+    nz = ref != 0
+    out[nz] = (est[nz] - ref[nz]) / ref[nz] * 100.0
+    return out
+
+
+def format_percentage_index(M: Any, *, digits: int = 4, width: int = 10) -> str:
+    """Text of a percentage-index matrix, ``×`` at structural zeros as the paper prints it."""
+    M = np.asarray(M, dtype=float)
+    lines = []
+    for row in np.atleast_2d(M):
+        cells = ["×".rjust(width) if np.isnan(x) else f"{x:{width}.{digits}f}" for x in row]
+        lines.append(" ".join(cells))
+    return "\n".join(lines)
+
+
+#: Registered with ``maglevid identify --method``.
+METHODS: Mapping[str, Any] = {"physical": fit_physical}

@@ -1,0 +1,332 @@
+"""Standard errors of v1..v9 and of the physical parameters, and the AMB result.
+
+Every AMB method of :mod:`maglevid.identify` ends the same way: a coefficient
+estimate ``theta`` (ARX/IV) with covariance ``Cov(theta)`` (the HAC sandwich of
+:mod:`maglevid.identify.arx`) and a smooth map ``theta -> (A, B)`` into the
+discrete model in physical coordinates. From there
+
+    (A, B) --eq. (8)--> (A_c, B_c) --eq. (4)--> v1..v9 --inverse of eq. (4)--> R1, L1, ...
+
+(:func:`maglevid.lti.undiscretize`, :func:`maglevid.physics.amb.v_from_matrices`,
+:func:`maglevid.physics.amb.parameters_from_v`). The covariance follows by the
+delta method, ``Cov(f(theta)) = J Cov(theta) J^T`` (as in
+:func:`maglevid.identify.result.propagate_covariance`), with the Jacobian of
+the whole chain assembled from central differences of the cheap algebraic
+steps and the exact Fréchet derivative of the matrix logarithm (one
+``expm_frechet`` Kronecker form per estimate instead of one ``logm`` per
+finite-difference step, an order of magnitude faster at the same accuracy;
+the test suite compares the two). The chain is smooth wherever ``ln(A)`` is real
+and ``v1, v4, v6`` are nonzero.
+
+Intervals are the normal-approximation ones of
+:meth:`IdentificationResult.confidence_intervals`; their coverage is checked by
+Monte Carlo in ``tests/identify/test_uncertainty.py`` (slow) and
+``benchmarks/bench_amb_mc.py``.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any
+
+import numpy as np
+import scipy.linalg as sla
+
+from maglevid.exceptions import IdentificationError, ModelError
+from maglevid.identify.arx import LinearFit
+from maglevid.identify.result import IdentificationResult
+from maglevid.lti import StateSpace, undiscretize
+from maglevid.physics.amb import (
+    C_AMB,
+    INPUT_NAMES,
+    OUTPUT_NAMES,
+    STATE_NAMES,
+    V_NAMES,
+    parameters_from_v,
+    ratios_from_v,
+    v_from_matrices,
+)
+
+__all__ = [
+    "PHYSICAL_NAMES",
+    "RATIO_NAMES",
+    "amb_result",
+    "operating_point",
+    "v_from_discrete",
+]
+
+logger = logging.getLogger(__name__)
+
+#: Physical parameters reported beside v1..v9 when ``m`` and ``i0`` are known
+#: (the output of :func:`parameters_from_v`, in this order).
+PHYSICAL_NAMES: tuple[str, ...] = (
+    "R1",
+    "R2",
+    "L1",
+    "L2",
+    "ki1",
+    "ki2",
+    "kw1",
+    "kw2",
+    "x0",
+    "ks1",
+    "ks2",
+    "ks_sum",
+    "K1",
+    "K2",
+    "Lo1",
+    "Lo2",
+    "Ls1",
+    "Ls2",
+)
+
+#: Scale-free ratios reported when ``m`` or ``i0`` are unknown.
+RATIO_NAMES: tuple[str, ...] = tuple(ratios_from_v(np.ones(9)))
+
+
+def v_from_discrete(A: np.ndarray, B: np.ndarray, dt: float) -> tuple[np.ndarray, StateSpace]:
+    """v1..v9 and the continuous model from a discrete model in physical coordinates."""
+    sc = undiscretize(StateSpace(A, B, C_AMB, dt=dt))  # eq. (8)
+    v, _ = v_from_matrices(sc.A, sc.B)  # eq. (4)
+    return v, sc
+
+
+def operating_point(loop: Mapping[str, Any]) -> tuple[float | None, float | None]:
+    """``(m, i0)`` from ``loop["operating_point"]`` (``None`` where absent)."""
+    op = loop.get("operating_point") if isinstance(loop, Mapping) else None
+    if not isinstance(op, Mapping):
+        return None, None
+    m = op.get("m")
+    i0 = op.get("i0")
+    return (None if m is None else float(m)), (None if i0 is None else float(i0))
+
+
+def _one_step_fit(Y: np.ndarray, residuals: np.ndarray) -> np.ndarray:
+    # 100 (1 - ||eps|| / ||Y - mean Y||) per channel: the one-step-ahead
+    # prediction fit (never an open-loop simulation fit of an unstable model).
+    den = np.linalg.norm(Y - Y.mean(axis=0), axis=0)
+    num = np.linalg.norm(residuals, axis=0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(den > 0, 100.0 * (1.0 - num / den), np.nan)
+
+
+def _augmented(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    n, m = B.shape
+    M = np.eye(n + m)
+    M[:n, :n] = A
+    M[:n, n:] = B
+    return M
+
+
+def _log_derivative(M: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
+    # Frechet derivative of the principal logarithm at M: if X = log(M) then
+    # L_exp(X, dX) = dM, so dX = L_exp(X, .)^-1 dM. The Kronecker form of
+    # L_exp(X, .) is assembled from scipy's expm_frechet column by column and
+    # factored once. Balancing M = D Mb D^-1 (as in lti.undiscretize) gives
+    # dX = D L_log(Mb, D^-1 dM D) D^-1 and keeps the linear system well scaled.
+    Mb, Tb = sla.matrix_balance(M, permute=False)
+    d = np.diag(Tb)
+    Xb = sla.logm(Mb)
+    if np.iscomplexobj(Xb):
+        Xb = Xb.real
+    k = M.shape[0]
+    K = np.empty((k * k, k * k))
+    eye = np.eye(k)
+    for idx in range(k * k):
+        i, j = divmod(idx, k)
+        _, L = sla.expm_frechet(Xb, np.outer(eye[i], eye[j]), compute_expm=True)
+        K[:, idx] = L.ravel()
+    lu = sla.lu_factor(K)
+
+    def solve(dM: np.ndarray) -> np.ndarray:
+        dMb = dM / d[:, None] * d[None, :]
+        dXb = sla.lu_solve(lu, dMb.ravel()).reshape(k, k)
+        return dXb * d[:, None] / d[None, :]
+
+    return solve
+
+
+def _steps(theta: np.ndarray, cov: np.ndarray, rel: float = 1e-6) -> np.ndarray:
+    sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    return rel * np.maximum(np.maximum(np.abs(theta), sd), 1e-300)
+
+
+def amb_result(
+    *,
+    method: str,
+    to_discrete: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
+    fit: LinearFit,
+    Y: np.ndarray,
+    lhs_names: Sequence[str],
+    dt: float,
+    loop: Mapping[str, Any],
+    n_samples: int,
+    options: Mapping[str, Any],
+    to_physical: Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray]]
+    | None = None,
+    notes: Sequence[str] = (),
+    extras: Mapping[str, Any] | None = None,
+    m: float | None = None,
+    i0: float | None = None,
+    singular_values: np.ndarray | None = None,
+) -> IdentificationResult:
+    """Assemble the :class:`IdentificationResult` of an AMB method.
+
+    The chain ``theta -> (A, B) -> ln -> (A_c, B_c) -> physical coordinates ->
+    v -> physical parameters`` is evaluated at the estimate, and its Jacobian
+    (for the delta method) is taken by central differences of the cheap steps
+    and the exact Fréchet derivative of the matrix logarithm in between.
+
+    Parameters
+    ----------
+    method : str
+        Registered method name.
+    to_discrete : callable
+        ``theta (flat, row-major coefficients) -> (A, B)``: the discrete model in
+        the method's coordinates. It must be a continuous function of
+        ``theta`` (no sign or ordering ambiguities).
+    fit : LinearFit
+        The regression (coefficients, covariance, residuals).
+    Y : ndarray
+        Left-hand side of the regression (for the one-step fit).
+    lhs_names : sequence of str
+        Names of the columns of ``Y``.
+    dt : float
+        Control period.
+    loop : mapping
+        ``data.loop`` (for ``m``, ``i0``).
+    n_samples : int
+        Rows of the regression.
+    options : mapping
+        Every option of the method.
+    to_physical : callable, optional
+        ``(A_c, B_c) -> (A_c, B_c, T)`` in physical coordinates ``[x, dx/dt, i1,
+        i2]`` with ``x_phys = T xi``; identity when ``to_discrete`` already
+        works in physical coordinates.
+    m, i0 : float, optional
+        Override ``loop["operating_point"]``.
+    singular_values : ndarray, optional
+        Singular values to report (default: those of the regression).
+
+    Returns
+    -------
+    IdentificationResult
+        ``parameters`` = v1..v9, then the physical parameters (given ``m`` and
+        ``i0``) or the scale-free ratios; ``covariance`` by the delta method.
+    """
+    notes = list(notes) + list(fit.notes)
+    theta = fit.coefficients.ravel()
+    cov_theta = fit.covariance
+
+    def identity(Ac: np.ndarray, Bc: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        return Ac, Bc, np.eye(Ac.shape[0])
+
+    to_phys = identity if to_physical is None else to_physical
+    Ad, Bd = to_discrete(theta)
+    try:
+        sc = undiscretize(StateSpace(Ad, Bd, np.eye(Ad.shape[0]), dt=dt))  # eq. (8)
+    except ModelError as exc:
+        raise IdentificationError(
+            f"{method}: the identified discrete model has no real continuous counterpart "
+            f"({exc}); the estimate is unusable (too little excitation, too much noise, or "
+            "a loop that does not match the method's assumptions)"
+        ) from exc
+    Ac, Bc, T = to_phys(sc.A, sc.B)
+    v, structure = v_from_matrices(Ac, Bc)  # eq. (4)
+    op_m, op_i0 = operating_point(loop)
+    m = op_m if m is None else m
+    i0 = op_i0 if i0 is None else i0
+    if m is not None and i0 is not None:
+        names = list(V_NAMES) + list(PHYSICAL_NAMES)
+
+        def derived(vv: np.ndarray) -> np.ndarray:
+            p = parameters_from_v(vv, m=m, i0=i0)
+            return np.array([p[k] for k in PHYSICAL_NAMES])
+
+    else:
+        names = list(V_NAMES) + list(RATIO_NAMES)
+        notes.append(
+            "mass m or bias current i0 unknown (loop['operating_point']): physical "
+            "parameters need them; reporting v1..v9 and scale-free ratios only"
+        )
+
+        def derived(vv: np.ndarray) -> np.ndarray:
+            return np.array(list(ratios_from_v(vv).values()))
+
+    n = Bd.shape[0]
+
+    def post(X: np.ndarray) -> np.ndarray:
+        Aci, Bci, _ = to_phys(X[:n, :n] / dt, X[:n, n:] / dt)
+        vv, _ = v_from_matrices(Aci, Bci)
+        return np.concatenate([vv, derived(vv)])
+
+    values = np.concatenate([v, derived(v)])
+    # Delta method: J = d post / d theta = post'(X0) [L_log(M0, dM/dtheta)].
+    M0 = _augmented(Ad, Bd)
+    X0 = np.zeros_like(M0)
+    X0[:n, :n] = sc.A * dt
+    X0[:n, n:] = sc.B * dt
+    dlog = _log_derivative(M0)
+    h = _steps(theta, cov_theta)
+    J = np.empty((values.size, theta.size))
+    for i in range(theta.size):
+        tp, tm = theta.copy(), theta.copy()
+        tp[i] += h[i]
+        tm[i] -= h[i]
+        dM = (_augmented(*to_discrete(tp)) - _augmented(*to_discrete(tm))) / (2 * h[i])
+        dX = dlog(dM)
+        J[:, i] = (post(X0 + h[i] * dX) - post(X0 - h[i] * dX)) / (2 * h[i])
+    cov = J @ cov_theta @ J.T
+    cov = 0.5 * (cov + cov.T)
+    A_phys = T @ np.linalg.solve(T.T, Ad.T).T  # T Ad T^-1
+    model = StateSpace(
+        A_phys,
+        T @ Bd,
+        C_AMB,
+        dt=dt,
+        state_names=STATE_NAMES,
+        input_names=INPUT_NAMES,
+        output_names=OUTPUT_NAMES,
+    )
+    osf = _one_step_fit(Y, fit.residuals)
+    fitd = {f"one_step_fit_percent_{nm}": float(f) for nm, f in zip(lhs_names, osf)}
+    fitd["one_step_fit_percent_min"] = float(np.nanmin(osf))
+    fitd["structure_residual"] = float(structure)
+    fitd["regression_condition"] = fit.condition_number
+    if structure > 1e-3:
+        notes.append(
+            f"the continuous model departs from the structure of eq. (4) by {structure:.3g} "
+            "(relative): elements that should be 0 are not; v1..v9 are read off anyway"
+        )
+    ex = {
+        "coefficients": fit.coefficients,
+        "coefficient_std_errors": fit.std_errors,
+        "estimator": fit.estimator,
+        "hac_lags": fit.hac_lags,
+        "covariance_method": fit.covariance_method,
+        "noise_covariance": fit.noise_covariance,
+        "jacobian": J,
+    }
+    ex.update(extras or {})
+    return IdentificationResult(
+        method=method,
+        model=model,
+        continuous_model=StateSpace(
+            Ac,
+            Bc,
+            C_AMB,
+            state_names=STATE_NAMES,
+            input_names=INPUT_NAMES,
+            output_names=OUTPUT_NAMES,
+        ),
+        parameters=dict(zip(names, values.tolist())),
+        covariance=cov,
+        n_samples=n_samples,
+        options=dict(options),
+        residuals=fit.residuals,
+        fit=fitd,
+        singular_values=fit.singular_values if singular_values is None else singular_values,
+        notes=tuple(notes),
+        extras=ex,
+    )

@@ -1,0 +1,126 @@
+"""diagnose(): verdicts with their causes, quality gates, history, baseline choices."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+import maglevid
+from maglevid.data import _thaw
+from maglevid.diagnose.history import open_history
+from maglevid.diagnose.pipeline import choose_method, diagnose, recording_hash
+from maglevid.physics.amb import AMBParameters
+from maglevid.simulate import simulate_amb_loop
+
+NOMINAL = AMBParameters.nominal()
+# Sensor noise of the demo (5 nm, 10 uA): R1 to ~1.2 %, kw1 to ~0.05 % (one se).
+NOISE = (5e-9, 1e-5, 1e-5)
+
+
+def _rec(n=30_000, seed=1, **fault):
+    plant = NOMINAL.with_fault(**fault) if fault else NOMINAL
+    return simulate_amb_loop(
+        plant, dt=1e-4, n_samples=n, nominal=NOMINAL, noise_std=NOISE, rng=seed
+    )
+
+
+@pytest.mark.parametrize(
+    ("fault", "cause", "words"),
+    [
+        ({"R1": 1.2}, "R1", "coil 1 resistance"),
+        ({"kw1": 1.2}, "kw1", "amplifier 1 gain"),
+        ({"K1": 0.9}, "K1", "shorted turns in coil 1"),
+        ({"kw2": 0.8}, "kw2", "amplifier 2 gain"),
+    ],
+)
+def test_fault_named_with_its_cause(fault, cause, words):
+    d = diagnose(_rec(**fault), baseline="nominal")
+    assert d.verdict_code == "fault"
+    assert d.isolation.best.parameters == (cause,)
+    assert words in d.verdict
+    factor = next(iter(fault.values()))
+    # The fitted change is within 4 standard errors of the simulated one.
+    assert abs(d.isolation.best.factors[0] - factor) < 4 * d.isolation.best.factor_std_errors[0]
+    assert any("chi2" in r for r in d.reasons)
+
+
+def test_healthy_bearing_is_not_flagged():
+    for seed in (1, 2, 3):
+        d = diagnose(_rec(seed=seed), baseline="nominal")
+        assert d.verdict_code == "no_change", d.verdict
+
+
+def test_small_change_is_within_tolerance_not_a_fault():
+    d = diagnose(_rec(kw1=1.02), baseline="nominal", tolerances=0.05)
+    assert d.verdict_code == "within_tolerance"
+    assert "kw1" in d.verdict
+
+
+def test_package_is_callable_and_json_round_trips():
+    d = maglevid.diagnose(_rec(n=20_000, kw1=1.2), baseline="nominal")
+    out = json.loads(json.dumps(d.to_dict()))
+    assert out["verdict_code"] == "fault" and out["method"] == "physical"
+    assert "physical" in choose_method(_rec(n=3000))[0]
+
+
+def _touch_down(y):
+    y = np.array(y)
+    y[5000:, 0] = 0.8 * NOMINAL.x0  # the rotor rests on the retainer bearing
+    return y
+
+
+@pytest.mark.parametrize(
+    ("make", "reason"),
+    [
+        (lambda r: r.segment(0, 800), "too short"),
+        (lambda r: r.replace(y=_touch_down(r.y)), "levitation"),
+        (lambda r: r.replace(u=np.clip(r.u, -0.9, 0.9)), "saturates"),
+        (lambda r: r.replace(y=np.asarray(r.y)[:, [0, 2, 1]]), "inconsistent with the stated"),
+    ],
+)  # fmt: skip
+def test_bad_data_cannot_be_diagnosed(make, reason):
+    rec = make(_rec(n=8000))
+    d = diagnose(rec, baseline="nominal")
+    assert d.verdict_code == "cannot_diagnose"
+    assert reason in d.verdict
+    assert d.identification is None
+
+
+def test_too_little_excitation_cannot_be_diagnosed():
+    rec = simulate_amb_loop(
+        NOMINAL, dt=1e-4, n_samples=8000, nominal=NOMINAL, excitation_std=1e-4, rng=5
+    )
+    d = diagnose(rec, baseline="nominal")
+    assert d.verdict_code == "cannot_diagnose" and "too little excitation" in d.verdict
+
+
+def test_history_baseline_and_idempotent_store(tmp_path):
+    store = open_history(tmp_path / "h.sqlite")
+    rec0 = _rec(seed=11).with_metadata(machine="B1", recorded_at="2026-01-01T00:00:00+00:00")
+    first = diagnose(rec0, baseline="history", machine="B1", history=store)
+    assert first.verdict_code == "no_change"
+    assert any("no earlier diagnosis" in n for n in first.notes)
+    # The same recording again adds nothing (content hash).
+    diagnose(rec0, baseline="history", machine="B1", history=store)
+    assert len(store.diagnoses("B1")) == 1
+    # Against the stored identification, a later amplifier fault is found.
+    rec1 = _rec(seed=12, kw1=0.85).with_metadata(recorded_at="2026-01-08T00:00:00+00:00")
+    later = diagnose(rec1, baseline="history", machine="B1", history=store)
+    assert later.verdict_code == "fault" and later.isolation.best.parameters == ("kw1",)
+    assert later.baseline["source"].startswith("earlier identification")
+    store.close()
+
+
+def test_recording_hash_depends_on_content_only():
+    a = _rec(n=3000, seed=1)
+    assert recording_hash(a) == recording_hash(a.with_metadata(source="/elsewhere"))
+    assert recording_hash(a) != recording_hash(_rec(n=3000, seed=2))
+
+
+def test_nominal_baseline_needs_design_values():
+    rec = _rec(n=3000)
+    bare = rec.replace(loop={k: v for k, v in _thaw(rec.loop).items() if k != "nominal"})
+    with pytest.raises(maglevid.DataError, match="loop\\['nominal'\\]"):
+        diagnose(bare, baseline="nominal")
