@@ -133,7 +133,7 @@ def test_fleet200_verdicts_killed_worker_and_rerun(
         elif kind == "short":
             assert (o.status, o.verdict_code) == ("diagnosed", "cannot_diagnose")
             assert any("too short" in r for r in o.reasons), o.reasons
-    sample = [*sorted(p for p, k in kinds.items() if k in ("healthy", "faulty"))[::15], victim]
+    sample = [*sorted(p for p, k in kinds.items() if k in ("healthy", "faulty"))[::25], victim]
     for path in sample:
         alone = diagnose(read_recording(path), machine=by_path[path].machine, recorded_at=day(0))
         o = by_path[path]

@@ -333,12 +333,6 @@ def run_fleet(
     with open_history(location, schema=schema) as st:  # creates and migrates before workers
         machines = sorted({jobs[i].machine for i in unique})
         known, earlier, by_key = _stored_keys(st, machines)
-        for name in sorted({jobs[i].machine for i in unique if jobs[i].baseline == "history"}):
-            # The pipeline reads a "history" baseline with latest_estimates(), which
-            # raises for a machine the store has never seen instead of returning
-            # nothing (then it would compare with the design): register it first.
-            if name not in earlier:
-                st.add_machine(name)
         t_read = time.perf_counter()
 
         todo = [jobs[i] for i in unique]
