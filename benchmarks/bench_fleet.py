@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import multiprocessing
 import os
 import platform
@@ -37,6 +38,7 @@ import shutil
 import sys
 import tempfile
 import time
+from collections import Counter
 from datetime import datetime, timedelta, timezone
 from pathlib import Path
 from typing import Any
@@ -89,6 +91,7 @@ def make_fleet(root: Path, n: int, *, seed: int = 20261122) -> dict[str, str]:
         meta["recorded_at"] = (T0 + timedelta(days=k)).isoformat()
         write_recording(dataclasses.replace(data, metadata=meta), path)
         kinds[str(path)] = "faulty" if fault else "healthy"
+    (root / "kinds.json").write_text(json.dumps(kinds))
     return kinds
 
 
@@ -157,6 +160,7 @@ def run_engine(
         "counts": summary.counts,
         "rss_mb": peaks,
         "work": sum(o.seconds for o in summary.outcomes),
+        "outcomes": summary.outcomes,
     }
 
 
@@ -258,6 +262,13 @@ def main(argv: list[str] | None = None) -> int:
                     f"{before} -> {_load()} |"
                 )
                 sys.stdout.flush()
+        kinds = json.loads((root / "kinds.json").read_text())
+        verdicts = Counter((kinds[o.recording], o.verdict_code) for o in r["outcomes"])
+        print(
+            "<!-- verdicts by kind (last engine run): "
+            + ", ".join(f"{k} -> {v}: {c}" for (k, v), c in sorted(verdicts.items()))
+            + " -->"
+        )
         before = _load()
         r = run_engine(root, store, args.workers[-1], None, rss=False)
         assert r["counts"].get("diagnosed", 0) == 0, r["counts"]  # nothing new the second time
