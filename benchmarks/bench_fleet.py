@@ -141,7 +141,10 @@ def run_engine(
     t = time.perf_counter()
     with (
         LocalCluster(
-            n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None
+            n_workers=workers,
+            threads_per_worker=1,
+            processes=True,
+            dashboard_address="127.0.0.1:0",
         ) as cluster,
         Client(cluster) as client,
     ):
@@ -204,7 +207,7 @@ def store_writes(location: str, schema: str | None, procs: int, n: int) -> float
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--n", type=int, nargs="+", default=[100, 1000])
+    parser.add_argument("--n", type=int, nargs="*", default=[100, 1000], help="fleet sizes")
     parser.add_argument("--workers", type=int, nargs="+", default=[1, 2])
     parser.add_argument("--data", type=Path, default=None, help="keep the recordings here")
     parser.add_argument("--writes", type=int, default=200, help="diagnoses per writer process")

@@ -132,8 +132,10 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     if not getattr(args, "verbose", False):
         # The local cluster's scheduler runs in this process and logs at INFO
         # through distributed's own configuration, set when it is imported; -v shows it.
-        import distributed  # noqa: F401
-
+        try:
+            import distributed  # noqa: F401
+        except ImportError:  # run_fleet says what to install
+            pass
         logging.getLogger("distributed").setLevel(logging.ERROR)
 
     def bar(items: Any, total: int) -> Any:

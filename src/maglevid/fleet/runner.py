@@ -37,9 +37,9 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
-from maglevid.exceptions import DataError
+from maglevid.exceptions import DataError, MaglevidError
 from maglevid.fleet.jobs import FleetJob, collect_jobs
-from maglevid.fleet.summary import FleetSummary, summarize_fleet
+from maglevid.fleet.summary import FleetSummary, machines_drifts, summarize_fleet
 from maglevid.fleet.worker import (
     REPORT_VERDICTS,
     UNREADABLE_METHOD,
@@ -50,7 +50,12 @@ from maglevid.fleet.worker import (
     write_kept_report,
 )
 
-__all__ = ["Batch", "default_n_workers", "plan_batches", "run_fleet"]
+__all__ = ["Batch", "MissingDependencyError", "default_n_workers", "plan_batches", "run_fleet"]
+
+
+class MissingDependencyError(MaglevidError, ImportError):
+    """An optional dependency (here Dask's ``distributed``) is not installed."""
+
 
 logger = logging.getLogger(__name__)
 
@@ -363,18 +368,21 @@ def run_fleet(
             final = [o for o in outcomes if o is not None]
             if len(final) != len(jobs):  # every job yields one outcome: a bug if not
                 raise RuntimeError(f"{len(jobs) - len(final)} recordings have no outcome")
+            tols = {job.machine: job.tolerances for job in jobs}
             summary = summarize_fleet(
                 final,
                 st,
                 earlier=earlier,
-                tolerances={job.machine: job.tolerances for job in jobs},
+                tolerances=tols,
                 alpha=alpha,
+                drifts=_drifts_on_cluster(client, machines, location, schema, alpha, tols, n_live),
             )
             t_summary = time.perf_counter()
             if reports_dir is not None:
                 summary = _write_reports(
                     client, summary, diagnosed_on, run_id, reports_dir, location, schema
                 )
+            t_reports = time.perf_counter()
         summary = replace(
             summary,
             run={
@@ -390,11 +398,46 @@ def run_fleet(
                 "seconds_store_read": t_read - t_start,
                 "seconds_diagnosis": t_done - t_read,
                 "seconds_summary": t_summary - t_done,
-                "seconds_reports": time.perf_counter() - t_summary,
+                "seconds_reports": t_reports - t_summary,
                 "reports": reports_dir,
             },
         )
     return summary
+
+
+def _drifts_on_cluster(
+    client: Any,
+    machines: Sequence[str],
+    location: str,
+    schema: str | None,
+    alpha: float,
+    tolerances: Mapping[str, Any],
+    n_workers: int,
+) -> dict[str, list[dict[str, Any]]] | None:
+    """Every machine's drift tests, in chunks on the workers (``None``: let the client do it)."""
+    if not machines:
+        return {}
+    size = max(1, math.ceil(len(machines) / (4 * n_workers)))
+    futures = [
+        client.submit(
+            machines_drifts,
+            list(machines[k : k + size]),
+            location,
+            schema,
+            alpha=alpha,
+            tolerances={m: tolerances.get(m) for m in machines[k : k + size]},
+            pure=False,
+        )
+        for k in range(0, len(machines), size)
+    ]
+    try:
+        out: dict[str, list[dict[str, Any]]] = {}
+        for part in client.gather(futures):
+            out.update(part)
+        return out
+    except Exception as exc:  # workers gone: the client computes them itself
+        logger.warning("drift tests on the cluster failed (%s); computing them here", exc)
+        return None
 
 
 def _write_reports(
@@ -476,7 +519,13 @@ class _cluster:
         self._own: list[Any] = []
 
     def __enter__(self) -> tuple[Any, int, str, bool]:
-        from distributed import Client, LocalCluster
+        try:
+            from distributed import Client, LocalCluster
+        except ImportError as exc:
+            raise MissingDependencyError(
+                "maglevid fleet runs on Dask: install the fleet extra "
+                "(pip install 'maglevid[fleet]')"
+            ) from exc
 
         if self.scheduler is not None and not isinstance(self.scheduler, str):
             client = self.scheduler  # the caller's client: not ours to close
@@ -493,7 +542,10 @@ class _cluster:
                 n_workers=n,
                 threads_per_worker=1,
                 processes=True,
-                dashboard_address=None,
+                # The scheduler's HTTP server (dashboard, health) always starts: on
+                # a free local port, since "None" falls back to 8787 and warns when
+                # another user's cluster holds it.
+                dashboard_address="127.0.0.1:0",
                 # Workers' own logs stay quiet unless maglevid.fleet logs at INFO (-v):
                 # what matters reaches the client as outcomes, and a worker's heartbeat
                 # racing the shutdown would otherwise print a traceback after every run.
