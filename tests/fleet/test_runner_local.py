@@ -13,7 +13,12 @@ from _fleet_helpers import N_SHORT, day, write_corrupt, write_sim
 
 from maglevid.cli.main import main
 from maglevid.exceptions import DataError
-from maglevid.fleet.runner import _auto_batch_size, _check_store_reachable, default_n_workers
+from maglevid.fleet.runner import (
+    _auto_batch_size,
+    _check_store_reachable,
+    _shared_location,
+    default_n_workers,
+)
 
 pytest.importorskip("distributed")
 
@@ -34,6 +39,16 @@ def test_sqlite_store_with_workers_on_other_hosts_is_refused(tmp_path: Path) -> 
     _check_store_reachable("postgresql://u@db/x", _Client(["elsewhere"]), local=False)
     with pytest.raises(DataError, match=r"SQLite file .* workers run on elsewhere.*PostgreSQL"):
         _check_store_reachable(store, _Client([here, "elsewhere"]), local=False)
+
+
+def test_store_location_as_the_workers_need_it(tmp_path: Path, monkeypatch: Any) -> None:
+    monkeypatch.chdir(tmp_path)
+    assert _shared_location("plant.sqlite") == str(tmp_path / "plant.sqlite")
+    assert _shared_location("sqlite:///sub/plant.sqlite") == str(tmp_path / "sub" / "plant.sqlite")
+    assert _shared_location("postgresql://u@db/x") == "postgresql://u@db/x"
+    for private in (":memory:", "sqlite://"):
+        with pytest.raises(DataError, match="private to each process"):
+            _shared_location(private)
 
 
 def test_auto_batch_size() -> None:

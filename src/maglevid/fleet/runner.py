@@ -198,6 +198,25 @@ def _lost(job: FleetJob, exc: BaseException) -> RecordingOutcome:
     )
 
 
+def _shared_location(location: str) -> str:
+    """The store as every worker must name it: an SQLite file by its absolute path.
+
+    Workers may run in another folder; an in-memory SQLite store would be one
+    private store per process, so it is refused.
+    """
+    from maglevid.diagnose._sql import parse_target
+
+    dialect, target = parse_target(location)
+    if dialect != "sqlite":
+        return location
+    if target == ":memory:":
+        raise DataError(
+            f"store {location!r}: a fleet's workers must share the store; an in-memory "
+            "SQLite store would be private to each process (give a file or a postgresql:// URL)"
+        )
+    return os.path.abspath(target)
+
+
 def _check_store_reachable(location: str, client: Any, local: bool) -> None:
     """An SQLite store is a file on this host: workers elsewhere cannot write to it."""
     from maglevid.diagnose._sql import parse_target
@@ -311,7 +330,9 @@ def run_fleet(
         raise DataError(f"`alpha` = {alpha!r}; expected 0 < alpha < 1")
     if isinstance(retries, bool) or not isinstance(retries, int) or retries < 0:
         raise DataError(f"`retries` = {retries!r}; expected an integer >= 0")
-    location = os.fspath(store) if store is not None else default_store_location()
+    location = _shared_location(
+        os.fspath(store) if store is not None else default_store_location()
+    )
     reports_dir = None
     if reports is not None:
         reports_dir = str(Path(reports).resolve())

@@ -20,6 +20,7 @@ Who writes what to the store (see ``docs/fleet.md``):
 from __future__ import annotations
 
 import logging
+import math
 import os
 import socket
 import threading
@@ -279,6 +280,12 @@ def report_file_name(machine: str) -> str:
     return f"{safe}.html"
 
 
+def _finite(x: float) -> float | None:
+    """JSON-safe: a float, or ``None`` for NaN/inf (the summary is JSON)."""
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
 def _changes(diag: Any) -> list[dict[str, Any]]:
     out = []
     for c in getattr(diag, "changes", ()):
@@ -288,8 +295,11 @@ def _changes(diag: Any) -> list[dict[str, Any]]:
         out.append(
             {
                 "parameter": c.name,
-                "change_percent": float(c.change_percent),
-                "ci_percent": [100.0 * c.change_ci[0] / b, 100.0 * c.change_ci[1] / b],
+                "change_percent": _finite(c.change_percent),
+                "ci_percent": [
+                    _finite(100.0 * c.change_ci[0] / b),
+                    _finite(100.0 * c.change_ci[1] / b),
+                ],
                 "status": c.status,
             }
         )
