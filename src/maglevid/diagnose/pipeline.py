@@ -193,6 +193,19 @@ def _verdict(
     )
 
 
+def _cannot_diagnose(
+    reasons: list[str], quality: Any, common: dict[str, Any], *, prefix: str = ""
+) -> Diagnosis:
+    """The verdict when the data do not allow a diagnosis: say why, guess nothing."""
+    return Diagnosis(
+        verdict="Cannot diagnose: " + prefix + "; ".join(reasons),
+        verdict_code="cannot_diagnose",
+        reasons=tuple(reasons),
+        quality=quality,
+        **common,
+    )
+
+
 def _diagnose_levitator(
     data: ClosedLoopData,
     baseline: Any,
@@ -211,24 +224,12 @@ def _diagnose_levitator(
     quality, segs = lev.levitator_checks(data)
     failed = [q for q in quality if not q.passed and q.blocking]
     if failed:
-        return Diagnosis(
-            verdict="Cannot diagnose: " + "; ".join(q.message for q in failed),
-            verdict_code="cannot_diagnose",
-            reasons=tuple(q.message for q in failed),
-            quality=quality,
-            **common,
-        )
+        return _cannot_diagnose([q.message for q in failed], quality, common)
     opts = {"segments": segs, **dict(method_options or {})}
     try:
         result = get_method(common["method"])(data, **opts)
     except MaglevidError as exc:
-        return Diagnosis(
-            verdict=f"Cannot diagnose: identification failed ({exc})",
-            verdict_code="cannot_diagnose",
-            reasons=(str(exc),),
-            quality=quality,
-            **common,
-        )
+        return _cannot_diagnose([str(exc)], quality, common, prefix="identification failed: ")
     notes.extend(result.notes)
     estimates, y_ref = lev.levitator_estimates(result)
     if baseline == "history" and store is not None and machine is not None:
@@ -400,13 +401,7 @@ def diagnose(
     quality = run_checks(data)
     failed = [q for q in quality if not q.passed and q.blocking]
     if failed:
-        diag = Diagnosis(
-            verdict="Cannot diagnose: " + "; ".join(q.message for q in failed),
-            verdict_code="cannot_diagnose",
-            reasons=tuple(q.message for q in failed),
-            quality=quality,
-            **common,
-        )
+        diag = _cannot_diagnose([q.message for q in failed], quality, common)
         _record(store, diag, data, when, method_options, notes)
         return diag
 
@@ -454,13 +449,7 @@ def diagnose(
     try:
         result = get_method(method)(data, **dict(method_options or {}))
     except MaglevidError as exc:
-        diag = Diagnosis(
-            verdict=f"Cannot diagnose: identification failed ({exc})",
-            verdict_code="cannot_diagnose",
-            reasons=(str(exc),),
-            quality=quality,
-            **common,
-        )
+        diag = _cannot_diagnose([str(exc)], quality, common, prefix="identification failed: ")
         _record(store, diag, data, when, method_options, notes)
         return diag
     notes.extend(result.notes)
