@@ -289,7 +289,7 @@ def render_fleet_summary(
     )
     headline = (
         f"{n_changed} of {len(summary['machines'])} machines changed, {n_drift} drifting, "
-        f"{n_prob} recordings not diagnosed"
+        f"{n_prob} recording{'' if n_prob == 1 else 's'} not diagnosed"
     )
     banner_color = (
         VERDICT_STYLE["fault"][0]
