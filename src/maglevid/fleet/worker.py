@@ -214,36 +214,6 @@ def _drop_store(location: str, schema: str | None) -> None:
             logger.debug("closing a broken store connection failed", exc_info=True)
 
 
-class _PipelineView:
-    """The store as the pipeline sees it in a fleet run: everything but the trends.
-
-    With a store, :func:`~maglevid.diagnose.pipeline.diagnose` tests each
-    parameter's history for drift and turns a "no change" into "drift". In a
-    fleet run the recordings of a machine are diagnosed in parallel, so that
-    test would see whichever part of the history other workers had written by
-    then: the verdict would depend on timing. The fleet therefore tests drift
-    once per machine, over the complete history, after the run
-    (:func:`maglevid.fleet.summary.machine_drifts`), and hides the trends from
-    the pipeline (``trend`` raises ``NotFoundError``, which the pipeline reads
-    as "no history of that parameter"). Baselines from the history
-    (``latest_estimates``) and the recording of the diagnosis go through.
-    """
-
-    def __init__(self, store: Any):
-        self._store = store
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self._store, name)
-
-    def trend(self, machine: str, parameter: str, *, method: str | None = None) -> Any:
-        from maglevid.diagnose.history import NotFoundError
-
-        raise NotFoundError(
-            f"{machine!r}: trends are tested once per machine after the fleet run, not per "
-            "recording"
-        )
-
-
 def _worker_name() -> str:
     return f"{socket.gethostname()} pid {os.getpid()}"
 
@@ -487,9 +457,14 @@ def _diagnose_one(job: FleetJob, ctx: BatchContext) -> RecordingOutcome:
             machine=job.machine,
             method=job.method,
             tolerances=job.tolerances,
-            history=_PipelineView(store),
+            history=store,
             recorded_at=when,
             method_options=dict(job.method_options) or None,
+            # The recordings of a machine are diagnosed in parallel, so a per-recording
+            # drift test would see whichever part of the history other workers had
+            # written: the fleet tests drift once per machine after the run instead
+            # (maglevid.fleet.summary.machine_drifts).
+            drift=False,
         )
     except Exception as exc:
         # Not stored: a bug, a wrong baseline or a store failure is not a
