@@ -410,9 +410,12 @@ def plan_physical(
     covariance: str,
     has_r: bool,
     loop: Mapping[str, Any],
-    n_samples: int,
+    n_samples: int | None,
 ) -> dict[str, Any]:
-    """Checked options of :func:`fit_physical`: first row, instruments used, notes."""
+    """Checked options of :func:`fit_physical`: first row, instruments used, notes.
+
+    ``n_samples=None`` (a stream of unknown length) skips the record-length check.
+    """
     if estimator not in ("ls", "iv"):
         raise DataError(f"`estimator` must be 'ls' or 'iv'; got {estimator!r}")
     if instruments not in ("auto", "loop", "lags"):
@@ -439,7 +442,7 @@ def plan_physical(
         if kind == "lags":
             start = max(start, int(instrument_lags))
     n_reg = 3 + 1 + 2 * 2
-    if n_samples - 1 - start <= 3 * n_reg:
+    if n_samples is not None and n_samples - 1 - start <= 3 * n_reg:
         raise DataError(
             f"the recording has {n_samples} samples; the plant ARX needs well over "
             f"{start + 1 + 3 * n_reg}"
