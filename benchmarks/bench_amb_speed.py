@@ -5,13 +5,12 @@ Run from the repository root::
     python -m benchmarks.bench_amb_speed                  # N = 1e4, 1e5, 1e6
     python -m benchmarks.bench_amb_speed --sizes 1e6 --profile
 
-Two things, on the same data as ``benchmarks/bench_amb_mc.py`` (the bearing of
-Gosiewski & Paszowski with R1 and kw1 +20 %, controller and deadbeat observer
-designed on the nominal bearing, the observer running on the real plant so
-that the paper's deadbeat method applies; white Gaussian excitation of 1 V rms;
-paper-like measurement noise ``PAPER_LIKE_NOISE``):
+Two things, on the bearing of Gosiewski & Paszowski in closed loop (controller
+and deadbeat observer designed on the nominal bearing, white Gaussian
+excitation of 1 V rms; the two records of ``CASES``):
 
-1. **Regression speed.** The AMB methods are linear regressions. The
+1. **Regression speed** (the ``"diagnostic"`` record, on which least squares
+   works too). The AMB methods are linear regressions. The
    regressor of the plant ARX (``phi(k) = [y(k), x_pos(k-1), u(k), u(k-1)]``,
    :func:`maglevid.identify.physical.plant_regression`) is built once and
    ``np.linalg.lstsq`` timed on it: the cost of one bare least-squares solve.
@@ -44,25 +43,40 @@ from maglevid.identify.subspace import fit_moesp, fit_n4sid
 from maglevid.physics.amb import AMBParameters, amb_state_space, v_from_matrices
 from maglevid.simulate import simulate_amb_loop
 
-#: The fault of the benchmark bearing (the diagnostic case of bench_amb_mc).
+#: The fault of the diagnostic case (that of bench_amb_mc).
 FAULT = {"R1": 1.2, "kw1": 1.2}
 #: Horizon of the subspace methods on this plant (unstable, sampled fast: docs/subspace.md).
 BEARING_HORIZON = 40
 #: Rows skipped at the start by the AMB fits (their default).
 SKIP = 10
 
+#: The two bearing records. ``"issue"``: the healthy bearing as
+#: :func:`~maglevid.simulate.simulate_amb_loop` makes it by default (its
+#: measurement noise, 1e-7 m and 1e-4 A, is what makes the peers and the
+#: least-squares methods fail); unstable pole ~455 rad/s. ``"diagnostic"``: R1
+#: and kw1 +20 %, paper-like noise (1e-10 m, 3e-6 A), the observer running on
+#: the real plant so that the paper's deadbeat method applies (bench_amb_mc).
+CASES: dict[str, dict[str, Any]] = {
+    "issue": {"fault": {}, "noise_std": None, "observer_model": "nominal"},
+    "diagnostic": {"fault": FAULT, "noise_std": PAPER_LIKE_NOISE, "observer_model": "plant"},
+}
 
-def bearing_case(n: int, seed: int = 11) -> tuple[ClosedLoopData, dict[str, Any]]:
+
+def bearing_case(
+    n: int, seed: int = 11, case: str = "diagnostic"
+) -> tuple[ClosedLoopData, dict[str, Any]]:
     """The closed-loop record and its truth (unstable pole in z and in rad/s, v1..v9)."""
+    spec = CASES[case]
     nom = AMBParameters.nominal()
-    plant = nom.with_fault(**FAULT)
+    plant = nom.with_fault(**spec["fault"]) if spec["fault"] else nom
+    kw = {} if spec["noise_std"] is None else {"noise_std": spec["noise_std"]}
     data = simulate_amb_loop(
         plant,
         nominal=nom,
         n_samples=int(n),
         rng=seed,
-        noise_std=PAPER_LIKE_NOISE,
-        observer_model="plant",
+        observer_model=spec["observer_model"],
+        **kw,
     )
     poles = amb_state_space(plant, data.dt).poles()
     z = float(np.max(poles[np.abs(poles.imag) < 1e-12].real))
@@ -71,6 +85,7 @@ def bearing_case(n: int, seed: int = 11) -> tuple[ClosedLoopData, dict[str, Any]
         "s": float(np.log(z) / data.dt),
         "v": np.asarray(data.metadata["truth_v"], dtype=float),
         "dt": data.dt,
+        "noise_std": list(data.metadata["noise_std"]),
     }
     return data, truth
 

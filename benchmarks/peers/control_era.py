@@ -23,12 +23,13 @@ def available() -> tuple[bool, str]:
 def markov_era(
     y: np.ndarray, u: np.ndarray, order: int, horizon: int | None, fir: int = FIR_LENGTH
 ) -> PeerResult:
-    """``control.markov`` (FIR of ``fir`` samples) + ``control.eigensys_realization``."""
+    """``control.markov`` (FIR of ``max(fir, 2 horizon + 2)`` samples) + ERA of that horizon."""
     try:
         import control
     except ImportError as exc:
         raise PeerMissing(f"python-control not installed ({exc})") from None
     h = horizon or 10
+    fir = max(fir, 2 * h + 2)  # ERA needs m + n + 1 Markov parameters
     H = control.markov(y, u, fir, transpose=True)
     sys_, _ = control.eigensys_realization(H, order, m=h, n=h, transpose=True)
     return PeerResult(np.linalg.eigvals(np.asarray(sys_.A)), info={"fir": fir})

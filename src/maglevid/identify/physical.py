@@ -89,8 +89,8 @@ import numpy as np
 
 from maglevid.data import ClosedLoopData
 from maglevid.exceptions import DataError, IdentificationError, ModelError
-from maglevid.identify.arx import LinearFit, solve_linear_regression
-from maglevid.identify.iv import lagged_excitation, simulate_loop_signals
+from maglevid.identify.arx import LinearFit, solve_regression_blocks
+from maglevid.identify.iv import simulate_loop_signals
 from maglevid.identify.result import IdentificationResult
 from maglevid.identify.uncertainty import amb_result
 from maglevid.lti import StateSpace, undiscretize
@@ -118,13 +118,20 @@ def plant_regression(y: np.ndarray, u: np.ndarray, *, start: int) -> tuple[np.nd
 
     See the module notes, section 1.
     """
+    lhs, parts = plant_regression_blocks(y, u, start=start)
+    return lhs, np.hstack(parts)
+
+
+def plant_regression_blocks(
+    y: np.ndarray, u: np.ndarray, *, start: int
+) -> tuple[np.ndarray, list[np.ndarray]]:
+    """:func:`plant_regression` with ``phi`` as its four column blocks (views, no copy)."""
     N = y.shape[0]
     if not 1 <= start < N - 1:
         raise DataError(f"`start` must be in 1..{N - 2}; got {start}")
     cur = slice(start, N - 1)
     prev = slice(start - 1, N - 2)
-    phi = np.hstack([y[cur], y[prev, POSITION : POSITION + 1], u[cur], u[prev]])
-    return y[start + 1 :], phi
+    return y[start + 1 :], [y[cur], y[prev, POSITION : POSITION + 1], u[cur], u[prev]]
 
 
 def realize_plant_arx(
@@ -364,17 +371,20 @@ def fit_physical(
         n_samples=N,
     )
     start, kind = plan["start"], plan["instruments"]
-    lhs, phi = plant_regression(y, u, start=start)
+    lhs, phi = plant_regression_blocks(y, u, start=start)
     Z = None
     if kind == "loop":
         sim = simulate_loop_signals(data.loop, data.r, dt=data.dt)
-        _, Z = plant_regression(sim["y"], sim["u"], start=start)
+        _, Z = plant_regression_blocks(sim["y"], sim["u"], start=start)
     elif kind == "lags":
-        Z = lagged_excitation(data.r, lags=int(instrument_lags), start=start, stop=N - 1)
-    fit = solve_linear_regression(
+        r = np.asarray(data.r)
+        Z = [
+            r[start - j : N - 1 - j] for j in range(int(instrument_lags) + 1)
+        ]  # lagged_excitation
+    fit = solve_regression_blocks(
         lhs,
         phi,
-        instruments=Z,
+        Z,
         hac_lags=hac_lags,
         labels=physical_labels(data.channel_names("y"), data.channel_names("u")),
         noise_ma=physical_noise_ma(ny) if covariance == "white-noise" else None,

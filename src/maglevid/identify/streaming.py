@@ -56,14 +56,14 @@ import numpy as np
 from maglevid.data import ClosedLoopData
 from maglevid.exceptions import DataError
 from maglevid.identify.arx import RegressionAccumulator
-from maglevid.identify.iv import lagged_excitation, loop_instrument_system
+from maglevid.identify.iv import loop_instrument_system
 from maglevid.identify.physical import (
     _plant_signals,
     physical_labels,
     physical_noise_ma,
     physical_result,
     plan_physical,
-    plant_regression,
+    plant_regression_blocks,
     realization_scales,
 )
 from maglevid.identify.result import IdentificationResult
@@ -179,7 +179,7 @@ class _PhysicalRows:
 
     def rows(
         self, y: np.ndarray, u: np.ndarray, r: np.ndarray | None
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None] | None:
+    ) -> tuple[np.ndarray, list[np.ndarray], list[np.ndarray] | None] | None:
         nc = y.shape[0]
         sig = {"y": y, "u": u}
         if self.kind == "lags":
@@ -196,12 +196,13 @@ class _PhysicalRows:
         k0, k1 = self.next_k, self.g + nc - 1  # rows k0 .. k1 - 1
         out_rows = None
         if k1 > k0:
-            lhs, phi = plant_regression(ext["y"], ext["u"], start=k0 - offset)
+            a, b = k0 - offset, k1 - offset
+            lhs, phi = plant_regression_blocks(ext["y"], ext["u"], start=a)
             Z = None
             if self.kind == "loop":
-                _, Z = plant_regression(ext["sy"], ext["su"], start=k0 - offset)
+                _, Z = plant_regression_blocks(ext["sy"], ext["su"], start=a)
             elif self.kind == "lags":
-                Z = lagged_excitation(ext["r"], lags=self.L, start=k0 - offset, stop=k1 - offset)
+                Z = [ext["r"][a - j : b - j] for j in range(self.L + 1)]  # lagged_excitation
             out_rows = (lhs, phi, Z)
             self.next_k = k1
         n_keep = min(self.keep, ext["y"].shape[0])
@@ -318,7 +319,7 @@ def fit_physical_streamed(
         got = rows.rows(y, u, None if chunk.r is None else np.asarray(chunk.r))
         if got is not None:
             lhs, phi, Z = got
-            acc.update(lhs, phi, Z)
+            acc.update(lhs, phi, Z, check=False)  # chunks are ClosedLoopData: finite
             moments.update(lhs)
         n_chunks += 1
     if first:
