@@ -93,7 +93,8 @@ def identify(
             timeout=timeout,
         )
         if not out.exists():
-            raise RuntimeError(f"Octave {method} failed: {r.stderr.strip()[-400:]}")
+            errors = [x for x in r.stderr.splitlines() if x.startswith("error:")]
+            raise RuntimeError(f"Octave {method}: {(errors or [r.stderr.strip()])[0][:300]}")
         res = scipy.io.loadmat(out)
     return PeerResult(
         np.asarray(res["p"], dtype=complex).ravel(),
