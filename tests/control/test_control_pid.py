@@ -134,3 +134,21 @@ def test_controller_validation():
         DiscreteController([1.0], [1.0], -1.0)
     with pytest.raises(DesignError, match="PID"):
         _ = RETUNED_LEAD_LAG.gains
+
+
+def test_no_single_digit_misprint_makes_the_printed_pid_stabilise():
+    # Could one wrong digit explain the unstable printed controller? Change each of
+    # its 12 printed digits to every other value: none stabilises eq. (28).
+    printed = ["0.5973", "1.1897", "0.5833"]
+    signs = np.array([1.0, -1.0, 1.0])
+    for k, text in enumerate(printed):
+        for pos, ch in enumerate(text):
+            if ch == ".":
+                continue
+            for d in "0123456789":
+                if d == ch:
+                    continue
+                v = [float(t) for t in printed]
+                v[k] = float(text[:pos] + d + text[pos + 1 :])
+                ctl = DiscreteController(-1e5 * signs * np.array(v), [1.0, -1.0], 2.4e-3)
+                assert np.max(np.abs(closed_loop_poles(ctl, A_NOM, B_NOM))) > 1.0, (k, pos, d)
