@@ -80,6 +80,7 @@ __all__ = [
     "lagged",
     "markov_from_arx",
     "solve_linear_regression",
+    "solve_regression_blocks",
     "white_noise_covariance",
 ]
 

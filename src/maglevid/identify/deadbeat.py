@@ -87,6 +87,7 @@ from maglevid.physics.amb import C_AMB
 __all__ = [
     "METHODS",
     "deadbeat_regression",
+    "deadbeat_regression_blocks",
     "fit_deadbeat",
     "fit_deadbeat_arx",
     "fit_deadbeat_iv",

@@ -103,6 +103,7 @@ __all__ = [
     "percentage_index",
     "physical_transformation",
     "plant_regression",
+    "plant_regression_blocks",
     "realize_plant_arx",
     "to_physical_coordinates",
 ]
