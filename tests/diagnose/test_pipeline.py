@@ -124,3 +124,22 @@ def test_nominal_baseline_needs_design_values():
     bare = rec.replace(loop={k: v for k, v in _thaw(rec.loop).items() if k != "nominal"})
     with pytest.raises(maglevid.DataError, match="loop\\['nominal'\\]"):
         diagnose(bare, baseline="nominal")
+
+
+def test_history_baseline_skips_failed_diagnoses_and_the_future(tmp_path):
+    store = open_history(tmp_path / "h.sqlite")
+    good = _rec(seed=21).with_metadata(machine="B2", recorded_at="2026-02-01T00:00:00+00:00")
+    diagnose(good, baseline="history", history=store)
+    short = _rec(n=800, seed=22).with_metadata(recorded_at="2026-02-02T00:00:00+00:00")
+    assert diagnose(short, baseline="history", machine="B2", history=store).verdict_code == (
+        "cannot_diagnose"
+    )
+    later = _rec(seed=23).with_metadata(recorded_at="2026-02-03T00:00:00+00:00")
+    d = diagnose(later, baseline="history", machine="B2", history=store)
+    # The failed diagnosis has no estimates: the baseline is the earlier identification.
+    assert d.baseline["source"].startswith("earlier identification")
+    # An older recording diagnosed afterwards is not compared with the future.
+    older = _rec(seed=24).with_metadata(recorded_at="2026-01-01T00:00:00+00:00")
+    d_old = diagnose(older, baseline="history", machine="B2", history=store)
+    assert not d_old.baseline["source"].startswith("earlier identification")
+    store.close()

@@ -89,8 +89,12 @@ def _tolerances(items: list[str]) -> dict[str, float]:
     return out
 
 
-def _iso(t: float) -> str:
-    return datetime.fromtimestamp(t, tz=timezone.utc).isoformat()
+def _iso(t: float) -> str | None:
+    """ISO time of ``t`` seconds since 1970; None beyond the calendar (a near-flat trend)."""
+    try:
+        return datetime.fromtimestamp(t, tz=timezone.utc).isoformat()
+    except (OverflowError, ValueError, OSError):
+        return None
 
 
 def _drift(

@@ -17,7 +17,19 @@ and the fit diagnostics (one-step prediction, never an open-loop simulation of
 an unstable model).
 
   maglevid identify rec.npz --method deadbeat-arx --json
+
+Records larger than memory are streamed: a Parquet recording above 256 MB (or
+any recording with --stream) is read in chunks of --chunk-size control periods
+and identified with memory independent of its length (methods physical, moesp,
+n4sid; physical reads the file twice). Without --method such a file gets
+method physical. --no-stream always reads the whole file.
+
+  maglevid identify hour.parquet --stream --method physical --option estimator=ls
 """
+
+#: Parquet recordings larger than this are streamed unless --no-stream (about
+#: 3e6 samples of a bearing; in memory the physical method needs ~300 B/sample).
+STREAM_THRESHOLD_BYTES = 256 * 2**20
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -40,6 +52,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=[],
         metavar="KEY=VALUE",
         help="method option (VALUE parsed as JSON when possible); repeatable",
+    )
+    parser.add_argument(
+        "--stream",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="read the recording in chunks, memory independent of its length (default: "
+        f"for Parquet files above {STREAM_THRESHOLD_BYTES // 2**20} MB)",
+    )
+    parser.add_argument(
+        "--chunk-size",
+        type=int,
+        default=1_000_000,
+        metavar="N",
+        help="control periods per chunk when streaming (default 1000000)",
     )
 
 
@@ -64,10 +90,52 @@ def _default_method(data: Any) -> str:
     return choose_method(data)[0]  # "physical" for AMB recordings (observer-independent)
 
 
+def _should_stream(args: argparse.Namespace) -> bool:
+    if args.stream is not None:
+        return bool(args.stream)
+    from pathlib import Path
+
+    path = Path(args.recording)
+    return path.suffix.lower() == ".parquet" and (
+        path.is_file() and path.stat().st_size > STREAM_THRESHOLD_BYTES
+    )
+
+
+def _run_streamed(args: argparse.Namespace, options: dict[str, Any]) -> dict[str, Any]:
+    from maglevid.cli._progress import progress
+    from maglevid.identify.streaming import STREAMED_METHODS, identify_streamed
+    from maglevid.io import iter_recording_chunks
+
+    method = args.method or "physical"
+    if method not in STREAMED_METHODS:
+        from maglevid.exceptions import DataError
+
+        raise DataError(
+            f"method {method!r} cannot be streamed (streamed: "
+            f"{', '.join(sorted(STREAMED_METHODS))}); use --no-stream to read the whole file"
+        )
+    passes = {"n": 0}
+
+    def chunks() -> Any:
+        passes["n"] += 1
+        return iter_recording_chunks(args.recording, args.chunk_size, mapping=args.mapping)
+
+    def bar(it: Any) -> Any:
+        return progress(it, desc=f"{method}: pass {passes['n']}", args=args)
+
+    result = identify_streamed(chunks, method, progress=bar, **options)
+    out = result.to_dict()
+    out["recording"] = args.recording
+    out["streamed"] = {"chunk_size": args.chunk_size, "passes": passes["n"]}
+    return out
+
+
 def run(args: argparse.Namespace) -> dict[str, Any]:
     if args.method == "list":
         return {"methods": sorted(available_methods())}
     options = _parse_options(args.option)
+    if _should_stream(args):
+        return _run_streamed(args, options)
     from maglevid.io import read_recording
 
     data = read_recording(args.recording, mapping=args.mapping)
@@ -87,6 +155,9 @@ def format_text(result: dict[str, Any]) -> str:
     if "methods" in result:
         return "methods: " + ", ".join(result["methods"])
     lines = [f"recording: {result['recording']}", f"method: {result['method']}"]
+    if result.get("streamed"):
+        st = result["streamed"]
+        lines.append(f"streamed: chunks of {st['chunk_size']}, {st['passes']} pass(es)")
     lines.append(f"samples: {result['n_samples']}")
     se = result.get("std_errors") or {}
     ci = result.get("ci95") or {}

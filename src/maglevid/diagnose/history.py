@@ -888,18 +888,34 @@ class HistoryStore:
             written_by=r[15],
         )
 
-    def latest_estimates(self, machine: str, *, method: str | None = None) -> dict[str, Estimate]:
-        """Estimates of the most recent diagnosis of ``machine`` (by recording time).
+    def latest_estimates(
+        self,
+        machine: str,
+        *,
+        method: str | None = None,
+        before: datetime | str | float | None = None,
+        exclude_recording: str | None = None,
+    ) -> dict[str, Estimate]:
+        """Estimates of the most recent diagnosis of ``machine`` that has estimates.
 
-        The natural baseline for the next diagnosis. Empty when the machine has
-        no diagnosis (of ``method``, if given).
+        The natural baseline for the next diagnosis. Diagnoses without estimates
+        (e.g. "cannot diagnose") are passed over. ``before`` keeps only recordings
+        taken strictly earlier (a baseline never comes from the future), and
+        ``exclude_recording`` (a content hash) keeps a recording from being its own
+        baseline on a re-run. Empty when nothing qualifies.
         """
+        t_before = None if before is None else _as_utc("before", before)
 
         def work(tx: Tx) -> dict[str, Estimate]:
             mid = self._machine_id(tx, machine)
             where, params = "d.machine_id = ?", [mid]
             if method is not None:
                 where, params = where + " AND d.method = ?", [*params, method]
+            if t_before is not None:
+                where, params = where + " AND r.recorded_at < ?", [*params, tx.ts_in(t_before)]
+            if exclude_recording is not None:
+                where, params = where + " AND r.content_hash <> ?", [*params, exclude_recording]
+            where += " AND EXISTS (SELECT 1 FROM estimates e WHERE e.diagnosis_id = d.id)"
             last = tx.one(
                 "SELECT d.id FROM diagnoses d JOIN recordings r ON r.id = d.recording_id "
                 f"WHERE {where} ORDER BY r.recorded_at DESC, d.id DESC LIMIT 1",

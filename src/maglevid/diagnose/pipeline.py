@@ -107,10 +107,19 @@ def _physical_dict(p: AMBParameters) -> dict[str, float]:
 
 
 def _baseline_from_history(
-    store: Any, machine: str, method: str, fallback: AMBParameters | None, notes: list[str]
+    store: Any,
+    machine: str,
+    method: str,
+    fallback: AMBParameters | None,
+    notes: list[str],
+    *,
+    before: Any = None,
+    exclude_recording: str | None = None,
 ) -> tuple[dict[str, tuple[float, float]], AMBParameters | None, np.ndarray | None, str]:
     try:
-        est = store.latest_estimates(machine, method=method)
+        est = store.latest_estimates(
+            machine, method=method, before=before, exclude_recording=exclude_recording
+        )
     except MaglevidError:  # a machine new to the store
         est = {}
     if not est:
@@ -193,6 +202,19 @@ def _verdict(
     )
 
 
+def _cannot_diagnose(
+    reasons: list[str], quality: Any, common: dict[str, Any], *, prefix: str = ""
+) -> Diagnosis:
+    """The verdict when the data do not allow a diagnosis: say why, guess nothing."""
+    return Diagnosis(
+        verdict="Cannot diagnose: " + prefix + "; ".join(reasons),
+        verdict_code="cannot_diagnose",
+        reasons=tuple(reasons),
+        quality=quality,
+        **common,
+    )
+
+
 def _diagnose_levitator(
     data: ClosedLoopData,
     baseline: Any,
@@ -203,6 +225,7 @@ def _diagnose_levitator(
     notes: list[str],
     store: Any,
     machine: str | None,
+    when: Any,
 ) -> Diagnosis:
     """The levitator route: segments, grey box, pole and ``a`` against the baseline."""
     from maglevid.diagnose import levitator as lev
@@ -211,29 +234,22 @@ def _diagnose_levitator(
     quality, segs = lev.levitator_checks(data)
     failed = [q for q in quality if not q.passed and q.blocking]
     if failed:
-        return Diagnosis(
-            verdict="Cannot diagnose: " + "; ".join(q.message for q in failed),
-            verdict_code="cannot_diagnose",
-            reasons=tuple(q.message for q in failed),
-            quality=quality,
-            **common,
-        )
+        return _cannot_diagnose([q.message for q in failed], quality, common)
     opts = {"segments": segs, **dict(method_options or {})}
     try:
         result = get_method(common["method"])(data, **opts)
     except MaglevidError as exc:
-        return Diagnosis(
-            verdict=f"Cannot diagnose: identification failed ({exc})",
-            verdict_code="cannot_diagnose",
-            reasons=(str(exc),),
-            quality=quality,
-            **common,
-        )
+        return _cannot_diagnose([str(exc)], quality, common, prefix="identification failed: ")
     notes.extend(result.notes)
     estimates, y_ref = lev.levitator_estimates(result)
     if baseline == "history" and store is not None and machine is not None:
         try:
-            stored = store.latest_estimates(machine, method=common["method"])
+            stored = store.latest_estimates(
+                machine,
+                method=common["method"],
+                before=when,
+                exclude_recording=common["recording_hash"],
+            )
         except MaglevidError:
             stored = {}
         base_vals = {k: (e.value, e.std_error or 0.0) for k, e in stored.items() if k in estimates}
@@ -313,6 +329,7 @@ def diagnose(
     mapping: Any = None,
     alpha: float = 0.01,
     level: float = 0.95,
+    drift: bool = True,
 ) -> Diagnosis:
     """Diagnose one recording of a bearing against a baseline.
 
@@ -345,6 +362,9 @@ def diagnose(
         Significance level of the isolation and drift tests.
     level : float
         Confidence level of the intervals.
+    drift : bool
+        Test the machine's stored history for drift after recording (default).
+        A fleet run tests drift once per machine at the end instead.
 
     Returns
     -------
@@ -392,7 +412,7 @@ def diagnose(
 
     if is_levitator(data) and method == "greybox-levitator":
         diag = _diagnose_levitator(
-            data, baseline, common, tol, level, method_options, notes, store, machine
+            data, baseline, common, tol, level, method_options, notes, store, machine, when
         )
         _record(store, diag, data, when, method_options, notes)
         return diag
@@ -400,13 +420,7 @@ def diagnose(
     quality = run_checks(data)
     failed = [q for q in quality if not q.passed and q.blocking]
     if failed:
-        diag = Diagnosis(
-            verdict="Cannot diagnose: " + "; ".join(q.message for q in failed),
-            verdict_code="cannot_diagnose",
-            reasons=tuple(q.message for q in failed),
-            quality=quality,
-            **common,
-        )
+        diag = _cannot_diagnose([q.message for q in failed], quality, common)
         _record(store, diag, data, when, method_options, notes)
         return diag
 
@@ -441,7 +455,7 @@ def diagnose(
         if store is None or machine is None:
             raise DataError("baseline='history' needs `history` (a store) and `machine`")
         base_vals, base_params, base_cov, source_b = _baseline_from_history(
-            store, machine, method, design, notes
+            store, machine, method, design, notes, before=when, exclude_recording=rhash
         )
         if not base_vals and design is not None:
             base_vals = {k: (v, 0.0) for k, v in _physical_dict(design).items()}
@@ -454,13 +468,7 @@ def diagnose(
     try:
         result = get_method(method)(data, **dict(method_options or {}))
     except MaglevidError as exc:
-        diag = Diagnosis(
-            verdict=f"Cannot diagnose: identification failed ({exc})",
-            verdict_code="cannot_diagnose",
-            reasons=(str(exc),),
-            quality=quality,
-            **common,
-        )
+        diag = _cannot_diagnose([str(exc)], quality, common, prefix="identification failed: ")
         _record(store, diag, data, when, method_options, notes)
         return diag
     notes.extend(result.notes)
@@ -514,7 +522,7 @@ def diagnose(
         **common,
     )
     _record(store, diag, data, when, method_options, notes)
-    if store is not None:
+    if store is not None and drift:
         drifts = _drifts(store, diag, tol, alpha)
         if drifts:
             words = "; ".join(
@@ -654,9 +662,12 @@ def _drifts(
             continue
         crossing = None
         if res.projected_crossing_time is not None and np.isfinite(res.projected_crossing_time):
-            crossing = datetime.fromtimestamp(
-                res.projected_crossing_time * 86400.0, tz=timezone.utc
-            ).isoformat(timespec="seconds")
+            try:
+                crossing = datetime.fromtimestamp(
+                    res.projected_crossing_time * 86400.0, tz=timezone.utc
+                ).isoformat(timespec="seconds")
+            except (OverflowError, ValueError, OSError):  # a near-flat trend: far beyond 9999
+                crossing = None
         out.append(
             {
                 "parameter": k,

@@ -74,11 +74,12 @@ from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
+import scipy.linalg as sla
 
 from maglevid.data import ClosedLoopData
 from maglevid.exceptions import DataError, IdentificationError
-from maglevid.identify.arx import solve_linear_regression
-from maglevid.identify.iv import lagged_excitation, simulate_loop_signals
+from maglevid.identify.arx import solve_regression_blocks
+from maglevid.identify.iv import simulate_loop_signals
 from maglevid.identify.result import IdentificationResult
 from maglevid.identify.uncertainty import amb_result
 from maglevid.physics.amb import C_AMB
@@ -86,6 +87,7 @@ from maglevid.physics.amb import C_AMB
 __all__ = [
     "METHODS",
     "deadbeat_regression",
+    "deadbeat_regression_blocks",
     "fit_deadbeat",
     "fit_deadbeat_arx",
     "fit_deadbeat_iv",
@@ -174,6 +176,14 @@ def deadbeat_regression(
     lhs : ndarray, shape (N - 1 - start, ny + nu)
     phi : ndarray, shape (N - 1 - start, ny + 2 nu)
     """
+    lhs, parts = deadbeat_regression_blocks(y, u, u_f, E=E, Fe=Fe, start=start)
+    return lhs, np.hstack(parts)
+
+
+def deadbeat_regression_blocks(
+    y: np.ndarray, u: np.ndarray, u_f: np.ndarray, *, E: Any, Fe: Any, start: int
+) -> tuple[np.ndarray, list[np.ndarray]]:
+    """:func:`deadbeat_regression` with ``phi`` as its column blocks (views, no copy)."""
     E = np.atleast_2d(np.asarray(E, dtype=float))
     Fe = np.atleast_2d(np.asarray(Fe, dtype=float))
     N = y.shape[0]
@@ -182,8 +192,7 @@ def deadbeat_regression(
     nxt = slice(start + 1, N)
     cur = slice(start, N - 1)
     lhs = np.hstack([y[nxt], u_f[nxt] + y[nxt] @ (Fe @ E).T])  # eq. (47), b0 v(k+1) moved left
-    phi = np.hstack([y[cur], u_f[cur], u[cur]])
-    return lhs, phi
+    return lhs, [y[cur], u_f[cur], u[cur]]
 
 
 def plant_from_observer_controller(
@@ -281,7 +290,7 @@ def _integrator_block_residual(L: np.ndarray, P: np.ndarray, yu: np.ndarray, *, 
     ne = P.shape[0] - nx
     if ne == 0:
         return 0.0
-    z = np.linalg.solve(P, yu.T).T  # eq. (46)
+    z = sla.lu_solve(sla.lu_factor(P), yu.T).T  # eq. (46), one factorisation for all samples
     sz = np.sqrt(np.mean(z**2, axis=0))
     sz[sz == 0] = 1.0
     Ls = L * sz[None, :] / sz[:, None]
@@ -430,13 +439,16 @@ def fit_deadbeat(
             f"the recording has {N} samples; the deadbeat ARX needs well over "
             f"{start + 1 + 3 * (ny + 2 * nu)} (skip={skip})"
         )
-    lhs, phi = deadbeat_regression(y, u, u_f, E=E, Fe=Fe, start=start)
+    lhs, phi = deadbeat_regression_blocks(y, u, u_f, E=E, Fe=Fe, start=start)
     Z = None
     if used_instruments == "loop":
         sim = simulate_loop_signals(data.loop, data.r, dt=data.dt)
-        Z = np.hstack([sim["y"], sim["u_f"], sim["u"]])[start : N - 1]
+        Z = [sim[k][start : N - 1] for k in ("y", "u_f", "u")]
     elif used_instruments == "lags":
-        Z = lagged_excitation(data.r, lags=int(instrument_lags), start=start, stop=N - 1)
+        r = np.asarray(data.r)
+        Z = [
+            r[start - j : N - 1 - j] for j in range(int(instrument_lags) + 1)
+        ]  # lagged_excitation
     names_y = data.channel_names("y")
     names_u = data.channel_names("u")
     labels = (
@@ -445,9 +457,7 @@ def fit_deadbeat(
         + [f"{n}(k)" for n in names_u]
     )
     noise_ma = _noise_model(covariance, data, P, C, mats, notes)
-    fit = solve_linear_regression(
-        lhs, phi, instruments=Z, hac_lags=hac_lags, labels=labels, noise_ma=noise_ma
-    )
+    fit = solve_regression_blocks(lhs, phi, Z, hac_lags=hac_lags, labels=labels, noise_ma=noise_ma)
 
     def to_discrete(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return plant_from_observer_controller(theta, P, nx=nx, ny=ny, nu=nu)

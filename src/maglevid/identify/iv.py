@@ -50,9 +50,9 @@ import numpy as np
 from maglevid.control import IntegralStateFeedback, Observer
 from maglevid.exceptions import DataError, DesignError, IdentificationError
 from maglevid.lti import StateSpace
-from maglevid.simulate.loop import simulate_linear_loop
+from maglevid.simulate.loop import closed_loop_system, simulate_linear_loop
 
-__all__ = ["lagged_excitation", "simulate_loop_signals"]
+__all__ = ["lagged_excitation", "loop_instrument_system", "simulate_loop_signals"]
 
 logger = logging.getLogger(__name__)
 
@@ -89,6 +89,20 @@ def simulate_loop_signals(
         The loop lacks the controller or observer, or the loop with this plant
         is unstable (the instruments would grow without bound).
     """
+    observer, controller = _rebuild_loop(loop)
+    if plant is None:
+        plant = StateSpace(observer.A, observer.B, observer.C, dt=dt)
+    try:
+        sig = simulate_linear_loop(plant, observer, controller, r=np.asarray(r, dtype=float))
+    except DesignError as exc:
+        raise IdentificationError(
+            f"the known controller does not stabilise the model used for the instruments "
+            f"({exc}); use instruments='lags'"
+        ) from exc
+    return {"y": np.asarray(sig.y), "u_f": np.asarray(sig.u_f), "u": np.asarray(sig.u)}
+
+
+def _rebuild_loop(loop: Mapping[str, Any]) -> tuple[Observer, IntegralStateFeedback]:
     ctrl = loop.get("controller") if isinstance(loop, Mapping) else None
     obs = loop.get("observer") if isinstance(loop, Mapping) else None
     if not isinstance(ctrl, Mapping) or not isinstance(obs, Mapping):
@@ -103,16 +117,34 @@ def simulate_loop_signals(
         raise IdentificationError(
             f"the recording's controller/observer cannot be rebuilt: {exc}"
         ) from exc
-    if plant is None:
-        plant = StateSpace(observer.A, observer.B, observer.C, dt=dt)
-    try:
-        sig = simulate_linear_loop(plant, observer, controller, r=np.asarray(r, dtype=float))
-    except DesignError as exc:
+    return observer, controller
+
+
+def loop_instrument_system(loop: Mapping[str, Any], *, dt: float) -> StateSpace:
+    """The nominal closed loop of :func:`simulate_loop_signals` as one system, for chunked runs.
+
+    States ``[x; x_hat; e']``, inputs ``[r; v]``, outputs ``[y; u_f]``
+    (:func:`maglevid.simulate.loop.closed_loop_system`) with the observer's own
+    model as the plant. Simulated from a zero state with ``v = 0`` it gives the
+    signals of :func:`simulate_loop_signals`; carrying the final state of
+    :func:`maglevid.simulate.kernel.simulate_lti` from one chunk of ``r`` to the
+    next gives them chunk by chunk (to rounding).
+
+    Raises
+    ------
+    IdentificationError
+        As :func:`simulate_loop_signals`.
+    """
+    observer, controller = _rebuild_loop(loop)
+    plant = StateSpace(observer.A, observer.B, observer.C, dt=dt)
+    sys = closed_loop_system(plant, observer, controller)
+    rho = float(np.max(np.abs(sys.poles())))
+    if rho >= 1.0:
         raise IdentificationError(
-            f"the known controller does not stabilise the model used for the instruments "
-            f"({exc}); use instruments='lags'"
-        ) from exc
-    return {"y": np.asarray(sig.y), "u_f": np.asarray(sig.u_f), "u": np.asarray(sig.u)}
+            "the known controller does not stabilise the model used for the instruments "
+            f"(largest closed-loop pole magnitude {rho:.6f}); use instruments='lags'"
+        )
+    return sys
 
 
 def lagged_excitation(r: Any, *, lags: int, start: int, stop: int) -> np.ndarray:

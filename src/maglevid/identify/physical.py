@@ -82,15 +82,15 @@ uses the same regressors built from those noise-free signals (basic IV);
 from __future__ import annotations
 
 import logging
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
 
 from maglevid.data import ClosedLoopData
 from maglevid.exceptions import DataError, IdentificationError, ModelError
-from maglevid.identify.arx import solve_linear_regression
-from maglevid.identify.iv import lagged_excitation, simulate_loop_signals
+from maglevid.identify.arx import LinearFit, solve_regression_blocks
+from maglevid.identify.iv import simulate_loop_signals
 from maglevid.identify.result import IdentificationResult
 from maglevid.identify.uncertainty import amb_result
 from maglevid.lti import StateSpace, undiscretize
@@ -103,6 +103,7 @@ __all__ = [
     "percentage_index",
     "physical_transformation",
     "plant_regression",
+    "plant_regression_blocks",
     "realize_plant_arx",
     "to_physical_coordinates",
 ]
@@ -118,13 +119,20 @@ def plant_regression(y: np.ndarray, u: np.ndarray, *, start: int) -> tuple[np.nd
 
     See the module notes, section 1.
     """
+    lhs, parts = plant_regression_blocks(y, u, start=start)
+    return lhs, np.hstack(parts)
+
+
+def plant_regression_blocks(
+    y: np.ndarray, u: np.ndarray, *, start: int
+) -> tuple[np.ndarray, list[np.ndarray]]:
+    """:func:`plant_regression` with ``phi`` as its four column blocks (views, no copy)."""
     N = y.shape[0]
     if not 1 <= start < N - 1:
         raise DataError(f"`start` must be in 1..{N - 2}; got {start}")
     cur = slice(start, N - 1)
     prev = slice(start - 1, N - 2)
-    phi = np.hstack([y[cur], y[prev, POSITION : POSITION + 1], u[cur], u[prev]])
-    return y[start + 1 :], phi
+    return y[start + 1 :], [y[cur], y[prev, POSITION : POSITION + 1], u[cur], u[prev]]
 
 
 def realize_plant_arx(
@@ -258,6 +266,15 @@ def to_physical_coordinates(model: StateSpace) -> tuple[StateSpace, StateSpace]:
     return phys_d, phys_c
 
 
+def realization_scales(
+    sum_y2: np.ndarray, sum_u2: np.ndarray, n_samples: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """RMS of the outputs and of ``[x_pos, u]`` (row and column scales of ``H``, section 2)."""
+    y_scale = np.sqrt(np.asarray(sum_y2, dtype=float) / n_samples)
+    h_scale = np.concatenate([y_scale[POSITION : POSITION + 1], np.sqrt(sum_u2 / n_samples)])
+    return y_scale, h_scale
+
+
 def _plant_signals(data: ClosedLoopData) -> tuple[np.ndarray, np.ndarray]:
     if not isinstance(data, ClosedLoopData):
         raise DataError(f"`data` must be a ClosedLoopData; got {type(data).__name__}")
@@ -341,22 +358,89 @@ def fit_physical(
     IdentificationError
         Rank-deficient regression, no real logarithm, or singular ``T``.
     """
+    y, u = _plant_signals(data)
+    ny = y.shape[1]
+    N = y.shape[0]
+    plan = plan_physical(
+        estimator=estimator,
+        instruments=instruments,
+        skip=skip,
+        instrument_lags=instrument_lags,
+        covariance=covariance,
+        has_r=data.r is not None,
+        loop=data.loop,
+        n_samples=N,
+    )
+    start, kind = plan["start"], plan["instruments"]
+    lhs, phi = plant_regression_blocks(y, u, start=start)
+    Z = None
+    if kind == "loop":
+        sim = simulate_loop_signals(data.loop, data.r, dt=data.dt)
+        _, Z = plant_regression_blocks(sim["y"], sim["u"], start=start)
+    elif kind == "lags":
+        r = np.asarray(data.r)
+        Z = [
+            r[start - j : N - 1 - j] for j in range(int(instrument_lags) + 1)
+        ]  # lagged_excitation
+    fit = solve_regression_blocks(
+        lhs,
+        phi,
+        Z,
+        hac_lags=hac_lags,
+        labels=physical_labels(data.channel_names("y"), data.channel_names("u")),
+        noise_ma=physical_noise_ma(ny) if covariance == "white-noise" else None,
+    )
+    y_scale, h_scale = realization_scales(
+        np.einsum("ij,ij->j", y, y), np.einsum("ij,ij->j", u, u), N
+    )
+    return physical_result(
+        fit,
+        Y=lhs,
+        y_scale=y_scale,
+        h_scale=h_scale,
+        dt=data.dt,
+        loop=data.loop,
+        names=data.channel_names("y"),
+        plan=plan,
+        hac_lags=hac_lags,
+        m=m,
+        i0=i0,
+    )
+
+
+# The stages of fit_physical, shared with the streamed fit of records larger than
+# memory (maglevid.identify.streaming): the same plan, regressors and result.
+
+
+def plan_physical(
+    *,
+    estimator: str,
+    instruments: str,
+    skip: int,
+    instrument_lags: int,
+    covariance: str,
+    has_r: bool,
+    loop: Mapping[str, Any],
+    n_samples: int | None,
+) -> dict[str, Any]:
+    """Checked options of :func:`fit_physical`: first row, instruments used, notes.
+
+    ``n_samples=None`` (a stream of unknown length) skips the record-length check.
+    """
     if estimator not in ("ls", "iv"):
         raise DataError(f"`estimator` must be 'ls' or 'iv'; got {estimator!r}")
     if instruments not in ("auto", "loop", "lags"):
         raise DataError(f"`instruments` must be 'auto', 'loop' or 'lags'; got {instruments!r}")
-    y, u = _plant_signals(data)
-    ny, nu = y.shape[1], u.shape[1]
-    N = y.shape[0]
+    if covariance not in ("white-noise", "hac"):
+        raise DataError(f"`covariance` must be 'white-noise' or 'hac'; got {covariance!r}")
     start = max(int(skip), 1)
     kind = None
     notes: list[str] = []
     if estimator == "iv":
-        if data.r is None:
+        if not has_r:
             raise DataError("estimator='iv' needs the excitation r in the recording")
         kind = instruments
         if kind == "auto":
-            loop = data.loop
             known = isinstance(loop.get("observer"), Mapping) and isinstance(
                 loop.get("controller"), Mapping
             )
@@ -368,44 +452,69 @@ def fit_physical(
                 )
         if kind == "lags":
             start = max(start, int(instrument_lags))
-    n_reg = ny + 1 + 2 * nu
-    if N - 1 - start <= 3 * n_reg:
+    n_reg = 3 + 1 + 2 * 2
+    if n_samples is not None and n_samples - 1 - start <= 3 * n_reg:
         raise DataError(
-            f"the recording has {N} samples; the plant ARX needs well over {start + 1 + 3 * n_reg}"
+            f"the recording has {n_samples} samples; the plant ARX needs well over "
+            f"{start + 1 + 3 * n_reg}"
         )
-    lhs, phi = plant_regression(y, u, start=start)
-    Z = None
-    if kind == "loop":
-        sim = simulate_loop_signals(data.loop, data.r, dt=data.dt)
-        _, Z = plant_regression(sim["y"], sim["u"], start=start)
-    elif kind == "lags":
-        Z = lagged_excitation(data.r, lags=int(instrument_lags), start=start, stop=N - 1)
-    ynames = data.channel_names("y")
-    unames = data.channel_names("u")
-    labels = (
+    return {
+        "start": start,
+        "instruments": kind,
+        "notes": notes,
+        "options": {
+            "estimator": estimator,
+            "instruments": kind,
+            "skip": int(skip),
+            "instrument_lags": int(instrument_lags),
+            "covariance": covariance,
+        },
+    }
+
+
+def physical_labels(ynames: Sequence[str], unames: Sequence[str]) -> list[str]:
+    """Names of the regressors ``phi(k) = [y(k), x_pos(k-1), u(k), u(k-1)]``."""
+    return (
         [f"{n}(k)" for n in ynames]
         + [f"{ynames[POSITION]}(k-1)"]
         + [f"{n}(k)" for n in unames]
         + [f"{n}(k-1)" for n in unames]
     )
-    noise_ma = None
-    if covariance == "white-noise":
 
-        def noise_ma(Theta: np.ndarray) -> list[np.ndarray]:
-            # eps(k) = w(k+1) - Theta_y w(k) - theta_h w_pos(k-1) (module notes, section 1)
-            C2 = np.zeros((ny, ny))
-            C2[:, POSITION] = -Theta[:, ny]
-            return [np.eye(ny), -Theta[:, :ny], C2]
 
-    elif covariance != "hac":
-        raise DataError(f"`covariance` must be 'white-noise' or 'hac'; got {covariance!r}")
-    fit = solve_linear_regression(
-        lhs, phi, instruments=Z, hac_lags=hac_lags, labels=labels, noise_ma=noise_ma
-    )
-    y_scale = np.sqrt(np.mean(y**2, axis=0))
-    h_scale = np.sqrt(np.mean(np.hstack([y[:, POSITION : POSITION + 1], u]) ** 2, axis=0))
-    dt = data.dt
+def physical_noise_ma(ny: int) -> Callable[[np.ndarray], list[np.ndarray]]:
+    """The equation error as a moving average of white measurement noise (section 1)."""
 
+    def noise_ma(Theta: np.ndarray) -> list[np.ndarray]:
+        # eps(k) = w(k+1) - Theta_y w(k) - theta_h w_pos(k-1) (module notes, section 1)
+        C2 = np.zeros((ny, ny))
+        C2[:, POSITION] = -Theta[:, ny]
+        return [np.eye(ny), -Theta[:, :ny], C2]
+
+    return noise_ma
+
+
+def physical_result(
+    fit: LinearFit,
+    *,
+    Y: np.ndarray | None,
+    y_scale: np.ndarray,
+    h_scale: np.ndarray,
+    dt: float,
+    loop: Mapping[str, Any],
+    names: Sequence[str],
+    plan: Mapping[str, Any],
+    hac_lags: int,
+    m: float | None,
+    i0: float | None,
+    one_step_fit: np.ndarray | None = None,
+    extra_notes: Sequence[str] = (),
+    extra_options: Mapping[str, Any] | None = None,
+) -> IdentificationResult:
+    """Realization, physical coordinates and the result of :func:`fit_physical` (sections 2-3)."""
+    ny = len(y_scale)
+    nu = len(h_scale) - 1
+    notes = list(plan["notes"]) + list(extra_notes)
     Ct = np.hstack([np.eye(ny), np.zeros((ny, 1))])
 
     def to_discrete(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -425,30 +534,25 @@ def fit_physical(
             f"the lagged-input block of the plant ARX is far from rank one (s2/s1 = "
             f"{rank_one:.3g}); the plant may not be the 4-state AMB model of eq. (3)"
         )
+    n_rows = fit.n_rows if fit.n_rows is not None else Y.shape[0]  # type: ignore[union-attr]
+    options = {**plan["options"], "hac_lags": int(hac_lags), "m": m, "i0": i0}
+    options.update(extra_options or {})
     return amb_result(
         method="physical",
         to_discrete=to_discrete,
         to_physical=to_physical,
         fit=fit,
-        Y=lhs,
-        lhs_names=list(ynames),
+        Y=Y,
+        lhs_names=list(names),
         dt=dt,
-        loop=data.loop,
-        n_samples=lhs.shape[0],
-        options={
-            "estimator": estimator,
-            "instruments": kind,
-            "skip": int(skip),
-            "instrument_lags": int(instrument_lags),
-            "covariance": covariance,
-            "hac_lags": int(hac_lags),
-            "m": m,
-            "i0": i0,
-        },
+        loop=loop,
+        n_samples=int(n_rows),
+        options=options,
         notes=notes,
         extras={"rank_one_ratio": rank_one, "h_singular_values": hs},
         m=m,
         i0=i0,
+        one_step_fit=one_step_fit,
     )
 
 

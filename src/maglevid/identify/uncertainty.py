@@ -52,6 +52,7 @@ __all__ = [
     "PHYSICAL_NAMES",
     "RATIO_NAMES",
     "amb_result",
+    "one_step_fit_percent",
     "operating_point",
     "v_from_discrete",
 ]
@@ -102,13 +103,23 @@ def operating_point(loop: Mapping[str, Any]) -> tuple[float | None, float | None
     return (None if m is None else float(m)), (None if i0 is None else float(i0))
 
 
-def _one_step_fit(Y: np.ndarray, residuals: np.ndarray) -> np.ndarray:
-    # 100 (1 - ||eps|| / ||Y - mean Y||) per channel: the one-step-ahead
-    # prediction fit (never an open-loop simulation fit of an unstable model).
-    den = np.linalg.norm(Y - Y.mean(axis=0), axis=0)
-    num = np.linalg.norm(residuals, axis=0)
+def one_step_fit_percent(sum_sq_residuals: Any, sum_sq_centered: Any) -> np.ndarray:
+    """``100 (1 - ||eps|| / ||Y - mean Y||)`` per channel from the two sums of squares.
+
+    The one-step-ahead prediction fit (never an open-loop simulation fit of an
+    unstable model); NaN for a constant channel.
+    """
+    num = np.sqrt(np.asarray(sum_sq_residuals, dtype=float))
+    den = np.sqrt(np.asarray(sum_sq_centered, dtype=float))
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.where(den > 0, 100.0 * (1.0 - num / den), np.nan)
+
+
+def _one_step_fit(Y: np.ndarray, residuals: np.ndarray) -> np.ndarray:
+    Yc = Y - Y.mean(axis=0)
+    return one_step_fit_percent(
+        np.einsum("ij,ij->j", residuals, residuals), np.einsum("ij,ij->j", Yc, Yc)
+    )
 
 
 def _augmented(A: np.ndarray, B: np.ndarray) -> np.ndarray:
@@ -157,7 +168,7 @@ def amb_result(
     method: str,
     to_discrete: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
     fit: LinearFit,
-    Y: np.ndarray,
+    Y: np.ndarray | None,
     lhs_names: Sequence[str],
     dt: float,
     loop: Mapping[str, Any],
@@ -170,6 +181,7 @@ def amb_result(
     m: float | None = None,
     i0: float | None = None,
     singular_values: np.ndarray | None = None,
+    one_step_fit: np.ndarray | None = None,
 ) -> IdentificationResult:
     """Assemble the :class:`IdentificationResult` of an AMB method.
 
@@ -188,7 +200,7 @@ def amb_result(
         ``theta`` (no sign or ordering ambiguities).
     fit : LinearFit
         The regression (coefficients, covariance, residuals).
-    Y : ndarray
+    Y : ndarray or None
         Left-hand side of the regression (for the one-step fit).
     lhs_names : sequence of str
         Names of the columns of ``Y``.
@@ -208,6 +220,10 @@ def amb_result(
         Override ``loop["operating_point"]``.
     singular_values : ndarray, optional
         Singular values to report (default: those of the regression).
+    one_step_fit : ndarray, optional
+        One-step fit per left-hand side in percent, for a streamed regression
+        whose ``Y`` and residuals were not kept (``Y`` is then ``None``); see
+        :func:`one_step_fit_percent`.
 
     Returns
     -------
@@ -289,7 +305,12 @@ def amb_result(
         input_names=INPUT_NAMES,
         output_names=OUTPUT_NAMES,
     )
-    osf = _one_step_fit(Y, fit.residuals)
+    if one_step_fit is not None:
+        osf = np.asarray(one_step_fit, dtype=float)
+    elif Y is None or fit.residuals is None:
+        raise ValueError("amb_result needs Y and the residuals, or one_step_fit")
+    else:
+        osf = _one_step_fit(Y, fit.residuals)
     fitd = {f"one_step_fit_percent_{nm}": float(f) for nm, f in zip(lhs_names, osf)}
     fitd["one_step_fit_percent_min"] = float(np.nanmin(osf))
     fitd["structure_residual"] = float(structure)

@@ -43,10 +43,10 @@ def _pyarrow(path: Path) -> tuple[Any, Any]:
     return pa, pq
 
 
-def _open(path: Path) -> Any:
+def _open(path: Path, *, pre_buffer: bool = True) -> Any:
     pa, pq = _pyarrow(path)
     try:
-        return pq.ParquetFile(path)
+        return pq.ParquetFile(path, pre_buffer=pre_buffer)
     except (pa.ArrowInvalid, pa.ArrowIOError, OSError) as exc:
         raise FileFormatError(f"not a readable Parquet file: {exc}", path=str(path)) from None
 
@@ -160,7 +160,10 @@ def iter_parquet_chunks(
     before it.
     """
     pa, _ = _pyarrow(path)
-    pf = _open(path)
+    # Without pre-buffering: with it, pyarrow keeps every column chunk it has read
+    # until the reader is closed (measured: +72 MB per 10^6-row batch of a
+    # 10-column file, 8 GB for 10^8 rows), which defeats streaming.
+    pf = _open(path, pre_buffer=False)
     m, md = _mapping(path, pf, mapping)
     p = m.p or 1
     rows = pf.metadata.num_rows

@@ -1,0 +1,484 @@
+"""Identification of records larger than memory: the data streamed in chunks.
+
+A magnetic bearing controlled at 10-20 kHz records 10^7-10^8 samples an hour;
+held in memory with its regressors and instruments that is tens of GB. The
+methods here read such a record chunk by chunk and keep only statistics whose
+size does not depend on its length, so the peak memory is that of one chunk
+(plus small fixed arrays) whatever the record length.
+
+Subspace (``moesp``, ``n4sid``): one pass
+    The block-Hankel statistics of
+    :class:`~maglevid.identify.subspace.SubspaceAccumulator` (lagged products
+    of ``z = [u, y]`` and the first and last samples; ``docs/subspace.md``).
+
+The physical AMB method (``physical``, least squares or IV): two passes
+    The plant ARX of :mod:`maglevid.identify.physical` is a linear regression
+    ``y(k+1) = Theta phi(k) + eps(k)`` with instruments ``Z`` (section 4 there).
+    Pass 1 accumulates the triangular factor ``R`` of ``[Z, Phi, Y]`` by a
+    running QR (``R <- qr([R; rows of the chunk])``, the kernel of
+    :class:`~maglevid.identify.arx.RegressionAccumulator`, which
+    :func:`~maglevid.identify.arx.solve_linear_regression` also uses in memory);
+    ``Theta`` follows from ``R`` alone. The covariance needs the residuals
+    ``eps = Y - Phi Theta^T``, which are only known after pass 1, so pass 2
+    reads the record again and accumulates their lagged products (and those of
+    the effective instruments). The ``"loop"`` instruments are the nominal
+    closed loop's response to the recorded ``r``
+    (:func:`~maglevid.identify.iv.loop_instrument_system`), simulated chunk by
+    chunk with the state carried across chunk boundaries; the regressors of the
+    rows that straddle a boundary use the last samples of the previous chunk.
+
+Every row of the regression, every instrument and every product is the same as
+in the in-memory fit; only the order of summation differs. So the result equals
+:func:`~maglevid.identify.physical.fit_physical` and
+:func:`~maglevid.identify.subspace.fit_moesp` / ``fit_n4sid`` to rounding
+(``tests/identify/test_streaming.py``), except that the time series of
+residuals is not kept (``residuals`` is ``None``; the one-step fit is computed
+from running sums).
+
+A source is either a zero-argument callable returning a fresh iterable of
+:class:`~maglevid.data.ClosedLoopData` chunks (two passes call it twice), e.g.
+``lambda: maglevid.io.iter_recording_chunks(path, 10**6)``, or a
+``ClosedLoopData`` already in memory, which is cut into ``chunk_size`` pieces.
+This module does not read files itself (``identify`` does not import ``io``);
+``maglevid identify --stream`` does that.
+"""
+
+from __future__ import annotations
+
+import itertools
+import logging
+from collections.abc import Callable, Iterable, Iterator, Mapping
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+
+from maglevid.data import ClosedLoopData
+from maglevid.exceptions import DataError
+from maglevid.identify.arx import RegressionAccumulator
+from maglevid.identify.iv import loop_instrument_system
+from maglevid.identify.physical import (
+    _plant_signals,
+    physical_labels,
+    physical_noise_ma,
+    physical_result,
+    plan_physical,
+    plant_regression_blocks,
+    realization_scales,
+)
+from maglevid.identify.result import IdentificationResult
+from maglevid.identify.subspace import DEFAULT_MAX_HORIZON, SubspaceAccumulator
+from maglevid.identify.uncertainty import one_step_fit_percent
+from maglevid.lti import StateSpace
+from maglevid.simulate.kernel import simulate_lti
+
+__all__ = [
+    "DEFAULT_CHUNK",
+    "STREAMED_METHODS",
+    "fit_physical_streamed",
+    "fit_subspace_streamed",
+    "identify_streamed",
+]
+
+logger = logging.getLogger(__name__)
+
+#: Control periods per chunk when a source is cut here (10^6 x 7 channels: 56 MB).
+DEFAULT_CHUNK = 1_000_000
+
+ChunkSource = Callable[[], Iterable[ClosedLoopData]] | ClosedLoopData
+Progress = Callable[[Iterable[ClosedLoopData]], Iterable[ClosedLoopData]]
+
+
+def _slices(data: ClosedLoopData, chunk_size: int) -> Iterator[ClosedLoopData]:
+    n, p = data.n_samples, data.p
+    bounds = [*range(0, n, chunk_size), n]
+    if len(bounds) > 2 and bounds[-1] - bounds[-2] < 2:
+        del bounds[-2]
+    for a, b in itertools.pairwise(bounds):
+        yield ClosedLoopData(
+            y=data.y[a * p : b * p],
+            u=None if data.u is None else data.u[a:b],
+            r=None if data.r is None else data.r[a:b],
+            u_f=None if data.u_f is None else data.u_f[a:b],
+            dt=data.dt,
+            p=p,
+            names=data.names,
+            units=data.units,
+            loop=data.loop,
+        )
+
+
+def _opener(source: ChunkSource, chunk_size: int) -> Callable[[], Iterable[ClosedLoopData]]:
+    if isinstance(chunk_size, bool) or int(chunk_size) != chunk_size or chunk_size < 2:
+        raise DataError(f"`chunk_size` must be an integer >= 2; got {chunk_size!r}")
+    if isinstance(source, ClosedLoopData):
+        return lambda: _slices(source, int(chunk_size))
+    if callable(source):
+        return source
+    raise DataError(
+        "`source` must be a ClosedLoopData or a callable returning an iterable of "
+        f"ClosedLoopData chunks; got {type(source).__name__}"
+    )
+
+
+def _chunks(
+    opener: Callable[[], Iterable[ClosedLoopData]], progress: Progress | None
+) -> Iterator[ClosedLoopData]:
+    it = opener()
+    if progress is not None:
+        it = progress(it)
+    for chunk in it:
+        if not isinstance(chunk, ClosedLoopData):
+            raise DataError(
+                f"a chunk of the source is a {type(chunk).__name__}, not ClosedLoopData"
+            )
+        yield chunk
+
+
+class _Moments:
+    """Count, mean and centred sum of squares per column, merged chunk by chunk (Chan et al.)."""
+
+    def __init__(self, width: int) -> None:
+        self.n = 0
+        self.mean = np.zeros(width)
+        self.m2 = np.zeros(width)
+
+    def update(self, x: np.ndarray) -> None:
+        nb = x.shape[0]
+        if nb == 0:
+            return
+        mb = x.mean(axis=0)
+        xc = x - mb
+        m2b = np.einsum("ij,ij->j", xc, xc)
+        n = self.n + nb
+        delta = mb - self.mean
+        self.mean = self.mean + delta * (nb / n)
+        self.m2 = self.m2 + m2b + delta**2 * (self.n * nb / n)
+        self.n = n
+
+
+class _PhysicalRows:
+    """Rows ``(Y, Phi, Z)`` of the plant ARX for consecutive chunks (module notes).
+
+    Row ``k`` (``y(k+1) = Theta phi(k)``) needs samples ``k-1 .. k+1`` and, for
+    lagged instruments, ``r(k - L)``; the last ``1 + max(1, L)`` samples of each
+    chunk are carried into the next, and the loop simulation of the ``"loop"``
+    instruments carries its state.
+    """
+
+    def __init__(self, plan: Mapping[str, Any], lags: int, system: StateSpace | None) -> None:
+        self.start = int(plan["start"])
+        self.kind = plan["instruments"]
+        self.L = int(lags) if self.kind == "lags" else 0
+        self.keep = 1 + max(1, self.L)
+        self.system = system
+        self.state = None if system is None else np.zeros(system.nx)
+        self.g = 0  # index of the first sample of the next chunk
+        self.next_k = self.start
+        self.carry: dict[str, np.ndarray] = {}
+
+    def rows(
+        self, y: np.ndarray, u: np.ndarray, r: np.ndarray | None
+    ) -> tuple[np.ndarray, list[np.ndarray], list[np.ndarray] | None] | None:
+        nc = y.shape[0]
+        sig = {"y": y, "u": u}
+        if self.kind == "lags":
+            sig["r"] = r
+        elif self.kind == "loop":
+            assert self.system is not None and r is not None
+            ny = y.shape[1]
+            w = np.hstack([r, np.zeros((nc, ny))])
+            out, self.state = simulate_lti(self.system, w, x0=self.state)
+            sig["sy"] = out[:, :ny]
+            sig["su"] = out[:, ny:] + r  # u = u_f + r
+        ext = {k: np.concatenate([self.carry[k], v]) if self.carry else v for k, v in sig.items()}
+        offset = self.g - (ext["y"].shape[0] - nc)  # sample index of ext[0]
+        k0, k1 = self.next_k, self.g + nc - 1  # rows k0 .. k1 - 1
+        out_rows = None
+        if k1 > k0:
+            a, b = k0 - offset, k1 - offset
+            lhs, phi = plant_regression_blocks(ext["y"], ext["u"], start=a)
+            Z = None
+            if self.kind == "loop":
+                _, Z = plant_regression_blocks(ext["sy"], ext["su"], start=a)
+            elif self.kind == "lags":
+                Z = [ext["r"][a - j : b - j] for j in range(self.L + 1)]  # lagged_excitation
+            out_rows = (lhs, phi, Z)
+            self.next_k = k1
+        n_keep = min(self.keep, ext["y"].shape[0])
+        self.carry = {k: np.array(v[-n_keep:]) for k, v in ext.items()}
+        self.g += nc
+        return out_rows
+
+
+def fit_physical_streamed(
+    source: ChunkSource,
+    *,
+    chunk_size: int = DEFAULT_CHUNK,
+    estimator: str = "iv",
+    instruments: str = "auto",
+    skip: int = 10,
+    instrument_lags: int = 30,
+    covariance: str = "white-noise",
+    hac_lags: int = 4,
+    m: float | None = None,
+    i0: float | None = None,
+    progress: Progress | None = None,
+) -> IdentificationResult:
+    """:func:`~maglevid.identify.physical.fit_physical` on a record streamed in chunks.
+
+    Two passes over the source (module notes); memory independent of the
+    record length. Same options and same result, to rounding, as the in-memory
+    method, except ``residuals`` (``None``).
+
+    Parameters
+    ----------
+    source : ClosedLoopData or callable
+        The record: a zero-argument callable returning a fresh iterable of
+        consecutive chunks (called once per pass), or a ``ClosedLoopData`` cut
+        into ``chunk_size`` pieces.
+    chunk_size : int
+        Control periods per chunk when ``source`` is a ``ClosedLoopData``.
+    estimator, instruments, skip, instrument_lags, covariance, hac_lags, m, i0
+        As in :func:`~maglevid.identify.physical.fit_physical`.
+    progress : callable, optional
+        Wraps each pass's iterable of chunks (e.g. a progress bar).
+
+    Returns
+    -------
+    IdentificationResult
+        As :func:`~maglevid.identify.physical.fit_physical`, with a note on the
+        streaming and ``residuals=None``.
+
+    Raises
+    ------
+    DataError
+        Wrong signals, chunks that disagree (sample time, channels), a source
+        that gives different data on the second pass, or too short a record.
+    IdentificationError
+        As :func:`~maglevid.identify.physical.fit_physical`.
+
+    Examples
+    --------
+    >>> from maglevid.physics.amb import AMBParameters
+    >>> from maglevid.simulate import simulate_amb_loop
+    >>> from maglevid.identify.physical import fit_physical
+    >>> nom = AMBParameters.nominal()
+    >>> d = simulate_amb_loop(nom.with_fault(R1=1.2), nominal=nom, n_samples=20_000, rng=1,
+    ...                       noise_std=(1e-10, 3e-6, 3e-6))
+    >>> a = fit_physical_streamed(d, chunk_size=3_000)
+    >>> b = fit_physical(d)
+    >>> abs(a.parameters["R1"] / b.parameters["R1"] - 1) < 1e-9
+    True
+    """
+    opener = _opener(source, chunk_size)
+    first = True
+    plan: dict[str, Any] = {}
+    acc: RegressionAccumulator | None = None
+    rows: _PhysicalRows | None = None
+    system: StateSpace | None = None
+    dt = 0.0
+    loop: Mapping[str, Any] = {}
+    names: tuple[str, ...] = ()
+    n_chunks = 0
+    sum_y2 = np.zeros(3)
+    sum_u2 = np.zeros(2)
+    moments = _Moments(3)
+    for chunk in _chunks(opener, progress):
+        y, u = _plant_signals(chunk)
+        if first:
+            dt, loop, names = chunk.dt, chunk.loop, chunk.channel_names("y")
+            plan = plan_physical(
+                estimator=estimator,
+                instruments=instruments,
+                skip=skip,
+                instrument_lags=instrument_lags,
+                covariance=covariance,
+                has_r=chunk.r is not None,
+                loop=loop,
+                n_samples=None,
+            )
+            if plan["instruments"] == "loop":
+                system = loop_instrument_system(loop, dt=dt)
+            rows = _PhysicalRows(plan, instrument_lags, system)
+            nz = {None: None, "loop": 8, "lags": 2 * (int(instrument_lags) + 1)}
+            acc = RegressionAccumulator(
+                8,
+                3,
+                nz=nz[plan["instruments"]],
+                labels=physical_labels(names, chunk.channel_names("u")),
+            )
+            first = False
+        elif abs(chunk.dt - dt) > 1e-12 * dt:
+            raise DataError(f"chunk {n_chunks} has dt={chunk.dt:g} s; the first had {dt:g} s")
+        if plan["instruments"] is not None and chunk.r is None:
+            raise DataError(f"chunk {n_chunks} lacks the excitation r that the instruments need")
+        assert rows is not None and acc is not None
+        sum_y2 += np.einsum("ij,ij->j", y, y)
+        sum_u2 += np.einsum("ij,ij->j", u, u)
+        got = rows.rows(y, u, None if chunk.r is None else np.asarray(chunk.r))
+        if got is not None:
+            lhs, phi, Z = got
+            acc.update(lhs, phi, Z, check=False)  # chunks are ClosedLoopData: finite
+            moments.update(lhs)
+        n_chunks += 1
+    if first:
+        raise DataError("the source gave no chunks")
+    assert rows is not None and acc is not None
+    N = rows.g
+    plan_physical(  # the record-length check, now that the length is known
+        estimator=estimator,
+        instruments=instruments,
+        skip=skip,
+        instrument_lags=instrument_lags,
+        covariance=covariance,
+        has_r=True,
+        loop=loop,
+        n_samples=N,
+    )
+    acc.solve(
+        hac_lags=hac_lags, noise_ma=physical_noise_ma(3) if covariance == "white-noise" else None
+    )
+    rows2 = _PhysicalRows(plan, instrument_lags, system)
+    for chunk in _chunks(opener, progress):
+        y, u = _plant_signals(chunk)
+        got = rows2.rows(y, u, None if chunk.r is None else np.asarray(chunk.r))
+        if got is not None:
+            acc.update_residuals(*got)
+    if rows2.g != N:
+        raise DataError(
+            f"the source gave {rows2.g} samples on the second pass and {N} on the first; a "
+            "streamed fit reads the record twice and needs the same data both times"
+        )
+    fit = acc.finish()
+    y_scale, h_scale = realization_scales(sum_y2, sum_u2, N)
+    assert fit.residual_sum_of_squares is not None
+    logger.info("physical: %d samples streamed in %d chunks, two passes", N, n_chunks)
+    return physical_result(
+        fit,
+        Y=None,
+        y_scale=y_scale,
+        h_scale=h_scale,
+        dt=dt,
+        loop=loop,
+        names=names,
+        plan=plan,
+        hac_lags=hac_lags,
+        m=m,
+        i0=i0,
+        one_step_fit=one_step_fit_percent(fit.residual_sum_of_squares, moments.m2),
+        extra_notes=(
+            f"streamed: {N} samples in {n_chunks} chunk(s), two passes; residuals not kept",
+        ),
+    )
+
+
+def fit_subspace_streamed(
+    source: ChunkSource,
+    *,
+    algorithm: str = "moesp",
+    chunk_size: int = DEFAULT_CHUNK,
+    order: int | None = None,
+    horizon: int | None = None,
+    max_horizon: int = DEFAULT_MAX_HORIZON,
+    feedthrough: bool = False,
+    weighting: str | None = None,
+    variant: str = "robust",
+    rank_tol: float | None = None,
+    factorization: str = "gram",
+    progress: Progress | None = None,
+) -> IdentificationResult:
+    """MOESP or N4SID of a record streamed in chunks (one pass).
+
+    The plant input ``u`` (or ``u_f + r``) and the outputs at the control
+    instants, as the in-memory registry methods ``moesp``/``n4sid`` use them;
+    ``dt`` from the data. Equals :func:`~maglevid.identify.subspace.fit_moesp`
+    / ``fit_n4sid`` on the whole record to rounding, without ``residuals``.
+
+    Parameters
+    ----------
+    source : ClosedLoopData or callable
+        As in :func:`fit_physical_streamed`.
+    algorithm : {"moesp", "n4sid"}
+    chunk_size : int
+        As in :func:`fit_physical_streamed`.
+    order, horizon, max_horizon, feedthrough, weighting, variant, rank_tol, factorization
+        As in :func:`~maglevid.identify.subspace.fit_moesp` and
+        :class:`~maglevid.identify.subspace.SubspaceAccumulator`.
+    progress : callable, optional
+        Wraps the iterable of chunks.
+
+    Returns
+    -------
+    IdentificationResult
+    """
+    opener = _opener(source, chunk_size)
+    acc: SubspaceAccumulator | None = None
+    dt = 0.0
+    n_chunks = 0
+    for chunk in _chunks(opener, progress):
+        data = chunk.with_plant_input() if chunk.u is None else chunk
+        if data.u is None:
+            raise DataError(
+                f"method {algorithm!r} needs the plant input `u` (or `u_f` and `r`); chunk "
+                f"{n_chunks} has neither"
+            )
+        if acc is None:
+            dt = data.dt
+            acc = SubspaceAccumulator(
+                ny=data.ny,
+                nu=data.nu,
+                horizon=horizon,
+                max_horizon=max_horizon,
+                factorization=factorization,
+            )
+        elif abs(data.dt - dt) > 1e-12 * dt:
+            raise DataError(f"chunk {n_chunks} has dt={data.dt:g} s; the first had {dt:g} s")
+        acc.update(data.y_control, data.u)
+        n_chunks += 1
+    if acc is None:
+        raise DataError("the source gave no chunks")
+    res = acc.fit(
+        algorithm=algorithm,
+        order=order,
+        dt=dt,
+        feedthrough=feedthrough,
+        weighting=weighting,
+        variant=variant,
+        rank_tol=rank_tol,
+    )
+    note = f"streamed: {acc.n_samples} samples in {n_chunks} chunk(s), one pass"
+    logger.info("%s: %s", algorithm, note)
+    return replace(res, notes=(*res.notes, note))
+
+
+def _moesp(source: ChunkSource, **options: Any) -> IdentificationResult:
+    return fit_subspace_streamed(source, algorithm="moesp", **options)
+
+
+def _n4sid(source: ChunkSource, **options: Any) -> IdentificationResult:
+    return fit_subspace_streamed(source, algorithm="n4sid", **options)
+
+
+#: Methods that can be streamed, by the names of ``maglevid identify --method``.
+STREAMED_METHODS: Mapping[str, Callable[..., IdentificationResult]] = {
+    "physical": fit_physical_streamed,
+    "moesp": _moesp,
+    "n4sid": _n4sid,
+}
+
+
+def identify_streamed(source: ChunkSource, method: str, **options: Any) -> IdentificationResult:
+    """Run the streamed form of a registered method (``physical``, ``moesp``, ``n4sid``).
+
+    Raises
+    ------
+    DataError
+        ``method`` has no streamed form.
+    """
+    if method not in STREAMED_METHODS:
+        raise DataError(
+            f"method {method!r} cannot be streamed; streamed methods: "
+            + ", ".join(sorted(STREAMED_METHODS))
+        )
+    return STREAMED_METHODS[method](source, **options)

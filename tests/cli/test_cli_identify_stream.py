@@ -1,0 +1,60 @@
+"""``maglevid identify --stream``: a Parquet recording read in chunks equals the whole read."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from maglevid.cli import identify as identify_cmd
+from maglevid.cli.main import main
+from maglevid.physics.amb import AMBParameters
+from maglevid.simulate import simulate_amb_loop
+
+pytest.importorskip("pyarrow")
+
+
+@pytest.fixture(scope="module")
+def parquet(tmp_path_factory):
+    from maglevid.io import write_recording
+
+    nom = AMBParameters.nominal()
+    data = simulate_amb_loop(
+        nom.with_fault(R1=1.2), nominal=nom, n_samples=12_000, rng=7, noise_std=(1e-10, 3e-6, 3e-6)
+    )
+    path = tmp_path_factory.mktemp("stream") / "rec.parquet"
+    write_recording(data, path)
+    return path
+
+
+def _run(capsys, *argv: str) -> dict:
+    assert main(["--json", "identify", *argv]) == 0
+    return json.loads(capsys.readouterr().out)
+
+
+@pytest.mark.parametrize("method", ["physical", "moesp"])
+def test_streamed_identify_equals_whole_file(parquet, capsys, method):
+    extra = ["--option", "order=4", "--option", "horizon=20"] if method == "moesp" else []
+    whole = _run(capsys, str(parquet), "--method", method, "--no-stream", *extra)
+    streamed = _run(
+        capsys, str(parquet), "--method", method, "--stream", "--chunk-size", "2500", *extra
+    )
+    assert streamed["streamed"] == {
+        "chunk_size": 2500,
+        "passes": 2 if method == "physical" else 1,
+    }
+    assert "streamed" not in whole
+    for name, value in whole["parameters"].items():
+        # Same rows, summed in another order (tests/identify/test_streaming.py): rounding.
+        assert streamed["parameters"][name] == pytest.approx(value, rel=1e-8, abs=1e-12), name
+
+
+def test_large_parquet_streams_by_default_with_method_physical(parquet, capsys, monkeypatch):
+    monkeypatch.setattr(identify_cmd, "STREAM_THRESHOLD_BYTES", 1)
+    out = _run(capsys, str(parquet), "--chunk-size", "5000")
+    assert out["method"] == "physical" and out["streamed"]["passes"] == 2
+
+
+def test_stream_refuses_a_method_without_a_streamed_form(parquet, capsys):
+    assert main(["identify", str(parquet), "--stream", "--method", "deadbeat-arx"]) != 0
+    assert "cannot be streamed" in capsys.readouterr().err
