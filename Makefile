@@ -29,8 +29,11 @@ format: $(STAMP)
 	$(VENV)/bin/ruff format src tests benchmarks
 	$(VENV)/bin/ruff check --fix src tests benchmarks
 
+# The peers (SIPPY, nfoursid) come with the `bench` extra; GNU Octave's control
+# package is used when the system has it, and skipped with a message otherwise.
 bench: $(STAMP)
-	$(PY) -m benchmarks.run_all
+	$(PY) -m pip install -q -e '.[bench]'
+	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 $(PY) -m benchmarks.run_all
 
 clean:
 	rm -rf $(VENV) demo-out .pytest_cache .ruff_cache
