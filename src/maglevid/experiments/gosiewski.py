@@ -50,6 +50,7 @@ from maglevid.identify.physical import fit_physical, format_percentage_index, pe
 from maglevid.lti import StateSpace
 from maglevid.physics.amb import AMBParameters, amb_matrices, amb_state_space
 from maglevid.simulate import simulate_amb_loop, simulate_linear_loop
+from maglevid.simulate.amb import parse_floats
 
 __all__ = [
     "DEFAULT_NOISE",
@@ -358,15 +359,6 @@ def _impulse_figures(
 
 
 # --------------------------------------------------------------------------- CLI
-def _floats(text: str) -> list[float]:
-    try:
-        return [float(s) for s in text.split(",")]
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"expected comma-separated numbers; got {text!r}"
-        ) from None
-
-
 def add_paper_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of ``maglevid reproduce gosiewski``."""
     parser.add_argument(
@@ -377,7 +369,7 @@ def add_paper_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--noise",
-        type=_floats,
+        type=parse_floats,
         default=list(DEFAULT_NOISE),
         metavar="SX,SI1,SI2",
         help="paper-like measurement noise std of x [m], i1 [A], i2 [A] (default %(default)s)",

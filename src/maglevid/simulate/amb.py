@@ -706,7 +706,8 @@ def parse_fault(text: str) -> tuple[str, float]:
         raise argparse.ArgumentTypeError(f"--fault {text!r}: FACTOR must be a number") from None
 
 
-def _parse_floats(text: str) -> list[float]:
+def parse_floats(text: str) -> list[float]:
+    """argparse type: comma-separated numbers, e.g. ``1e-7,1e-4,1e-4``."""
     try:
         return [float(s) for s in text.split(",")]
     except ValueError:
@@ -728,14 +729,14 @@ def add_scenario_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--noise",
-        type=_parse_floats,
+        type=parse_floats,
         default=list(DEFAULT_NOISE_STD),
         metavar="SX,SI1,SI2",
         help="measurement noise std of x [m], i1 [A], i2 [A] (default %(default)s)",
     )
     parser.add_argument(
         "--excitation-std",
-        type=_parse_floats,
+        type=parse_floats,
         default=[DEFAULT_EXCITATION_STD],
         metavar="V[,V]",
         help="excitation std per amplifier input [V] (default %(default)s)",
