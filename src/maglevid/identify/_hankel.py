@@ -170,6 +170,7 @@ class _LagGram:
             raise DataError(f"{N} samples are too few for lags up to {L}")
         head, tail = self.head, self.pending  # first L and last L samples
         G = np.empty((w * m, w * m))
+        G4 = G.reshape(w, m, w, m)  # view: G4[a, :, b, :] is block (a, b)
         for tau in range(w):
             na = w - tau  # blocks (a, a + tau), a = 0..w-1-tau
             # Head: sum_{s<a} z(s) z(s+tau)^T, cumulative over a.
@@ -179,12 +180,12 @@ class _LagGram:
             nq = L - tau  # products with q + tau <= L - 1
             tp = np.einsum("si,sj->sij", tail[:nq], tail[tau : tau + nq])
             tcum = np.concatenate([np.zeros((1, m, m)), np.cumsum(tp, axis=0)])
-            for a in range(na):
-                blk = self.S[tau] - hcum[a] + tcum[a + L - w + 1]
-                b = a + tau
-                G[a * m : (a + 1) * m, b * m : (b + 1) * m] = blk
-                if tau:
-                    G[b * m : (b + 1) * m, a * m : (a + 1) * m] = blk.T
+            # All blocks (a, a + tau), a = 0..na-1, at once.
+            blk = self.S[tau] - hcum[:na] + tcum[L - w + 1 : L - w + 1 + na]
+            a = np.arange(na)
+            G4[a, :, a + tau, :] = blk
+            if tau:
+                G4[a + tau, :, a, :] = blk.transpose(0, 2, 1)
         return G
 
 

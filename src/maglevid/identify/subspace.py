@@ -194,15 +194,40 @@ def _stats_from(acc: _LagGram | _HankelQR, nu: int, ny: int, i_rows: int) -> _St
 
 
 # ------------------------------------------------------- small linear algebra
-def _orth(X: np.ndarray, rcond: float) -> np.ndarray:
-    """Orthonormal basis (r x q) of the row space of ``X`` (p x r), rank by ``rcond``."""
+def _orth(X: np.ndarray, rcond: float, ref: float = 0.0) -> np.ndarray:
+    """Orthonormal basis (r x q) of the row space of ``X`` (p x r), rank by ``rcond``.
+
+    Directions are kept while their pivot exceeds ``rcond`` times the largest
+    pivot, or times ``ref`` when that is larger (the scale of the rows ``X`` was
+    made from, when ``X`` is a residual that may be all rounding).
+    """
+    # Rank-revealing QR with column pivoting of X^T (LAPACK geqp3): |R_kk| decrease
+    # and bracket the singular values within a factor growing like sqrt(k); at the
+    # gaps used here (noise-free rank drops of many decades) it decides as the SVD
+    # does, at a fraction of the cost (the projections are the bulk of a fit at a
+    # long horizon).
     if X.shape[0] == 0:
         return np.zeros((X.shape[1], 0))
-    _, s, Vt = np.linalg.svd(X, full_matrices=False)
-    if s.size == 0 or s[0] == 0.0:
+    Q, R, _ = sla.qr(X.T, mode="economic", pivoting=True, check_finite=False)
+    d = np.abs(np.diag(R))
+    if d.size == 0 or d[0] == 0.0:
         return np.zeros((X.shape[1], 0))
-    q = int(np.count_nonzero(s > rcond * s[0]))
-    return Vt[:q].T
+    q = int(np.count_nonzero(d > rcond * max(d[0], ref)))
+    return Q[:, :q]
+
+
+def _orth_extend(Q: np.ndarray, X: np.ndarray, rcond: float) -> np.ndarray:
+    """Orthonormal basis of the row spaces of ``Q^T`` and ``X`` together (``Q`` first).
+
+    The rows of ``X`` are orthogonalised against ``Q`` twice (classical Gram-Schmidt
+    with re-orthogonalisation) and what is left is kept when it is above ``rcond``
+    times the largest row of ``X``: a row that the basis already spans adds nothing.
+    """
+    if X.shape[0] == 0:
+        return Q
+    Xr = _perp(_perp(X, Q), Q)
+    ref = float(np.max(np.linalg.norm(X, axis=1)))
+    return np.concatenate([Q, _orth(Xr, rcond, ref)], axis=1)
 
 
 def _perp(X: np.ndarray, Q: np.ndarray) -> np.ndarray:
@@ -216,10 +241,10 @@ def _proj(X: np.ndarray, Q: np.ndarray) -> np.ndarray:
 
 
 def _regress(Y: np.ndarray, X: np.ndarray, rcond: float) -> np.ndarray:
-    """Coefficients ``M`` of ``Y ~ M X`` (rows are signals): least squares by SVD (``gelsd``)."""
+    """Coefficients ``M`` of ``Y ~ M X`` (rows are signals): least squares, pivoted QR."""
     if X.shape[0] == 0:
         return np.zeros((Y.shape[0], 0))
-    sol = sla.lstsq(X.T, Y.T, cond=rcond, check_finite=False)[0]
+    sol = sla.lstsq(X.T, Y.T, cond=rcond, check_finite=False, lapack_driver="gelsy")[0]
     return sol.T
 
 
@@ -376,12 +401,19 @@ def _moesp_core(
         idx = st.u_rows(0, i)
         if weighting == "po":
             idx = np.concatenate([idx, st.y_rows(0, i)])
-        Qw = _orth(_perp(st.rows(idx), Qu), rcond)
+        Wpp = _perp(st.rows(idx), Qu)
+        Qw = _orth(Wpp, rcond, float(np.max(np.linalg.norm(st.rows(idx), axis=1))))
         P = Yfp @ Qw  # L32 (up to an orthogonal factor on the right)
     U, s, _ = np.linalg.svd(P, full_matrices=False)
     n, gap, auto, Gam = _order_and_gamma(U, s, order, (i - 1) * ny, rank_tol)
     A, C = _ac_from_gamma(Gam, ny)
-    return _Core(A=A, C=C, B=None, D=None, s=s, n=n, gap=gap, order_auto=auto)
+    # [Qu, Qw] spans [U_f; U_p; Y_p], the instruments of the noise statistics.
+    Z = (
+        _z_projections(st, i, rcond, np.concatenate([Qu, Qw], axis=1))
+        if weighting == "po"
+        else None
+    )
+    return _Core(A=A, C=C, B=None, D=None, s=s, n=n, gap=gap, order_auto=auto, Z=Z)
 
 
 def _bd_moesp(
@@ -487,7 +519,8 @@ def _n4sid_core(
         return _Core(A=A, C=C, B=B, D=D, s=s, n=n, gap=gap, order_auto=auto)
     # Robust: [Gamma_{i-1}^+ Z_{i+1}; Y_i] = [A; C] Gamma_i^+ Z_i + K U_f + residuals,
     # Z_i = Y_f / [W_p; U_f], Z_{i+1} = Y_f^- / [W_p^+; U_f^-]; K is linear in (B, D).
-    Z_i, Z_n = _z_projections(st, i, rcond)
+    # [U_f; W_p] = [U_f; U_p; Y_p]: its basis is Qu extended by W_p.
+    Z_i, Z_n = _z_projections(st, i, rcond, _orth_extend(Qu, Wp, rcond))
     Y_i = st.rows(st.y_rows(i, i + 1))
     lhs = np.concatenate([_pinv_apply(Gm, Z_n), Y_i])
     rhs = np.concatenate([_pinv_apply(Gam, Z_i), Uf])
@@ -507,11 +540,19 @@ def _n4sid_core(
     )
 
 
-def _z_projections(st: _Stats, i: int, rcond: float) -> tuple[np.ndarray, np.ndarray]:
-    """``Z_i = Y_f / [W_p; U_f]`` and ``Z_{i+1} = Y_f^- / [W_p^+; U_f^-]``."""
-    U_all = st.rows(st.u_rows(0, 2 * i))
-    Q1 = _orth(np.concatenate([U_all, st.rows(st.y_rows(0, i))]), rcond)
-    Q2 = _orth(np.concatenate([U_all, st.rows(st.y_rows(0, i + 1))]), rcond)
+def _z_projections(
+    st: _Stats, i: int, rcond: float, Q1: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """``Z_i = Y_f / [W_p; U_f]`` and ``Z_{i+1} = Y_f^- / [W_p^+; U_f^-]``.
+
+    ``Q1``, when given, is an orthonormal basis of the row space of
+    ``[U_p; U_f; Y_p]`` already computed; the basis of the second projection is
+    that one extended by ``y(i)``.
+    """
+    if Q1 is None:
+        U_all = st.rows(st.u_rows(0, 2 * i))
+        Q1 = _orth(np.concatenate([U_all, st.rows(st.y_rows(0, i))]), rcond)
+    Q2 = _orth_extend(Q1, st.rows(st.y_rows(i, i + 1)), rcond)
     Z_i = _proj(st.rows(st.y_rows(i, 2 * i)), Q1)
     Z_n = _proj(st.rows(st.y_rows(i + 1, 2 * i)), Q2)
     return Z_i, Z_n
