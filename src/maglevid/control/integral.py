@@ -33,7 +33,6 @@ from typing import Any
 
 import numpy as np
 import scipy.linalg as sla
-from scipy.signal import place_poles
 
 from maglevid._validation import as_matrix, readonly
 from maglevid.exceptions import DataError, DesignError
@@ -335,6 +334,8 @@ def design_pole_placement(
         )
     want = poles.real if np.all(poles.imag == 0) else poles
     try:
+        from scipy.signal import place_poles  # scipy.signal takes ~1 s to import
+
         res = place_poles(ext.A, ext.B, want, method=method)
     except ValueError as exc:
         raise DesignError(

@@ -33,7 +33,6 @@ from typing import Any
 
 import numpy as np
 import scipy.linalg as sla
-from scipy.signal import place_poles
 
 from maglevid._validation import as_matrix, readonly
 from maglevid.exceptions import DataError, DesignError
@@ -404,6 +403,8 @@ def design_observer_pole_placement(sys: StateSpace, *, poles: Any, method: str =
         raise DesignError("observer `poles` are z-plane poles and must lie inside the unit circle")
     want = poles.real if np.all(poles.imag == 0) else poles
     try:
+        from scipy.signal import place_poles  # scipy.signal takes ~1 s to import
+
         res = place_poles(sys.A.T, sys.C.T, want, method=method)
     except ValueError as exc:
         raise DesignError(f"observer pole placement failed: {exc}") from exc

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy import optimize, signal
+from scipy import optimize
 
 from maglevid._validation import check_positive
 from maglevid.exceptions import DataError, DesignError
@@ -211,6 +211,8 @@ def noise_gain(controller: DiscreteController, a: Any, b: Any) -> float:
     n = int(min(5e6, max(100.0, np.log(1e-12) / np.log(max(rmax, 1e-3)))))
     impulse = np.zeros(n)
     impulse[0] = 1.0
+    from scipy import signal  # ~1 s to import: only where it is used
+
     h = signal.lfilter(np.convolve(controller.num, a), g, impulse)
     return float(np.sqrt(np.dot(h, h)))
 

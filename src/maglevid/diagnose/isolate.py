@@ -43,7 +43,7 @@ from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
 import numpy as np
-from scipy import optimize, stats
+from scipy import optimize, special
 
 from maglevid.exceptions import DataError
 from maglevid.physics.amb import AMBParameters, v_from_parameters
@@ -253,7 +253,7 @@ def _fit(
         factor_std_errors=tuple(float(f * s) for f, s in zip(factors, se_log)),
         chi2=chi2,
         dof=dof,
-        p_value=float(stats.chi2.sf(chi2, dof)),
+        p_value=float(special.chdtrc(dof, chi2)),
     )
 
 

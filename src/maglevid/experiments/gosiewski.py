@@ -36,8 +36,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-import os
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -45,6 +43,7 @@ import numpy as np
 
 from maglevid.control import IntegralStateFeedback, Observer, design_lqr
 from maglevid.exceptions import MaglevidError
+from maglevid.experiments._parallel import run_parallel
 from maglevid.identify.deadbeat import fit_deadbeat_arx, fit_deadbeat_iv
 from maglevid.identify.physical import fit_physical, format_percentage_index, percentage_index
 from maglevid.lti import StateSpace
@@ -230,8 +229,6 @@ def _mc_task(spec: dict[str, Any]) -> dict[str, Any]:
 
 
 def _monte_carlo(args: argparse.Namespace, noise: Any) -> dict[str, Any]:
-    from maglevid.cli._progress import progress
-
     specs = [
         {
             "example": ex,
@@ -245,16 +242,7 @@ def _monte_carlo(args: argparse.Namespace, noise: Any) -> dict[str, Any]:
         for i, ex in enumerate(EXAMPLES)
         for run in range(args.runs)
     ]
-    workers = max(1, int(args.workers or os.cpu_count() or 1))
-    if workers == 1 or len(specs) == 1:
-        runs = [_mc_task(s) for s in progress(specs, desc="Monte Carlo", args=args)]
-    else:
-        with ProcessPoolExecutor(max_workers=workers) as pool:
-            runs = list(
-                progress(
-                    pool.map(_mc_task, specs), desc="Monte Carlo", total=len(specs), args=args
-                )
-            )
+    runs, timing = run_parallel(_mc_task, specs, args)
     nominal = AMBParameters.nominal()
     out: dict[str, Any] = {}
     for ex in EXAMPLES:
@@ -287,7 +275,8 @@ def _monte_carlo(args: argparse.Namespace, noise: Any) -> dict[str, Any]:
     failures = [r for r in runs if r.get("errors")]
     return {
         "runs_per_example": args.runs,
-        "workers": workers,
+        "workers": timing["workers"],
+        "timing": timing,
         "seeds": [s["seed"] for s in specs],
         "examples": out,
         "failed_fits": [{"seed": r["seed"], **r["errors"]} for r in failures],

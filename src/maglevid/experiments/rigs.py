@@ -22,7 +22,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy import signal
 
 from maglevid.control.cascade_pid import (
     CascadeGains,
@@ -495,6 +494,8 @@ def maggy_results(data_dir: Path) -> dict[str, Any]:
     # The mode itself: an AR(20) model of s1x decimated to 100 Hz; the complex pole pair
     # nearest the spectral peak gives frequency and damping.
     q = round(0.01 / d.dt)
+    from scipy import signal  # ~1 s to import: only where it is used
+
     x = signal.decimate(B[s0:s1, 0] - B[s0:s1, 0].mean(), q, ftype="fir", zero_phase=True)
     n_ar = 20
     X = np.column_stack([x[n_ar - k - 1 : x.size - k - 1] for k in range(n_ar)])

@@ -28,12 +28,7 @@ result does not depend on ``--workers``.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import logging
-import multiprocessing
-import os
-from collections.abc import Iterator
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -41,6 +36,7 @@ import numpy as np
 
 from maglevid.control.pid import loop_margins, noise_gain
 from maglevid.exceptions import MaglevidError
+from maglevid.experiments._parallel import run_parallel
 from maglevid.identify.intersample import (
     data_matrix_singular_values,
     fit_conventional_direct,
@@ -175,39 +171,6 @@ def _task(spec: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-@contextlib.contextmanager
-def _one_blas_thread() -> Iterator[None]:
-    # Workers are spawned fresh; with one BLAS thread each, W workers use W cores
-    # instead of fighting over them (small matrices, many processes).
-    keys = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
-    old = {k: os.environ.get(k) for k in keys}
-    for k in keys:
-        os.environ.setdefault(k, "1")
-    try:
-        yield
-    finally:
-        for k, v in old.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
-
-
-def _run_all(specs: list[dict[str, Any]], args: argparse.Namespace) -> tuple[list, int]:
-    from maglevid.cli._progress import progress
-
-    workers = max(1, int(args.workers or os.cpu_count() or 1))
-    if workers == 1 or len(specs) == 1:
-        return [_task(s) for s in progress(specs, desc="Monte Carlo", args=args)], 1
-    with _one_blas_thread():
-        ctx = multiprocessing.get_context("spawn")
-        with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
-            runs = list(
-                progress(pool.map(_task, specs), desc="Monte Carlo", total=len(specs), args=args)
-            )
-    return runs, workers
-
-
 def _summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
     ok = [r for r in rows if "error" not in r]
     out: dict[str, Any] = {"runs": len(rows), "successful": len(ok)}
@@ -308,7 +271,8 @@ def run_reproduction(args: argparse.Namespace) -> dict[str, Any]:
             {**base, "p": t2p, "Y": Y, "run": r, "seed": _seed(args.seed, round(Y * 1000), t2p, r)}
             for r in range(runs)
         ]
-    results, workers = _run_all(specs, args)
+    results, timing = run_parallel(_task, specs, args)
+    workers = timing["workers"]
 
     table1 = {}
     for p in p_values:
@@ -341,6 +305,7 @@ def run_reproduction(args: argparse.Namespace) -> dict[str, Any]:
             "table2_Y_mm": Y_values,
             "seed": int(args.seed),
             "workers": workers,
+            "monte_carlo_timing": timing,
             "T": ctl.dt,
             "identification": "p = 1: fit_conventional_direct(order=3); p >= 2: "
             "fit_intersample() defaults (MOESP step 1, output-error refinement, eq. (15))",

@@ -31,7 +31,6 @@ import logging
 from typing import Any
 
 import numpy as np
-from scipy import signal
 
 from maglevid._validation import check_positive
 from maglevid.control.pid import (
@@ -251,6 +250,8 @@ def _simulate_linear(
     gamma[: C.size + a.size - 1] += np.convolve(C, a)
     gamma[: D.size + B.shape[1] - 1] += np.convolve(D, B[0])
     w0 = W[:, 0]
+    from scipy import signal  # ~1 s to import: only where it is used
+
     u = signal.lfilter(-np.convolve(D, a), gamma, w0)
     y = np.empty_like(W)
     for j in range(W.shape[1]):
