@@ -290,8 +290,10 @@ def _integrator_block_residual(L: np.ndarray, P: np.ndarray, yu: np.ndarray, *, 
     ne = P.shape[0] - nx
     if ne == 0:
         return 0.0
-    z = sla.lu_solve(sla.lu_factor(P), yu.T).T  # eq. (46), one factorisation for all samples
-    sz = np.sqrt(np.mean(z**2, axis=0))
+    # z = P^-1 yu (eq. 46) sample by sample; its mean square is the diagonal of
+    # P^-1 (yu^T yu / N) P^-T, so only the small second-moment matrix is needed.
+    M = sla.solve(P, sla.solve(P, (yu.T @ yu) / yu.shape[0]).T)
+    sz = np.sqrt(np.maximum(np.diag(M), 0.0))
     sz[sz == 0] = 1.0
     Ls = L * sz[None, :] / sz[:, None]
     return max(
