@@ -33,7 +33,7 @@ format: $(STAMP)
 # package is used when the system has it, and skipped with a message otherwise.
 bench: $(STAMP)
 	$(PY) -m pip install -q -e '.[bench]'
-	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 $(PY) -m benchmarks.run_all
+	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 $(PY) -m benchmarks.run_all --huge
 
 clean:
 	rm -rf $(VENV) demo-out .pytest_cache .ruff_cache
