@@ -966,7 +966,7 @@ def report_bearing(res: dict[str, Any], truths: dict[str, dict[str, Any]]) -> li
         "Reading the table. The noise of this record is large (signal-to-noise about 10 on "
         "every output). MOESP/N4SID converge on the unstable pole, but in closed loop their "
         "current dynamics carry the feedback's bias (the complex pair of the coil currents "
-        "stays ~8 % off in its imaginary part at every N), which the physical coordinates "
+        "is 8-13 % off in its imaginary part, not falling with N), which the physical coordinates "
         "turn into v5 and v7 (R/L of each coil) ~50 % low: read the pole from them, the "
         "physical parameters from the IV fits, whose errors fall like 1/sqrt(N). Least "
         "squares (physical LS, deadbeat ARX) is biased by the noise on its regressors "
