@@ -172,18 +172,55 @@ def profile_text(fn: Callable[[], Any], lines: int = 14) -> str:
 
 
 def regression_speed(
-    n: int, *, repeat: int = 3, profile_above: float | None = 3.0
+    n: int, *, repeat: int = 5, profile_above: float | None = 3.0
 ) -> dict[str, Any]:
-    """Time lstsq on the plant-ARX regressor and every AMB fit on the same record."""
+    """Time lstsq on the plant-ARX regressor and every AMB fit on the same record.
+
+    On a shared machine the speed of a core drifts by tens of percent within
+    seconds, so the fits and ``lstsq`` are timed *interleaved*: ``repeat`` rounds,
+    each timing ``lstsq`` and then every fit once. The ratio of a fit is the
+    median over the rounds of (fit time / that round's ``lstsq`` time): both
+    sides of each ratio were taken seconds apart. One untimed warm-up round first.
+    """
     data, _ = bearing_case(n)
     y, u = np.asarray(data.y), np.asarray(data.u)
     lhs, phi = plant_regression(y, u, start=SKIP)
-    t_ls, _ = median_time(lambda: np.linalg.lstsq(phi, lhs, rcond=None), repeat)
-    out: dict[str, Any] = {"n": n, "lstsq_s": t_ls, "regressor_shape": list(phi.shape), "fits": {}}
+
+    def lstsq() -> Any:
+        return np.linalg.lstsq(phi, lhs, rcond=None)
+
+    def once(fn: Callable[[], Any]) -> float:
+        t0 = time.perf_counter()
+        fn()
+        return time.perf_counter() - t0
+
+    once(lstsq)
+    for fit in REGRESSION_FITS.values():
+        once(lambda fit=fit: fit(data))
+    t_ls: list[float] = []
+    times: dict[str, list[float]] = {name: [] for name in REGRESSION_FITS}
+    for _ in range(repeat):
+        t_ls.append(once(lstsq))
+        for name, fit in REGRESSION_FITS.items():
+            times[name].append(once(lambda fit=fit: fit(data)))
+    lstsq_s = statistics.median(t_ls)
+    out: dict[str, Any] = {
+        "n": n,
+        "lstsq_s": lstsq_s,
+        "lstsq_spread": [min(t_ls), max(t_ls)],
+        "rounds": repeat,
+        "regressor_shape": list(phi.shape),
+        "fits": {},
+    }
     for name, fit in REGRESSION_FITS.items():
-        t, _ = median_time(lambda fit=fit: fit(data), repeat)
-        row: dict[str, Any] = {"time_s": t, "ratio": t / t_ls}
-        if profile_above is not None and t / t_ls > profile_above:
+        ratios = [t / tl for t, tl in zip(times[name], t_ls, strict=True)]
+        ratio = statistics.median(ratios)
+        row: dict[str, Any] = {
+            "time_s": statistics.median(times[name]),
+            "ratio": ratio,
+            "ratio_spread": [min(ratios), max(ratios)],
+        }
+        if profile_above is not None and ratio > profile_above:
             row["profile"] = profile_text(lambda fit=fit: fit(data))
         out["fits"][name] = row
     return out
@@ -192,7 +229,7 @@ def regression_speed(
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--sizes", nargs="+", type=float, default=[1e4, 1e5, 1e6])
-    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--profile", action="store_true", help="profile every fit")
     args = ap.parse_args(argv)
     print(f"{'N':>9} {'fit':<16} {'time [s]':>9} {'lstsq [s]':>10} {'x lstsq':>8}")

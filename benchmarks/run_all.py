@@ -162,7 +162,7 @@ def _plan(quick: bool) -> dict[str, Any]:
         "diagnostic_sizes": [10**4, 10**5, 10**6],
         "regression_sizes": [10**4, 10**5, 10**6],
         "simulate": {"n": 1_000_000, "repeats": 1, "nonlinear": 20_000},
-        "mc": {"runs": 12},
+        "mc": {"runs": 20},
         "stream_n": 10**7,
         "compare_n": 10**6,
     }
@@ -373,7 +373,7 @@ def _worker_regression(task: dict[str, Any]) -> dict[str, Any]:
     from benchmarks.bench_amb_speed import regression_speed
 
     return regression_speed(
-        task["n"], repeat=3, profile_above=3.0 if task.get("profile") else None
+        task["n"], repeat=5, profile_above=3.0 if task.get("profile") else None
     )
 
 
@@ -994,22 +994,26 @@ def report_regression(res: dict[str, Any]) -> list[str]:
         "The plant-ARX regressor `phi(k) = [y(k), x_pos(k-1), u(k), u(k-1)]` (N x 8) is built "
         "once and `np.linalg.lstsq(phi, y(k+1))` timed on it; each maglevid fit is timed from "
         "the recording to v1..v9, the physical parameters and their covariance (it builds its "
-        "own regressors; IV also simulates its instruments). Median of 3. "
-        f"Load average at the start: {res['load'][0]:.1f}.",
+        "own regressors; IV also simulates its instruments). The fits and `lstsq` are timed "
+        "interleaved, 5 rounds after a warm-up, each round timing `lstsq` and then every fit "
+        "once; *x lstsq* is the median over the rounds of (fit / that round's lstsq), with "
+        "its range over the rounds (on this shared machine a core's speed drifts within "
+        f"seconds). Load average at the start: {res['load'][0]:.1f}.",
         "",
-        "| N | fit | time [s] | lstsq [s] | x lstsq |",
-        "|---|---|---|---|---|",
+        "| N | fit | time [s] | lstsq [s] | x lstsq | range over the rounds |",
+        "|---|---|---|---|---|---|",
     ]
     profiles = []
     for r in res["rows"]:
         st = _status(r)
         if st:
-            out.append(f"| - | - | - | - | {st} |")
+            out.append(f"| - | - | - | - | - | {st} |")
             continue
         for name, f in r["fits"].items():
+            lo, hi = f.get("ratio_spread", [float("nan")] * 2)
             out.append(
                 f"| {r['n']:.0e} | {name} | {_fmt_t(f['time_s'])} | {_fmt_t(r['lstsq_s'])} | "
-                f"{f['ratio']:.2f} |"
+                f"{f['ratio']:.2f} | {lo:.2f} - {hi:.2f} |"
             )
             if "profile" in f:
                 profiles.append((r["n"], name, f["profile"]))

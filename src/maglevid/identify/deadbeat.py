@@ -283,7 +283,9 @@ def observer_noise_ma(
     return out
 
 
-def _integrator_block_residual(L: np.ndarray, P: np.ndarray, yu: np.ndarray, *, nx: int) -> float:
+def _integrator_block_residual(
+    L: np.ndarray, P: np.ndarray, yu: tuple[np.ndarray, np.ndarray], *, nx: int
+) -> float:
     # Eq. (49) says P^-1 a1 P = diag(A + Gd C, I): the blocks coupling the
     # observer state and the integrator are 0 and the integrator block is I.
     # Measured unit-free: scale the states by their RMS along the record.
@@ -292,7 +294,9 @@ def _integrator_block_residual(L: np.ndarray, P: np.ndarray, yu: np.ndarray, *, 
         return 0.0
     # z = P^-1 yu (eq. 46) sample by sample; its mean square is the diagonal of
     # P^-1 (yu^T yu / N) P^-T, so only the small second-moment matrix is needed.
-    M = sla.solve(P, sla.solve(P, (yu.T @ yu) / yu.shape[0]).T)
+    y, u_f = yu
+    G = np.block([[y.T @ y, y.T @ u_f], [u_f.T @ y, u_f.T @ u_f]]) / y.shape[0]
+    M = sla.solve(P, sla.solve(P, G).T)
     sz = np.sqrt(np.maximum(np.diag(M), 0.0))
     sz[sz == 0] = 1.0
     Ls = L * sz[None, :] / sz[:, None]
@@ -467,7 +471,7 @@ def fit_deadbeat(
     Gd_split = mats.get("G", np.zeros((nx, ny)))
     paper = observer_controller_arx(fit.coefficients, P, Gd_split, C=C, nu=nu)
     L, M = paper["L"], paper["M"]
-    struct = _integrator_block_residual(L, P, np.hstack([y, u_f]), nx=nx)
+    struct = _integrator_block_residual(L, P, (y, u_f), nx=nx)
     b0 = np.zeros((ny + nu, nu + ny))
     b0[ny:, nu:] = -Fe @ E  # eq. (48): b0 v(k+1) = [0; -Fe E y(k+1)]
     notes.append(

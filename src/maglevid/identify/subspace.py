@@ -279,9 +279,10 @@ def _toeplitz(h: np.ndarray) -> np.ndarray:
     """Block lower-triangular Toeplitz ``H_i`` of Markov parameters ``h`` (i, ny, nu)."""
     i, ny, nu = h.shape
     H = np.zeros((i * ny, i * nu))
-    for r in range(i):
-        for c in range(r + 1):
-            H[r * ny : (r + 1) * ny, c * nu : (c + 1) * nu] = h[r - c]
+    H4 = H.reshape(i, ny, i, nu)  # view: H4[r, :, c, :] is block (r, c)
+    for d in range(i):  # block diagonal d: blocks (c + d, c) hold h[d]
+        c = np.arange(i - d)
+        H4[c + d, :, c, :] = h[d]
     return H
 
 
@@ -441,7 +442,7 @@ def _bd_moesp(
         if feedthrough:
             lhs[rows, :ny] = Gp[:, c * ny : (c + 1) * ny]
         if c < i - 1:
-            lhs[rows, nd:] = Gp[:, (c + 1) * ny :] @ _observability(A, C, i - c - 1)
+            lhs[rows, nd:] = Gp[:, (c + 1) * ny :] @ Gam[: (i - c - 1) * ny]
         rhs[rows] = M[:, c * nu : (c + 1) * nu]
     sol = sla.lstsq(lhs, rhs, check_finite=False)[0]
     D = sol[:ny] if feedthrough else np.zeros((ny, nu))
