@@ -2,9 +2,15 @@
 
 One process per core, one BLAS thread per process: the runs are many small
 matrix problems, where a multi-threaded BLAS in every worker only makes the
-workers fight over the same cores (docs/performance.md, "Threads"). Workers are
-spawned fresh so that the thread setting reaches their BLAS, whatever the
-parent process has already loaded.
+workers fight over the same cores (docs/performance.md, "Threads").
+
+How workers start: when this process already runs one BLAS thread (the
+``OPENBLAS_NUM_THREADS``/``OMP_NUM_THREADS``/``MKL_NUM_THREADS`` it started
+with say 1) and no other Python thread, on Linux, workers are *forked*: they
+inherit the loaded modules and start at once. Otherwise they are *spawned*
+fresh with one BLAS thread set in their environment (a forked worker would
+inherit the parent's BLAS threads), which costs each worker its imports
+(~1-2 s; measured in BENCHMARKS.md, section 5).
 """
 
 from __future__ import annotations
@@ -14,6 +20,8 @@ import contextlib
 import multiprocessing
 import os
 import resource
+import sys
+import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor
@@ -38,6 +46,15 @@ def one_blas_thread() -> Iterator[None]:
                 os.environ[k] = v
 
 
+def start_method() -> str:
+    """``"fork"`` where it is safe and faster (see the module notes), else ``"spawn"``."""
+    values = [os.environ.get(k) for k in _BLAS_THREAD_VARIABLES]
+    one_thread = "1" in values and all(v in (None, "1") for v in values)
+    if sys.platform.startswith("linux") and one_thread and threading.active_count() == 1:
+        return "fork"
+    return "spawn"
+
+
 def _cpu_seconds() -> float:
     own = resource.getrusage(resource.RUSAGE_SELF)
     kids = resource.getrusage(resource.RUSAGE_CHILDREN)  # workers, once waited for
@@ -60,7 +77,8 @@ def run_parallel(
     -------
     results : list
     timing : dict
-        ``workers``, ``wall_s`` (this phase only), ``cpu_s`` (this process and its
+        ``workers``, ``start_method`` (``serial``, ``fork`` or ``spawn``), ``wall_s``
+        (this phase only), ``cpu_s`` (this process and its
         workers) and ``cores_obtained = cpu_s / wall_s``: how many cores the phase
         actually had, which tells a busy machine apart from poor scaling.
     """
@@ -69,11 +87,13 @@ def run_parallel(
     workers = max(1, int(getattr(args, "workers", None) or os.cpu_count() or 1))
     workers = min(workers, max(1, len(specs)))
     t0, c0 = time.perf_counter(), _cpu_seconds()
+    method = "serial"
     if workers == 1:
         results = [task(s) for s in progress(specs, desc=desc, args=args)]
     else:
+        method = start_method()
         with one_blas_thread():
-            ctx = multiprocessing.get_context("spawn")
+            ctx = multiprocessing.get_context(method)
             with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
                 results = list(
                     progress(pool.map(task, specs), desc=desc, total=len(specs), args=args)
@@ -82,6 +102,7 @@ def run_parallel(
     cpu = _cpu_seconds() - c0
     timing = {
         "workers": workers,
+        "start_method": method,
         "tasks": len(specs),
         "wall_s": wall,
         "cpu_s": cpu,
