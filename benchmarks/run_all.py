@@ -1250,11 +1250,18 @@ def _target_rows(results: dict[str, Any]) -> tuple[list[str], list[str]]:
                 continue
             found_m = [r for r in mags if r["found"]] or mags
             best_m = min(found_m, key=lambda r: r["pole_error"])
-            bm = best_m["tool"].removeprefix("maglevid ")
-            phys = next((r for r in mags if r["tool"] == "maglevid physical (IV)"), best_m)
             found_p = [r for r in peers if r["found"]]
             if found_p:
                 best_p = min(found_p, key=lambda r: r["pole_error"])
+                # The targets ask for one method that is both at least as accurate as the
+                # best peer and fast: the fastest maglevid method meeting the accuracy
+                # (the most accurate one when none does).
+                good = [r for r in mags if r["found"] and r["pole_error"] <= best_p["pole_error"]]
+                if good:
+                    best_m = min(good, key=lambda r: r["time_s"])
+            bm = best_m["tool"].removeprefix("maglevid ")
+            phys = next((r for r in mags if r["tool"] == "maglevid physical (IV)"), best_m)
+            if found_p:
                 add(
                     f"bearing N = {n:.0e}: unstable pole at least as accurate as the best peer",
                     f"maglevid {bm} {best_m['pole_error']:.1e} (physical IV "
@@ -1299,9 +1306,11 @@ def _target_rows(results: dict[str, Any]) -> tuple[list[str], list[str]]:
                     f"PARSIM-K {pk['time_s']:.3g} s: x{pk['time_s'] / best_m['time_s']:.0f} "
                     f"({bm}), x{pk['time_s'] / phys['time_s']:.0f} (physical IV)",
                     pk["time_s"] / best_m["time_s"] >= 50,
-                    "the physical IV fit is over 50x faster; the most accurate maglevid method "
-                    "here (a subspace fit at horizon 40) is not, for the reason of the SLICOT "
-                    "line above (same plan).",
+                    "the maglevid method chosen (the fastest at least as accurate as the best "
+                    "peer: a subspace fit at horizon 40) spends a record this short in fixed "
+                    "costs that do not grow with N; see the plan under the SLICOT line (and "
+                    "docs/performance.md, section 5). PARSIM-K's own time varies 2.6-5.3 s "
+                    "between runs on this machine.",
                 )
             add(
                 f"bearing N = {n:.0e}: physical parameters (no peer gives them)",
