@@ -118,10 +118,8 @@ def test_intercept_equals_an_explicit_constant_regressor():
     ones = np.ones((N, 1))
     for inst in (None, Z):
         f = solve_linear_regression(Y, Phi, instruments=inst, intercept=True, hac_lags=1)
-        g = solve_linear_regression(
-            Y, np.hstack([Phi, ones]), instruments=None if inst is None else np.hstack([inst, ones]),
-            hac_lags=1,
-        )  # fmt: skip
+        z1 = None if inst is None else np.hstack([inst, ones])
+        g = solve_linear_regression(Y, np.hstack([Phi, ones]), instruments=z1, hac_lags=1)
         np.testing.assert_allclose(f.coefficients, g.coefficients[:, :3], rtol=1e-12)
         np.testing.assert_allclose(f.intercept, g.coefficients[:, 3], rtol=1e-12)
         keep = np.r_[0:3, 4:7]
