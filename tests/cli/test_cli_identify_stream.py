@@ -20,7 +20,12 @@ def parquet(tmp_path_factory):
 
     nom = AMBParameters.nominal()
     data = simulate_amb_loop(
-        nom.with_fault(R1=1.2), nominal=nom, n_samples=12_000, rng=7, noise_std=(1e-10, 3e-6, 3e-6)
+        nom.with_fault(R1=1.2),
+        nominal=nom,
+        n_samples=12_000,
+        rng=7,
+        noise_std=(1e-10, 3e-6, 3e-6),
+        plant_model="linear",
     )
     path = tmp_path_factory.mktemp("stream") / "rec.parquet"
     write_recording(data, path)
