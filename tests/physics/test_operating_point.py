@@ -120,3 +120,14 @@ def test_bad_loop_and_unreachable_fault():
         # 1 kN towards coil 2 (the rotor weighs 18 N): the loop's rest point
         # would need a negative current
         settled_operating_point(NOM, NOM, LOOP, force=-1e3)
+
+
+def test_simulator_refuses_a_bearing_unstable_at_its_settled_point():
+    # K2 -8 %: the default controller raises both currents (I2/I1 = sqrt(K1/K2)),
+    # the negative stiffness grows and the loop around the settled point has a
+    # pole at |z| = 1.0007; the simulation would run into the pole face.
+    from maglevid.exceptions import DesignError
+    from maglevid.simulate.amb import simulate_amb_loop
+
+    with pytest.raises(DesignError, match="settles at"):
+        simulate_amb_loop(NOM.with_fault(K2=0.92), nominal=NOM, n_samples=100, rng=1)

@@ -51,7 +51,7 @@ from maglevid.control import (
     loop_matrix_condition,
 )
 from maglevid.data import ClosedLoopData
-from maglevid.exceptions import DataError, ModelError
+from maglevid.exceptions import DataError, DesignError, ModelError
 from maglevid.physics.amb import (
     C_AMB,
     INPUT_NAMES,
@@ -65,7 +65,7 @@ from maglevid.physics.amb import (
     settled_operating_point,
 )
 from maglevid.simulate.excitation import EXCITATION_KINDS, make_excitation
-from maglevid.simulate.loop import simulate_linear_loop
+from maglevid.simulate.loop import closed_loop_system, simulate_linear_loop
 
 __all__ = [
     "DEFAULT_DT",
@@ -381,6 +381,20 @@ def _make_rng(rng: Any) -> tuple[np.random.Generator, int | None]:
     )
 
 
+def _check_settled_loop(
+    eq: dict[str, Any], observer: Observer, controller: IntegralStateFeedback, dt: float
+) -> None:
+    """DesignError when the loop is unstable around the settled point (it would diverge)."""
+    lin = amb_state_space(np.asarray(eq["v"]), dt)
+    rho = float(np.max(np.abs(closed_loop_system(lin, observer, controller).poles())))
+    if rho >= 1.0:
+        raise DesignError(
+            f"the closed loop is unstable at the point this bearing settles at (I1 = "
+            f"{eq['I1']:.4g} A, I2 = {eq['I2']:.4g} A; largest pole magnitude {rho:.6f}): the "
+            "controller designed on the nominal bearing cannot hold it"
+        )
+
+
 def _force_std(force_std: Any, plant_model: str) -> float:
     if force_std is None:
         return DEFAULT_FORCE_STD if plant_model == "nonlinear" else 0.0
@@ -508,7 +522,8 @@ def simulate_amb_loop(
     Raises
     ------
     DesignError
-        When the loop with this plant is unstable.
+        When the loop with this plant is unstable (nonlinear plant: around the
+        point it settles at; e.g. ``K2 -8 %`` with the default design).
     ModelError
         Nonlinear plant: no rest point, or the rotor reaches the pole face.
 
@@ -601,6 +616,7 @@ def simulate_amb_loop(
         )
     else:
         eq = nonlinear_equilibrium(plant, nominal, observer, controller)
+        _check_settled_loop(eq, observer, controller, dt)
         y, u_f = _simulate_nonlinear(
             plant,
             nominal,
