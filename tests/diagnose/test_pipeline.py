@@ -95,15 +95,8 @@ def test_bad_data_cannot_be_diagnosed(make, reason):
 
 
 def test_too_little_excitation_cannot_be_diagnosed():
-    rec = simulate_amb_loop(
-        NOMINAL,
-        dt=1e-4,
-        n_samples=8000,
-        nominal=NOMINAL,
-        excitation_std=1e-4,
-        rng=5,
-        plant_model="linear",
-    )
+    rec = simulate_amb_loop(NOMINAL, dt=1e-4, n_samples=8000, nominal=NOMINAL, excitation_std=1e-4,
+                            rng=5, plant_model="linear")  # fmt: skip
     d = diagnose(rec, baseline="nominal")
     assert d.verdict_code == "cannot_diagnose" and "too little excitation" in d.verdict
 

@@ -16,11 +16,14 @@ Two plant models:
 * ``"linear"``: the ZOH-sampled linearisation of eqs. (3)-(4) of the real
   (possibly faulty) bearing, at ``x = 0, i1 = i2 = i0`` -- the paper's
   simulation; the true discrete model is exactly ``amb_state_space(plant, dt)``.
-* ``"nonlinear"``: eq. (1) with absolute currents, integrated between samples
-  under the zero-order hold by fixed-step RK4. A fault moves the equilibrium
+* ``"nonlinear"`` (default, the realistic bearing): eq. (1) with absolute
+  currents under the *nominal* bias voltages, a white force disturbance on the
+  rotor (:data:`DEFAULT_FORCE_STD`), integrated between samples under the
+  zero-order hold by fixed-step RK4. A fault moves the equilibrium
   (e.g. a weaker coil needs more current); the integral action brings the rotor
   back to ``x = 0`` and the simulation starts at the loop's equilibrium (found
-  by :func:`nonlinear_equilibrium`), so the record has no start-up transient.
+  by :func:`~maglevid.physics.amb.settled_operating_point`), so the record has
+  no start-up transient; a loop unstable around that point is refused.
   The true linear model is then the linearisation at *that* point, recorded in
   ``metadata["operating_point_true"]``.
 
