@@ -131,3 +131,17 @@ def test_simulator_refuses_a_bearing_unstable_at_its_settled_point():
 
     with pytest.raises(DesignError, match="settles at"):
         simulate_amb_loop(NOM.with_fault(K2=0.92), nominal=NOM, n_samples=100, rng=1)
+
+
+def test_a_recordings_loop_predicts_its_settled_point():
+    # What the diagnosis uses: the hypothesis' parameters + the logged loop (its
+    # controller, observer and bias inputs) give the point the recording settled at.
+    from maglevid.simulate.amb import simulate_amb_loop
+
+    plant = NOM.with_fault(R1=1.1, K2=0.97)
+    d = simulate_amb_loop(plant, nominal=NOM, n_samples=200, rng=2)
+    op = settled_operating_point(plant, NOM, d.loop)
+    truth = d.metadata["operating_point_true"]
+    np.testing.assert_allclose(op.v, truth["v"], rtol=1e-12)
+    np.testing.assert_allclose(op.u_bias, d.loop["operating_point"]["u_bias"], rtol=0)
+    assert op.to_dict()["I1"] == pytest.approx(truth["I1"], rel=1e-12)
