@@ -10,8 +10,6 @@ shape run_all's workers produce (``time_s``, ``pole_error``, ``found``,
 from __future__ import annotations
 
 import pytest
-
-from benchmarks import run_all
 from benchmarks.judge import (
     MET,
     NOT_MEASURED,
@@ -21,6 +19,8 @@ from benchmarks.judge import (
     measured,
 )
 from benchmarks.sections import Section, load_plugin
+
+from benchmarks import run_all
 
 
 def _sub(n, tool, t, err=0.01):
