@@ -152,7 +152,7 @@ class Judge:
             return self.not_measured(target, why_not_measured(peer, peer_name))
         assert ours is not None and peer is not None
         t, tp = float(ours["time_s"]), float(peer["time_s"])
-        text = f"{ours_name} {t:.3g} s; {peer_name} {tp:.3g} s (ratio {tp / t:.2f})"
+        text = f"{ours_name} {t:.3g} s; {peer_name} {tp:.3g} s (maglevid x{t / tp:.2g} its time)"
         return self.add(target, text, t <= factor * tp, plan)
 
     def accurate(

@@ -217,7 +217,7 @@ def test_report_counts_not_measured_in_headline(tmp_path):
     assert judge.count(MET) == 0
     assert f"**{judge.headline()}.**" in text
     assert "modified tree" in text and "bench_pbsid" in text
-    assert "## 1. Open-loop MIMO subspace [from a modified tree" in text
+    assert "## 1. Open-loop MIMO subspace [modified tree, git abc]" in text
 
 
 def test_make_bench_refuses_a_modified_tree(monkeypatch, capsys):
