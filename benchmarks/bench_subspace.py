@@ -191,12 +191,23 @@ def control_era(y, u, order, horizon):
     return np.linalg.eigvals(np.asarray(sys_.A))
 
 
+def slicot_ctrlsys(y, u, order, horizon):
+    """SLICOT IB01AD (Cholesky) + IB01BD (MOESP) natively (PyPI ``ctrlsys``)."""
+    from benchmarks.peers import PeerMissing, ctrlsys_slicot
+
+    try:
+        return ctrlsys_slicot.identify(y, u, order, horizon).poles
+    except PeerMissing as exc:
+        raise ImportError(str(exc)) from None
+
+
 register(Peer("maglevid-moesp", _maglevid_moesp, note="PO-MOESP, Gram route (default)"))
 register(Peer("maglevid-n4sid", _maglevid_n4sid, note="robust N4SID, Gram route (default)"))
 register(Peer("maglevid-moesp-qr", _maglevid_moesp_qr, note="PO-MOESP, TSQR route"))
 register(Peer("maglevid-stream", _maglevid_stream, note="accumulator, 1e5-sample chunks"))
 register(Peer("numpy-gram-cholesky", numpy_gram_cholesky, note="the reference cost"))
 register(Peer("control-era", control_era, max_samples=10**5, note="markov (m=60) + ERA"))
+register(Peer("slicot-ctrlsys", slicot_ctrlsys, note="SLICOT IB01AD/BD, Cholesky, MOESP"))
 
 
 # --------------------------------------------------------------------- data

@@ -11,8 +11,10 @@ Sections (each measured in fresh worker processes, one at a time, so that a
 tool's memory and a crash stay its own):
 
 ``subspace``   open-loop MIMO subspace (2 inputs, 3 outputs, 4th order, horizon 10,
-               output noise 10 %): maglevid MOESP/N4SID against SLICOT (Octave),
-               SIPPY, python-control Markov+ERA, nfoursid and numpy's Gram+Cholesky.
+               output noise 10 %), N = 1e3 .. 1e7: maglevid MOESP/N4SID against SLICOT
+               natively (``ctrlsys`` IB01AD/BD) and through Octave, SIPPY,
+               python-control Markov+ERA, nfoursid and numpy's Gram+Cholesky; where
+               MOESP's time goes at every N.
 ``bearing``    the closed-loop unstable bearing (``bench_amb_speed``): the unstable
                pole and v1..v9 of every maglevid method against the peers.
 ``regression`` the AMB least-squares / IV fits against one ``lstsq`` on the same regressor.
@@ -21,8 +23,15 @@ tool's memory and a crash stay its own):
 ``streaming``  records larger than memory (``bench_streaming``).
 ``intersample`` the inter-sampled suspension (when ``maglevid.identify.intersample`` exists).
 
-Times are medians of up to three runs (five under 0.5 s, one over 5 s);
-SLICOT's is Octave's own ``tic``/``toc`` around the call. Every process runs
+Times are medians of up to three runs after one untimed warm-up (five under
+0.5 s, one over 5 s); SLICOT's through Octave is Octave's own ``tic``/``toc``
+around the call, through ctrlsys the Python time of IB01AD + IB01BD.
+
+Verdicts: ``benchmarks/judge.py`` (a target is met only by a measurement of this
+run; a missing or failed one is "not measured" and counted). Sections are a
+registry (``SECTIONS``, ``PLUGINS``; ``benchmarks/sections.py``). The repository's
+BENCHMARKS.md is written only from an unmodified tree (``--allow-dirty`` stamps
+every verdict and section instead). Every process runs
 with ``--blas-threads`` BLAS threads (default 1: on a shared 2-core machine
 threads only fight; all tools get the same). Memory: the peak of Python-level
 allocations (``tracemalloc``, numpy arrays included) in a separate untimed run
