@@ -1806,6 +1806,11 @@ def speed_accuracy_table(results: dict[str, Any]) -> list[str]:
     return L
 
 
+def _failed_section(res: dict[str, Any]) -> bool:
+    """True when a section's ``measure`` raised (its result is only the error)."""
+    return set(res) == {"error"}
+
+
 def write_report(
     results: dict[str, Any], meta: dict[str, Any], path: Path, sections: list[Section]
 ) -> Judge:
@@ -1852,8 +1857,13 @@ def write_report(
     )
     judge = Judge(stamp=stamp)
     for sec in sections:
-        if sec.name in results and sec.targets is not None:
-            sec.targets(results[sec.name], judge)
+        res = results.get(sec.name)
+        if res is None or sec.targets is None:
+            continue
+        if _failed_section(res):
+            judge.not_measured(f"every target of section `{sec.name}`", res["error"])
+        else:
+            sec.targets(res, judge)
     L += [
         "",
         "## Targets",
@@ -1872,7 +1882,11 @@ def write_report(
     for sec in sections:
         if sec.name not in results:
             continue
-        body = sec.report(results[sec.name])
+        res = results[sec.name]
+        if _failed_section(res):
+            body = [f"## {sec.name}", "", f"The section failed: {res['error']}"]
+        else:
+            body = sec.report(res)
         if stamp and body and body[0].startswith("#"):
             body = [body[0] + stamp, *body[1:]]
         L += ["", *body]

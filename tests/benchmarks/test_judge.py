@@ -224,3 +224,23 @@ def test_make_bench_refuses_a_modified_tree(monkeypatch, capsys):
     monkeypatch.setattr(run_all, "git_state", lambda: ("abc", ["src/maglevid/x.py"]))
     assert run_all.main(["--sections", "subspace"]) == 2
     assert "modified" in capsys.readouterr().err
+
+
+def test_a_failed_section_is_not_measured_and_reported(tmp_path):
+    meta = {
+        "command": "x",
+        "date": "d",
+        "elapsed_s": 1.0,
+        "quick": False,
+        "machine": {"platform": "p", "python": "3"},
+        "versions": {},
+        "load_start": (0.0, 0.0, 0.0),
+        "load_end": (0.0, 0.0, 0.0),
+        "blas_threads": 1,
+        "memory_limit_gb": 1,
+    }
+    out = tmp_path / "B.md"
+    results = {"bearing": {"error": "RuntimeError: worker crashed"}}
+    judge = run_all.write_report(results, meta, out, run_all.SECTIONS)
+    assert [v.status for v in judge.verdicts] == [NOT_MEASURED]
+    assert "worker crashed" in out.read_text()
