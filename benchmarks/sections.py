@@ -50,13 +50,57 @@ class Section:
 
 
 def load_plugin(module: str) -> Section | None:
-    """The ``SECTION`` of ``module``, or None when the module is not on this branch."""
+    """The ``SECTION`` of ``module``, or None when the module is not on this branch.
+
+    A module without ``SECTION`` but with a ``main(argv)`` that prints Markdown
+    (the older benchmark scripts) becomes a section that runs ``main`` in a
+    worker process (``["--quick"]`` under ``--quick`` when it takes it) and
+    prints what it printed; it has no targets until it defines its own.
+    """
     try:
         if importlib.util.find_spec(module) is None:
             return None
     except ModuleNotFoundError:
         return None
-    sec = getattr(importlib.import_module(module), "SECTION", None)
+    mod = importlib.import_module(module)
+    sec = getattr(mod, "SECTION", None)
+    if sec is None and callable(getattr(mod, "main", None)):
+        return _main_section(module)
     if not isinstance(sec, Section):
         raise TypeError(f"{module}.SECTION must be a benchmarks.sections.Section")
     return sec
+
+
+def run_main(module: str, quick: bool = False) -> dict[str, Any]:
+    """Run ``module.main(argv)`` and return what it printed (a worker's job)."""
+    import contextlib
+    import io
+
+    main = importlib.import_module(module).main
+    for argv in [["--quick"], []] if quick else [[]]:
+        buf = io.StringIO()
+        try:
+            with contextlib.redirect_stdout(buf):
+                main(argv)
+        except SystemExit as exc:
+            if exc.code == 2 and argv:  # argparse: --quick not known; run it plain
+                continue
+            if exc.code not in (0, None):
+                raise RuntimeError(f"{module}.main exited with {exc.code}") from None
+        return {"markdown": buf.getvalue(), "argv": argv}
+    return {"error": f"{module}.main did not run"}  # pragma: no cover
+
+
+def _main_section(module: str) -> Section:
+    name = module.rsplit(".", 1)[-1].removeprefix("bench_")
+
+    def measure(run: Any, plan: dict[str, Any], args: Any) -> dict[str, Any]:
+        return run.call("benchmarks.sections:run_main", module=module, quick=plan["quick"])
+
+    def report(res: dict[str, Any]) -> list[str]:
+        head = f"## `{module}` (its own output, `main({res.get('argv', [])})`)"
+        if "markdown" not in res:
+            return [head, "", f"failed: {res.get('error')}"]
+        return [head, "", res["markdown"].strip()]
+
+    return Section(name, measure, report)

@@ -193,6 +193,23 @@ def test_absent_plugin_is_none_and_bad_plugin_is_an_error(tmp_path, monkeypatch)
     assert isinstance(sec, Section) and sec.name == "good"
 
 
+def test_a_script_with_main_becomes_a_section(tmp_path, monkeypatch):
+    (tmp_path / "bench_script_mod.py").write_text(
+        "import argparse\n"
+        "def main(argv=None):\n"
+        "    argparse.ArgumentParser().parse_args(argv)\n"
+        "    print('| a | b |')\n"
+    )
+    monkeypatch.syspath_prepend(str(tmp_path))
+    sec = load_plugin("bench_script_mod")
+    assert sec is not None and sec.name == "script_mod" and sec.targets is None
+    from benchmarks.sections import run_main
+
+    res = run_main("bench_script_mod", quick=True)  # --quick unknown: run plain
+    assert res == {"markdown": "| a | b |\n", "argv": []}
+    assert sec.report(res)[-1] == "| a | b |"
+
+
 def test_report_counts_not_measured_in_headline(tmp_path):
     results = {"subspace": {"rows": [_sub(10**4, "maglevid MOESP", 0.01)], "load": [0.0]}}
     meta = {
