@@ -57,6 +57,7 @@ def plot(results: dict[str, Any], path: Path, stamp: str = "") -> None:
                 [p[1] for p in pts],
                 [p[2] for p in pts],
                 marker="os^vD<>ph*"[k % 10],
+                color=plt.cm.tab20(k % 20),
                 linestyle="-" if ours else "--",
                 linewidth=2 if ours else 1,
                 label=tool,
