@@ -22,6 +22,20 @@ from benchmarks.sections import Section, load_plugin
 
 from benchmarks import run_all
 
+#: What write_report needs of a run's metadata (clean tree, no plugins absent).
+_META = {
+    "command": "x",
+    "date": "d",
+    "elapsed_s": 1.0,
+    "quick": True,
+    "machine": {"platform": "p", "python": "3"},
+    "versions": {},
+    "load_start": (0.0, 0.0, 0.0),
+    "load_end": (0.0, 0.0, 0.0),
+    "blas_threads": 1,
+    "memory_limit_gb": 1,
+}
+
 
 def _sub(n, tool, t, err=0.01):
     return {"n": n, "tool": tool, "time_s": t, "pole_error": err}
@@ -213,16 +227,7 @@ def test_a_script_with_main_becomes_a_section(tmp_path, monkeypatch):
 def test_report_counts_not_measured_in_headline(tmp_path):
     results = {"subspace": {"rows": [_sub(10**4, "maglevid MOESP", 0.01)], "load": [0.0]}}
     meta = {
-        "command": "x",
-        "date": "d",
-        "elapsed_s": 1.0,
-        "quick": True,
-        "machine": {"platform": "p", "python": "3"},
-        "versions": {},
-        "load_start": (0.0, 0.0, 0.0),
-        "load_end": (0.0, 0.0, 0.0),
-        "blas_threads": 1,
-        "memory_limit_gb": 1,
+        **_META,
         "git": "abc",
         "dirty": ["src/x.py"],
         "stamp": run_all.dirty_stamp("abc", ["src/x.py"]),
@@ -244,18 +249,7 @@ def test_make_bench_refuses_a_modified_tree(monkeypatch, capsys):
 
 
 def test_a_failed_section_is_not_measured_and_reported(tmp_path):
-    meta = {
-        "command": "x",
-        "date": "d",
-        "elapsed_s": 1.0,
-        "quick": False,
-        "machine": {"platform": "p", "python": "3"},
-        "versions": {},
-        "load_start": (0.0, 0.0, 0.0),
-        "load_end": (0.0, 0.0, 0.0),
-        "blas_threads": 1,
-        "memory_limit_gb": 1,
-    }
+    meta = dict(_META)
     out = tmp_path / "B.md"
     results = {"bearing": {"error": "RuntimeError: worker crashed"}}
     judge = run_all.write_report(results, meta, out, run_all.SECTIONS)
