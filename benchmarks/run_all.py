@@ -1100,10 +1100,12 @@ def report_bearing(res: dict[str, Any], truths: dict[str, dict[str, Any]]) -> li
         "real pole within 10 % of the true rate; error: |z_hat - z| / |z| of the pole nearest "
         "it. v error: largest |v_i / v_i,true - 1| over v1..v9 (maglevid only: no peer gives "
         "physical parameters; the subspace models are put into physical coordinates by "
-        "`to_physical_coordinates`). Horizons: SLICOT its default (8) and 40, SIPPY its "
-        "default 20, ERA and nfoursid 40, maglevid's subspace methods 40. Time: median; "
-        "SLICOT's by Octave's tic/toc. Memory: tracemalloc peak (Python tools), resident "
-        f"size of the Octave process (RSS). Load average at the start: {res['load'][0]:.1f}.",
+        "`to_physical_coordinates`). Horizons: SLICOT (ctrlsys and Octave) its default (8) "
+        "and 40, SIPPY its default 20, ERA and nfoursid 40, maglevid's subspace methods 40. "
+        "Time: median; SLICOT's through Octave by Octave's tic/toc, through ctrlsys in Python "
+        "around IB01AD + IB01BD. Memory: tracemalloc peak (Python tools; not traced for "
+        "ctrlsys's Fortran workspace), resident size of the Octave process (RSS). Load "
+        f"average at the start: {res['load'][0]:.1f}.",
         "",
         *_bearing_table(res["rows"]),
         "",
