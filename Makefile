@@ -29,11 +29,13 @@ format: $(STAMP)
 	$(VENV)/bin/ruff format src tests benchmarks
 	$(VENV)/bin/ruff check --fix src tests benchmarks
 
-# The peers (SIPPY, nfoursid) come with the `bench` extra; GNU Octave's control
-# package is used when the system has it, and skipped with a message otherwise.
+# The peers (SLICOT through ctrlsys, SIPPY, nfoursid) come with the `bench` extra; GNU
+# Octave's control package is used when the system has it, and skipped with a message
+# otherwise. run_all refuses to write BENCHMARKS.md from a modified tree (commit first).
 bench: $(STAMP)
 	$(PY) -m pip install -q -e '.[bench]'
-	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 $(PY) -m benchmarks.run_all --huge
+	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 $(PY) -m benchmarks.run_all --huge \
+		--plot docs/images/speed_accuracy.png
 
 clean:
 	rm -rf $(VENV) demo-out .pytest_cache .ruff_cache

@@ -88,6 +88,61 @@ def _maglevid_stream(y, u, order, horizon):
     return acc.fit(algorithm="moesp", order=order).model.poles()
 
 
+# ------------------------------------------------------ where the time goes
+def stage_profile(y, u, order, horizon, repeat=3):
+    """Median seconds of each stage of ``fit_moesp`` (the in-memory Gram route).
+
+    ``read``: one pass over the data (``y.sum() + u.sum()``), the floor of any
+    method; ``data pass``: the chunked lagged products (``_LagGram``, what
+    ``fit_moesp`` runs over the record); ``model``: everything after it that
+    does not look at the record again (Gram, Cholesky, subspace step, B and D,
+    noise model and Kalman gain, result); ``residuals``: the one-step
+    predictor over the record (``fit - model``); ``fit``: ``fit_moesp`` itself.
+    Uses the module's internals: a profiler, not an API.
+    """
+    import statistics
+
+    from maglevid.identify import subspace as ss
+    from maglevid.identify._hankel import _LagGram
+
+    m = y.shape[1] + u.shape[1]
+
+    def data_pass():
+        acc = _LagGram(m, 2 * horizon - 1)
+        for t0 in range(0, y.shape[0], ss._CHUNK):
+            acc.update(np.concatenate([u[t0 : t0 + ss._CHUNK], y[t0 : t0 + ss._CHUNK]], axis=1))
+        return acc
+
+    acc = data_pass()
+    opt = ss._options(
+        "moesp",
+        order=order,
+        horizon=horizon,
+        dt=1.0,
+        feedthrough=False,
+        weighting="po",
+        rank_tol=None,
+        factorization="gram",
+        bd_method="subspace",
+        max_horizon=None,
+    )
+    stages = {
+        "read": lambda: (y.sum(), u.sum()),
+        "data pass": data_pass,
+        "model": lambda: ss._fit(acc, u.shape[1], y.shape[1], opt, horizon, None),
+        "fit": lambda: fit_moesp(y, u, order=order, horizon=horizon),
+    }
+    times: dict[str, list[float]] = {k: [] for k in stages}
+    for _ in range(repeat):  # interleaved: a core's speed drifts within seconds
+        for k, fn in stages.items():
+            t0 = time.perf_counter()
+            fn()
+            times[k].append(time.perf_counter() - t0)
+    out = {k: statistics.median(v) for k, v in times.items()}
+    out["residuals"] = max(out["fit"] - out["data pass"] - out["model"], 0.0)
+    return out
+
+
 # --------------------------------------------------- the bare numpy baseline
 def numpy_gram_cholesky(y, u, order, horizon):
     """Textbook PO-MOESP with numpy alone: Gram of the block-Hankel rows + Cholesky.
@@ -136,12 +191,23 @@ def control_era(y, u, order, horizon):
     return np.linalg.eigvals(np.asarray(sys_.A))
 
 
+def slicot_ctrlsys(y, u, order, horizon):
+    """SLICOT IB01AD (Cholesky) + IB01BD (MOESP) natively (PyPI ``ctrlsys``)."""
+    from benchmarks.peers import PeerMissing, ctrlsys_slicot
+
+    try:
+        return ctrlsys_slicot.identify(y, u, order, horizon).poles
+    except PeerMissing as exc:
+        raise ImportError(str(exc)) from None
+
+
 register(Peer("maglevid-moesp", _maglevid_moesp, note="PO-MOESP, Gram route (default)"))
 register(Peer("maglevid-n4sid", _maglevid_n4sid, note="robust N4SID, Gram route (default)"))
 register(Peer("maglevid-moesp-qr", _maglevid_moesp_qr, note="PO-MOESP, TSQR route"))
 register(Peer("maglevid-stream", _maglevid_stream, note="accumulator, 1e5-sample chunks"))
 register(Peer("numpy-gram-cholesky", numpy_gram_cholesky, note="the reference cost"))
 register(Peer("control-era", control_era, max_samples=10**5, note="markov (m=60) + ERA"))
+register(Peer("slicot-ctrlsys", slicot_ctrlsys, note="SLICOT IB01AD/BD, Cholesky, MOESP"))
 
 
 # --------------------------------------------------------------------- data

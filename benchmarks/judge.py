@@ -1,0 +1,196 @@
+"""The verdicts of ``make bench``: a target is met only by a measurement of this run.
+
+Every target of ``BENCHMARKS.md`` goes through one :class:`Judge`, which knows
+three verdicts and nothing else:
+
+``met``
+    the figures the target names were measured in this run and pass its bar;
+``not met``
+    they were measured and fail it (a shortfall: its paragraph says why and
+    what is planned);
+``not measured``
+    a figure is missing: the peer is not installed, failed, ran out of time or
+    memory, the size was not run (``--quick``), or the result carries no
+    number. It is counted in the headline, never turned into ``met``.
+
+The helpers below are the only ways run_all makes a verdict:
+
+* :func:`measured` says whether a result row holds a time (and no error);
+* :meth:`Judge.faster` compares our time with a peer's (``ours <= factor x
+  peer``) and is "not measured" when either is missing;
+* :meth:`Judge.accurate` compares an error with a stated accuracy bar
+  (:func:`accuracy_bar`): twice the Cramér-Rao bound where the estimation code
+  provides one, else a stated relative bound; a missing or non-finite error is
+  "not measured", a bar that is not met is "not met".
+
+Example
+-------
+>>> j = Judge()
+>>> j.faster("no slower than SLICOT", ours={"time_s": 1.0}, peer=None, peer_name="SLICOT")
+'not measured'
+>>> j.accurate("v1..v9 within the bar", error=0.3, bar=accuracy_bar(stated=0.1))
+'not met'
+>>> j.headline()
+'2 targets: 0 met, 1 not met, 1 not measured'
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+__all__ = [
+    "MET",
+    "NOT_MEASURED",
+    "NOT_MET",
+    "AccuracyBar",
+    "Judge",
+    "Verdict",
+    "accuracy_bar",
+    "measured",
+    "why_not_measured",
+]
+
+MET = "met"
+NOT_MET = "not met"
+NOT_MEASURED = "not measured"
+
+#: How each verdict is printed in the target table.
+_MARK = {MET: "met", NOT_MET: "**not met**", NOT_MEASURED: "*not measured*"}
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """One row of the target table."""
+
+    target: str
+    measured: str
+    status: str
+    plan: str = ""
+
+
+@dataclass(frozen=True)
+class AccuracyBar:
+    """An error bound and where it comes from (printed beside the verdict)."""
+
+    bound: float
+    source: str
+
+
+def accuracy_bar(*, stated: float, crb: float | None = None, factor: float = 2.0) -> AccuracyBar:
+    """The bar of a target on physical parameters.
+
+    ``factor`` times the Cramér-Rao bound ``crb`` (relative standard deviation
+    of the parameter at this record length) where the estimation code provides
+    one (``maglevid.identify.cramer_rao``, issue 13: the hook in
+    ``run_all._crb_hook``); otherwise the ``stated`` relative bound.
+    """
+    if crb is not None and math.isfinite(crb) and crb > 0:
+        return AccuracyBar(factor * crb, f"{factor:g} x the Cramér-Rao bound {crb:.1e}")
+    return AccuracyBar(stated, f"stated bound {stated:.0%}")
+
+
+def measured(row: Mapping[str, Any] | None, key: str = "time_s") -> bool:
+    """True when ``row`` holds a finite ``key`` and no error or skip."""
+    if row is None or "error" in row or "skipped" in row:
+        return False
+    v = row.get(key)
+    return isinstance(v, (int, float)) and math.isfinite(v)
+
+
+def why_not_measured(row: Mapping[str, Any] | None, name: str) -> str:
+    """A short reason a row is not a measurement."""
+    if row is None:
+        return f"{name} not run"
+    if "skipped" in row:
+        return f"{name} skipped: {_short(row['skipped'])}"
+    if "error" in row:
+        return f"{name} failed: {_short(row['error'])}"
+    return f"{name} gave no number"
+
+
+def _short(text: Any, n: int = 90) -> str:
+    s = " ".join(str(text).split())
+    return s if len(s) <= n else s[: n - 3].rsplit(" ", 1)[0] + " ..."
+
+
+class Judge:
+    """Collects the verdicts of one run; the only place a verdict is made."""
+
+    def __init__(self, stamp: str = "") -> None:
+        self.verdicts: list[Verdict] = []
+        self.stamp = stamp
+
+    # ---------------------------------------------------------------- verdicts
+    def add(self, target: str, measured_text: str, met: bool | None, plan: str = "") -> str:
+        """Record a verdict: ``met`` True/False from a measurement, None when not measured."""
+        status = NOT_MEASURED if met is None else (MET if met else NOT_MET)
+        self.verdicts.append(Verdict(target, measured_text, status, plan))
+        return status
+
+    def not_measured(self, target: str, why: str) -> str:
+        """A target whose figures this run does not have (the reason is printed)."""
+        return self.add(target, why, None)
+
+    def faster(
+        self,
+        target: str,
+        *,
+        ours: Mapping[str, Any] | None,
+        peer: Mapping[str, Any] | None,
+        peer_name: str,
+        ours_name: str = "maglevid",
+        factor: float = 1.0,
+        plan: str = "",
+    ) -> str:
+        """Met when ``ours.time_s <= factor * peer.time_s``, both measured in this run."""
+        if not measured(ours):
+            return self.not_measured(target, why_not_measured(ours, ours_name))
+        if not measured(peer):
+            return self.not_measured(target, why_not_measured(peer, peer_name))
+        assert ours is not None and peer is not None
+        t, tp = float(ours["time_s"]), float(peer["time_s"])
+        text = f"{ours_name} {t:.3g} s; {peer_name} {tp:.3g} s (maglevid x{t / tp:.2g} its time)"
+        return self.add(target, text, t <= factor * tp, plan)
+
+    def accurate(
+        self,
+        target: str,
+        *,
+        error: float | None,
+        bar: AccuracyBar,
+        detail: str = "",
+        plan: str = "",
+    ) -> str:
+        """Met when ``error <= bar.bound``; a missing or non-finite error is not measured."""
+        if error is None or not math.isfinite(error):
+            return self.not_measured(target, detail or "no error measured")
+        text = f"{detail + '; ' if detail else ''}error {error:.1e} vs bar {bar.bound:.1e} "
+        text += f"({bar.source})"
+        return self.add(target, text, error <= bar.bound, plan)
+
+    # ----------------------------------------------------------------- output
+    def count(self, status: str) -> int:
+        return sum(v.status == status for v in self.verdicts)
+
+    def headline(self) -> str:
+        n = len(self.verdicts)
+        return (
+            f"{n} targets: {self.count(MET)} met, {self.count(NOT_MET)} not met, "
+            f"{self.count(NOT_MEASURED)} not measured"
+        )
+
+    def table(self) -> list[str]:
+        """Markdown rows (with header) of every verdict, in the order made."""
+        out = ["| target | measured | verdict |", "|---|---|---|"]
+        for v in self.verdicts:
+            out.append(f"| {v.target} | {v.measured} | {_MARK[v.status]}{self.stamp} |")
+        return out
+
+    def shortfalls(self) -> list[str]:
+        """One paragraph per target not met that has a plan."""
+        return [
+            f"**{v.target}.** {v.plan}" for v in self.verdicts if v.status == NOT_MET and v.plan
+        ]
