@@ -3,13 +3,22 @@
 Identify the open-loop physics of unstable magnetic suspensions from data recorded
 with the loop closed (Gosiewski & Paszowski; Sun, Miyake, Ohmori & Sano), follow
 the parameters over time, and say what changed and where.
+
+>>> import maglevid
+>>> result = maglevid.identify("rec.npz")          # doctest: +SKIP
+>>> diagnosis = maglevid.diagnose("rec.npz", baseline="nominal")  # doctest: +SKIP
+>>> diagnosis                                     # verdict and table in Jupyter  # doctest: +SKIP
 """
 
 from __future__ import annotations
 
 import logging
 
-from maglevid import diagnose
+# The subpackages ``maglevid.identify`` and ``maglevid.diagnose`` are imported
+# (by maglevid.api) before the functions of the same names are bound here, so the
+# attributes are the functions while ``from maglevid.diagnose.x import y`` still
+# finds the subpackages in ``sys.modules``.
+from maglevid.api import diagnose, identify
 from maglevid.data import ClosedLoopData
 from maglevid.exceptions import (
     DataError,
@@ -35,6 +44,7 @@ __all__ = [
     "__version__",
     "diagnose",
     "discretize",
+    "identify",
     "undiscretize",
 ]
 

@@ -47,6 +47,7 @@ from maglevid.diagnose.percentage import percentage_index
 from maglevid.exceptions import DataError, MaglevidError
 from maglevid.lti import StateSpace, discretize
 from maglevid.physics.amb import amb_matrices
+from maglevid.physics.units import PARAMETER_INFO
 from maglevid.report.loop import close_loop, controller_state_space
 
 __all__ = ["VERDICT_STYLE", "render_report", "write_report"]
@@ -61,39 +62,6 @@ VERDICT_STYLE: dict[str, tuple[str, str]] = {
     "fault": ("#b91c1c", "Fault"),
     "unexplained_change": ("#c2410c", "Unexplained change"),
     "cannot_diagnose": ("#475569", "Cannot diagnose"),
-}
-
-#: What each parameter is, and its SI unit.
-PARAMETER_INFO: dict[str, tuple[str, str]] = {
-    "m": ("rotor mass", "kg"),
-    "i0": ("bias current", "A"),
-    "x0": ("air gap", "m"),
-    "R1": ("coil 1 resistance", "Ω"),
-    "R2": ("coil 2 resistance", "Ω"),
-    "Ls1": ("coil 1 leakage inductance", "H"),
-    "Ls2": ("coil 2 leakage inductance", "H"),
-    "Lo1": ("coil 1 air-gap inductance", "H"),
-    "Lo2": ("coil 2 air-gap inductance", "H"),
-    "L1": ("coil 1 inductance", "H"),
-    "L2": ("coil 2 inductance", "H"),
-    "K1": ("coil 1 constant N²Aμ0", "H·m"),
-    "K2": ("coil 2 constant N²Aμ0", "H·m"),
-    "ki1": ("coil 1 force/current factor", "N/A"),
-    "ki2": ("coil 2 force/current factor", "N/A"),
-    "ks1": ("coil 1 force/displacement factor", "N/m"),
-    "ks2": ("coil 2 force/displacement factor", "N/m"),
-    "ks_sum": ("total force/displacement factor", "N/m"),
-    "kw1": ("amplifier 1 gain", "V/V"),
-    "kw2": ("amplifier 2 gain", "V/V"),
-    "v1": ("(ks1 + ks2)/m", "1/s²"),
-    "v2": ("ki1/m", "m/(s²·A)"),
-    "v3": ("ki2/m", "m/(s²·A)"),
-    "v4": ("ki1/L1", "A/m"),
-    "v5": ("R1/L1", "1/s"),
-    "v6": ("ki2/L2", "A/m"),
-    "v7": ("R2/L2", "1/s"),
-    "v8": ("kw1/L1", "A/(V·s)"),
-    "v9": ("kw2/L2", "A/(V·s)"),
 }
 
 #: Relative size below which a baseline element is a structural zero of A_p, B_p.

@@ -1,0 +1,114 @@
+"""The plain-function API of issue 18: real signatures, notebook views, frames, round trips."""
+
+from __future__ import annotations
+
+import inspect
+import json
+
+import numpy as np
+import pytest
+
+import maglevid
+from maglevid.identify.result import IdentificationResult
+from maglevid.physics.amb import AMBParameters
+from maglevid.simulate import simulate_amb_loop
+
+NOMINAL = AMBParameters.nominal()
+
+
+@pytest.fixture(scope="module")
+def faulty():
+    # R1 +20 % under the demo's sensor noise (5 nm, 10 uA): the README's example.
+    return simulate_amb_loop(
+        NOMINAL.with_fault(R1=1.2),
+        nominal=NOMINAL,
+        dt=1e-4,
+        n_samples=20_000,
+        noise_std=(5e-9, 1e-5, 1e-5),
+        rng=1,
+    )
+
+
+@pytest.fixture(scope="module")
+def diagnosis(faulty):
+    return maglevid.diagnose(faulty, baseline="nominal")
+
+
+def test_identify_and_diagnose_are_functions_with_real_signatures():
+    for fn in (maglevid.identify, maglevid.diagnose):
+        assert inspect.isfunction(fn)
+        params = inspect.signature(fn).parameters
+        assert not any(p.kind is p.VAR_POSITIONAL for p in params.values())
+        assert "Parameters\n" in fn.__doc__ and "Returns\n" in fn.__doc__
+    sig = inspect.signature(maglevid.diagnose)
+    assert sig.parameters["baseline"].kind is inspect.Parameter.KEYWORD_ONLY
+    assert list(inspect.signature(maglevid.identify).parameters)[:2] == ["data", "method"]
+
+
+def test_the_subpackages_stay_importable():
+    from maglevid.diagnose.history import open_history
+    from maglevid.diagnose.pipeline import diagnose
+    from maglevid.identify.arx import fit_arx
+
+    assert callable(open_history) and callable(fit_arx)
+    assert diagnose is maglevid.diagnose
+
+
+def test_identify_chooses_the_diagnosis_method_and_takes_options(faulty):
+    r = maglevid.identify(faulty)
+    assert r.method == "physical"
+    # R1 is identified within 4 standard errors of the simulated 1.2 * 17.5 ohm.
+    assert abs(r.parameters["R1"] - 1.2 * NOMINAL.R1) < 4 * r.std_errors()["R1"]
+    r2 = maglevid.identify(faulty, "deadbeat-arx")
+    assert r2.method == "deadbeat-arx"
+    with pytest.raises(maglevid.DataError, match="unknown method"):
+        maglevid.identify(faulty, "no-such-method")
+
+
+def test_identify_reads_a_file(tmp_path, faulty):
+    from maglevid.io import write_recording
+
+    path = write_recording(faulty, tmp_path / "rec.npz")
+    assert maglevid.identify(path).method == "physical"
+
+
+def test_result_frame_has_units_and_95_percent_intervals(faulty):
+    r = maglevid.identify(faulty)
+    df = r.to_dataframe()
+    assert list(df.columns) == ["estimate", "std_error", "ci_low", "ci_high", "unit"]
+    assert df.loc["R1", "unit"] == "Ω" and df.loc["ki1", "unit"] == "N·A⁻¹"
+    # 95 %: estimate +- 1.96 standard errors (normal quantile 1.959964).
+    row = df.loc["R1"]
+    assert row.ci_high - row.estimate == pytest.approx(1.959964 * row.std_error, rel=1e-6)
+    page = r._repr_html_()
+    assert "95 % interval" in page and "N·A⁻¹" in page and "<table>" in page
+    assert len(repr(r)) < 200
+
+
+def test_result_round_trips_through_json(faulty):
+    r = maglevid.identify(faulty)
+    d = json.loads(json.dumps(r.to_dict()))
+    back = IdentificationResult.from_dict(d)
+    assert back.to_dict() == r.to_dict()
+    np.testing.assert_array_equal(back.model.A, r.model.A)
+    with pytest.raises(maglevid.DataError, match="not a maglevid identification"):
+        IdentificationResult.from_dict({"format": "something else"})
+    with pytest.raises(maglevid.DataError, match="newer"):
+        IdentificationResult.from_dict({**d, "version": 99})
+
+
+def test_diagnosis_repr_is_short_and_html_shows_verdict_and_table(diagnosis):
+    assert diagnosis.verdict_code == "fault"
+    text = repr(diagnosis)
+    assert len(text) < 300 and "R1" in text and "fault" in text
+    page = diagnosis._repr_html_()
+    assert diagnosis.verdict.split()[0] in page and "95 % interval" in page and "Ω" in page
+
+
+def test_diagnosis_frame(diagnosis):
+    df = diagnosis.to_dataframe()
+    assert df.loc["R1", "status"] == "changed"
+    assert df.loc["R1", "unit"] == "Ω"
+    # R1 +20 % simulated: the interval of the change covers it.
+    assert df.loc["R1", "ci_low_percent"] < 20 < df.loc["R1", "ci_high_percent"]
+    assert set(df.index) == {c.name for c in diagnosis.changes}
