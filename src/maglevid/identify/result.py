@@ -174,6 +174,18 @@ class IdentificationResult:
             + "</div>"
         )
 
+    def resid(self, data: Any, **options: Any) -> Any:
+        """Residual analysis on ``data``; see :func:`maglevid.identify.validation.resid`."""
+        from maglevid.identify.validation import resid
+
+        return resid(self, data, **options)
+
+    def compare(self, data: Any, **options: Any) -> Any:
+        """k-step and simulation fit; see :func:`maglevid.identify.validation.compare`."""
+        from maglevid.identify.validation import compare
+
+        return compare(self, data, **options)
+
     def to_dataframe(self, level: float = 0.95) -> Any:
         """The estimates as a ``pandas.DataFrame`` indexed by parameter name.
 

@@ -40,6 +40,7 @@ from typing import Any
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from maglevid.control.feedback import close_loop, controller_state_space
 from maglevid.diagnose.compare import DEFAULT_TOLERANCE
 from maglevid.diagnose.diagnosis import Diagnosis
 from maglevid.diagnose.isolate import FaultHypothesis
@@ -48,7 +49,6 @@ from maglevid.exceptions import DataError, MaglevidError
 from maglevid.lti import StateSpace, discretize
 from maglevid.physics.amb import amb_matrices
 from maglevid.physics.units import PARAMETER_INFO
-from maglevid.report.loop import close_loop, controller_state_space
 
 __all__ = ["VERDICT_STYLE", "render_report", "write_report"]
 
