@@ -112,3 +112,16 @@ def test_diagnosis_frame(diagnosis):
     # R1 +20 % simulated: the interval of the change covers it.
     assert df.loc["R1", "ci_low_percent"] < 20 < df.loc["R1", "ci_high_percent"]
     assert set(df.index) == {c.name for c in diagnosis.changes}
+
+
+def test_history_frame_has_units(tmp_path, faulty):
+    from maglevid.diagnose.history import open_history
+
+    path = tmp_path / "h.sqlite"
+    maglevid.diagnose(faulty, baseline="nominal", machine="B-1", history=path)
+    with open_history(path) as store:
+        df = store.to_dataframe("B-1")
+    r1 = df[df.parameter == "R1"].iloc[0]
+    assert r1.unit == "Ω" and r1.baseline == NOMINAL.R1
+    assert df[df.parameter == "ki1"].unit.iloc[0] == "N·A⁻¹"
+    assert str(df.recorded_at.dtype).startswith("datetime64") and df.recorded_at.dt.tz is not None

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 from datetime import datetime, timedelta, timezone
 
 import numpy as np
@@ -88,8 +89,22 @@ def test_trends_and_drift_verdicts(store_path, capsys):
     assert lo < truth < hi
     assert not out["parameters"]["Ls1"]["drift"]["deadbeat-arx"]["drifting"]
     assert out["drifting"] == ["R1 (deadbeat-arx)"]
-    # Text: the table and the verdicts.
-    assert main(["history", "pump-7", "--store", str(store_path), "--tolerance", "R1=0.5"]) == 0
+    # Text (issue 18: was one line per point, ~600 lines for a bearing): one line
+    # per parameter, the drifting one first, with unit, latest, change, trend, verdict.
+    argv = ["history", "pump-7", "--store", str(store_path), "--tolerance", "R1=0.5"]
+    assert main(argv) == 0
+    rows = capsys.readouterr().out.strip().splitlines()
+    table = [r for r in rows if r.startswith(("R1 ", "Ls1 "))]
+    assert len(table) == 2 and table[0].startswith("R1 ")
+    assert "ohm" in table[0] and "ohm/day" in table[0] and table[0].endswith("DRIFTING")
+    assert table[1].endswith("stable")
+    # The true change at the last point: +0.002 * 98 days / 2 ohm = +9.8 %; one
+    # point's noise is 0.01 ohm = 0.5 % of the baseline, so within 3 s.e. = 1.5 %.
+    change = float(re.search(r"([+-]\d+\.\d) %", table[0]).group(1))
+    assert abs(change - 9.8) < 1.5
+    assert change == round(100 * (out["parameters"]["R1"]["latest"]["value"] - 2.0) / 2.0, 1)
+    # --points: the series behind each line and the drift tests in full.
+    assert main([*argv, "--points"]) == 0
     text = capsys.readouterr().out
     assert "R1 [ohm]" in text and "DRIFTING" in text and "no significant drift" in text
     assert "limit 2.5 ohm" in text
