@@ -182,6 +182,8 @@ def _overview(trend: Any, drift: dict[str, dict], alpha: float) -> dict[str, Any
         verdict = "STEP"
     elif d.get("drifting"):
         verdict = "DRIFTING"
+    elif "skipped" in d or not d:
+        verdict = "too few points"
     return {
         "latest": {
             "value": float(trend.value[last]),
