@@ -13,7 +13,7 @@ True
 
 from __future__ import annotations
 
-__all__ = ["PARAMETER_INFO", "parameter_unit"]
+__all__ = ["PARAMETER_INFO", "UNIT_WORDS", "parameter_unit"]
 
 #: ``name -> (what it is, SI unit)`` for the AMB's physical parameters and v1..v9.
 PARAMETER_INFO: dict[str, tuple[str, str]] = {
@@ -46,6 +46,25 @@ PARAMETER_INFO: dict[str, tuple[str, str]] = {
     "v7": ("R2/L2", "s⁻¹"),
     "v8": ("kw1/L1", "A·V⁻¹·s⁻¹"),
     "v9": ("kw2/L2", "A·V⁻¹·s⁻¹"),
+}
+
+
+#: Each unit in words (tooltips of the report).
+UNIT_WORDS: dict[str, str] = {
+    "kg": "kilogram",
+    "A": "ampere",
+    "m": "metre",
+    "Ω": "ohm",
+    "H": "henry",
+    "H·m": "henry metre",
+    "N·A⁻¹": "newton per ampere",
+    "N·m⁻¹": "newton per metre",
+    "V·V⁻¹": "volt per volt (a gain)",
+    "s⁻²": "per second squared",
+    "m·s⁻²·A⁻¹": "metre per second squared per ampere",
+    "A·m⁻¹": "ampere per metre",
+    "s⁻¹": "per second",
+    "A·V⁻¹·s⁻¹": "ampere per volt per second",
 }
 
 

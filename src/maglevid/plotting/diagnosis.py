@@ -326,9 +326,17 @@ def _z_plane(ax, pairs, *, focus: np.ndarray | None, title: str) -> None:
     """Draw z-plane poles with the unit circle; ``focus`` zooms on those poles."""
     for p, kind, label in pairs:
         _scatter_poles(ax, p, kind=kind, label=label)
+    allp = np.concatenate([p for p, _, _ in pairs])
+    if focus is None:
+        # A loop with a deadbeat observer has poles at z = 0 and slow ones near
+        # z = 1: on the whole circle both are blobs. Zoom on the slow ones and
+        # count the others in the title.
+        slow = allp[np.abs(allp) > 0.5]
+        if 0 < slow.size < allp.size:
+            focus = slow
+            title += f"\n{allp.size - slow.size} pole(s) with |z| ≤ 0.5 not shown"
     if focus is None:
         th = np.linspace(0, 2 * np.pi, 400)
-        allp = np.concatenate([p for p, _, _ in pairs])
         r = max(1.12, float(np.max(np.abs(allp))) * 1.08)
         xc, yc, half = 0.0, 0.0, r
     else:
@@ -344,6 +352,24 @@ def _z_plane(ax, pairs, *, focus: np.ndarray | None, title: str) -> None:
     ax.set_ylabel("Im z")
     ax.set_title(title)
     ax.ticklabel_format(useOffset=False)
+
+
+def _label_expected_unstable(ax, baseline_poles: np.ndarray) -> None:
+    """Name the baseline's unstable pole: a magnetic bearing is open-loop unstable by physics."""
+    unstable = baseline_poles[baseline_poles.real > 0]
+    if not unstable.size:
+        return
+    p = unstable[np.argmax(unstable.real)]
+    ax.annotate(
+        "unstable pole: expected\nfor a magnetic bearing",
+        xy=(p.real, p.imag),
+        xytext=(-12, 28),
+        textcoords="offset points",
+        ha="right",
+        fontsize=8,
+        color="#374151",
+        arrowprops={"arrowstyle": "->", "color": "#6b7280", "lw": 0.8},
+    )
 
 
 @_styled
@@ -385,6 +411,7 @@ def plot_pole_maps(
     si, _ = _continuous_poles(identified)
     open_pairs = [(sb, "baseline", "baseline plant"), (si, "identified", "identified plant")]
     _s_plane(axes[0, 0], open_pairs, focus=np.concatenate([sb, si]), title="open loop: s-plane")
+    _label_expected_unstable(axes[0, 0], sb)
     if has_z:
         _z_plane(
             axes[0, 1],
@@ -871,11 +898,17 @@ def plot_trends(
             )
         text, drifting = _drift_text(drift) if drift else ("", False)
         title = labels.get(name, name)
-        ax.set_title(title, loc="left")
+        # The name above the drift verdict (right-aligned just over the axes): side
+        # by side, a long name ran into the verdict in a narrow panel.
+        ax.set_title(title, loc="left", pad=15 if text else 6)
         if text:
-            ax.set_title(
+            ax.text(
+                1.0,
+                1.01,
                 text,
-                loc="right",
+                transform=ax.transAxes,
+                ha="right",
+                va="bottom",
                 fontsize=9,
                 fontweight="bold" if drifting else "normal",
                 color=COLORS["changed"] if drifting else "#374151",

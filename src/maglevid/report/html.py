@@ -48,7 +48,7 @@ from maglevid.diagnose.percentage import percentage_index
 from maglevid.exceptions import DataError, MaglevidError
 from maglevid.lti import StateSpace, discretize
 from maglevid.physics.amb import amb_matrices
-from maglevid.physics.units import PARAMETER_INFO
+from maglevid.physics.units import PARAMETER_INFO, UNIT_WORDS
 
 __all__ = ["VERDICT_STYLE", "render_report", "write_report"]
 
@@ -169,6 +169,12 @@ def _figure_html(
 
 def _na(text: str) -> str:
     return f'<p class="note">{_e(text)}</p>'
+
+
+def _unit_html(unit: str) -> str:
+    """A unit with its words as a tooltip (N·A⁻¹: "newton per ampere")."""
+    words = UNIT_WORDS.get(unit)
+    return f'<abbr title="{_e(words)}">{_e(unit)}</abbr>' if words else _e(unit)
 
 
 def _label(name: str) -> str:
@@ -432,7 +438,7 @@ def _parameters_section(d: Diagnosis) -> str:
         cls = ' class="hl"' if c.significant else ""
         rows.append(
             f"<tr{cls}><td><b>{_e(c.name)}</b><div class=small>{_e(desc)}</div></td>"
-            f"<td>{_e(unit)}</td><td class=r>{_num(b)}{base_se}</td>"
+            f"<td>{_unit_html(unit)}</td><td class=r>{_num(b)}{base_se}</td>"
             f"<td class=r>{_num(c.estimate)} ± {_num(c.std_error, 2)}</td>"
             f"<td class=r><b>{_pct(c.change_percent)}</b></td><td class=r>{ci}</td>"
             f"<td class=r>±{100 * c.tolerance:g} %</td>"
@@ -544,9 +550,7 @@ def _percentage_section(d: Diagnosis) -> str:
         "Gosiewski &amp; Paszowski's matrix percentage indexes, "
         "A<sub>p</sub> = (A<sub>identified</sub> − A<sub>baseline</sub>) / "
         "A<sub>baseline</sub> · 100 % by array division (continuous-time A<sub>c</sub>, "
-        "B<sub>c</sub> in physical coordinates), in the paper's 4×4 and 4×2 layout. "
-        + summary
-        + "In the paper's Example II (R1 +20 %) only v5 moves, by 19.77 %."
+        "B<sub>c</sub> in physical coordinates), in the paper's 4×4 and 4×2 layout. " + summary
     )
     return _section(
         "percentage", 3, title, f'<div class="pi-wrap">{tables}</div>{legend}', lead=lead
@@ -575,7 +579,16 @@ def _pole_table(base: StateSpace, ident: StateSpace, dt: float | None) -> str:
         zeta = -i.real / abs(i) if complex_pair else float("nan")
         rel = 100 * abs(i - b) / abs(b) if abs(b) > 0 else float("nan")
         zi = f"{_num(abs(np.exp(i * dt)), 6)}" if dt else "—"
-        stab = '<span class="status st-changed">unstable</span>' if i.real > 0 else ""
+        if i.real > 0 and b.real > 0:
+            stab = (
+                '<span class="status st-unchanged" title="a magnetic bearing is open-loop '
+                'unstable by physics (negative stiffness of the magnets)">unstable: expected '
+                "for a magnetic bearing</span>"
+            )
+        elif i.real > 0:
+            stab = '<span class="status st-changed">unstable (the baseline is not)</span>'
+        else:
+            stab = ""
         rows.append(
             f"<tr><td class=r>{s(b)}</td><td class=r>{s(i)}</td><td class=r>{_pct(rel, 2, False)}"
             f"</td><td class=r>{_num(wn, 4)}</td><td class=r>{_num(zeta, 3)}</td>"
@@ -717,12 +730,26 @@ def _trends_section(d: Diagnosis, trends: Mapping[str, Mapping[str, Any]] | None
         k: (f"{k} [{PARAMETER_INFO[k][1]}] · {PARAMETER_INFO[k][0]}" if k in PARAMETER_INFO else k)
         for k in trends
     }
-    fig, _ = _figure_html(
-        lambda: plot_trends(trends, baselines=baselines, tolerances=tolerances, labels=labels),
-        "Trend of each parameter over time",
-        "Each recording's estimate with its 95 % confidence interval, the baseline (dashed), "
-        "the tolerance band (shaded) and the drift test's fitted line and verdict.",
-    )
+    trends = _ordered_trends(d, trends)
+    groups = [
+        ("Physical parameters", {k: v for k, v in trends.items() if not _is_v(k)}),
+        ("Model elements v1..v9 (Gosiewski & Paszowski eq. (4))", {
+            k: v for k, v in trends.items() if _is_v(k)
+        }),
+    ]  # fmt: skip
+    groups = [(head, group) for head, group in groups if group]
+    figs = []
+    for head, group in groups:
+        fig, _ = _figure_html(
+            lambda group=group: plot_trends(
+                group, baselines=baselines, tolerances=tolerances, labels=labels
+            ),
+            f"Trend of each parameter over time: {head}",
+            "Each recording's estimate with its 95 % confidence interval, the baseline "
+            "(dashed), the tolerance band (shaded) and the drift test's fitted line and "
+            "verdict. Changed and drifting parameters come first.",
+        )
+        figs.append((f"<h3>{_e(head)}</h3>" if len(groups) > 1 else "") + fig)
     rows = []
     for name, entry in trends.items():
         drift = entry.get("drift") or {}
@@ -749,7 +776,23 @@ def _trends_section(d: Diagnosis, trends: Mapping[str, Mapping[str, Any]] | None
         "<th>trend</th></tr></thead>"
         f"<tbody>{''.join(rows)}</tbody></table>"
     )
-    return _section("trends", 6, title, fig + table)
+    return _section("trends", 6, title, "".join(figs) + table)
+
+
+def _is_v(name: str) -> bool:
+    return name[:1] == "v" and name[1:].isdigit()
+
+
+def _ordered_trends(
+    d: Diagnosis, trends: Mapping[str, Mapping[str, Any]]
+) -> dict[str, Mapping[str, Any]]:
+    """Changed (this diagnosis) and drifting parameters first, then the others, in order."""
+    changed = {c.name for c in d.significant_changes}
+
+    def flagged(name: str) -> bool:
+        return name in changed or bool((trends[name].get("drift") or {}).get("drifting"))
+
+    return {k: trends[k] for k in sorted(trends, key=lambda k: not flagged(k))}
 
 
 def _quality_section(d: Diagnosis) -> str:
@@ -797,6 +840,27 @@ def _matrix_html(M: np.ndarray) -> str:
     return f'<table class="matrix">{rows}</table>'
 
 
+#: Words for the fit diagnostics of the identification methods.
+_FIT_WORDS = {
+    "one_step_fit_percent": "one-step prediction fit of {} [%]",
+    "intersample_fit_percent": "inter-sample fit of {} [%]",
+    "structure_residual": "departure from the structure of eq. (4) (relative)",
+    "regression_condition": "condition number of the regression",
+    "sigma_w": "noise standard deviation",
+}
+
+
+def _fit_label(key: str) -> str:
+    """``one_step_fit_percent_x`` -> "one-step prediction fit of x [%]"."""
+    for stem, words in _FIT_WORDS.items():
+        if key == stem:
+            return words.format("all outputs") if "{}" in words else words
+        if key.startswith(stem + "_") and "{}" in words:
+            channel = key[len(stem) + 1 :]
+            return words.format("the worst output" if channel == "min" else channel)
+    return key.replace("_", " ")
+
+
 def _method_section(d: Diagnosis, loop_note: str) -> str:
     ident = d.identification
     parts = []
@@ -809,8 +873,12 @@ def _method_section(d: Diagnosis, loop_note: str) -> str:
     items: list[tuple[str, Any]] = []
     if ident is not None:
         items.append(("samples (control periods)", f"{ident.n_samples:,}"))
-        items.extend((f"option: {k}", v) for k, v in ident.options.items())
-        items.extend((f"fit: {k}", float(v)) for k, v in ident.fit.items())
+        items.extend(
+            (f"option {k}", v)
+            for k, v in ident.options.items()
+            if v is not None and not isinstance(v, Mapping)
+        )
+        items.extend((_fit_label(k), float(v)) for k, v in ident.fit.items())
     if d.dt:
         items.append(("control period dt [s]", float(d.dt)))
     if d.isolation is not None:
@@ -821,9 +889,10 @@ def _method_section(d: Diagnosis, loop_note: str) -> str:
         items.append(("recording hash", d.recording_hash))
     if items:
         parts.append(_kv_table(items))
-    notes = list(d.notes) + (list(ident.notes) if ident is not None else [])
-    if loop_note:
-        notes.append(loop_note)
+    # Each note once (the diagnosis repeats some of the identification's); the
+    # loop note is shown with the pole maps it explains.
+    notes = list(dict.fromkeys([*d.notes, *(ident.notes if ident is not None else ())]))
+    notes = [n for n in notes if n != loop_note]
     if notes:
         parts.append("<h3>Notes</h3><ul>" + "".join(f"<li>{_e(n)}</li>" for n in notes) + "</ul>")
     base, idm = _as_continuous(d.baseline_model), _as_continuous(d.identified_model)
