@@ -120,6 +120,10 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         from maglevid.diagnose.history import open_history
 
         store = open_history(args.store)
+    from maglevid.cli._progress import stages
+
+    steps = stages(("diagnosing", "writing the report"), desc="diagnose", args=args)
+    next(steps)
     diag = diagnose(
         args.recording,
         baseline=_baseline(args.baseline),
@@ -131,6 +135,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     )
     out = diag.to_dict()
     if args.report:
+        next(steps)
         from maglevid.report import write_report
 
         trends = None
@@ -141,6 +146,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             hist = history_summary(store, diag.machine, parameters=None, method=diag.method)
             trends = trends_from_history(hist, method=diag.method)
         out["report"] = str(write_report(diag, args.report, trends=trends))
+    steps.close()
     if store is not None:
         store.close()
     if args.fail_on_fault and diag.verdict_code in ("fault", "unexplained_change", "drift"):

@@ -137,8 +137,11 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     options = _parse_options(args.option)
     if _should_stream(args):
         return _run_streamed(args, options)
+    from maglevid.cli._progress import stages
     from maglevid.io import read_recording
 
+    steps = stages(("reading", "identifying"), desc="identify", args=args)
+    next(steps)
     data = read_recording(args.recording, mapping=args.mapping)
     method = args.method or _default_method(data)
     from maglevid.diagnose.levitator import is_levitator, levitator_checks
@@ -146,7 +149,9 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     if method == "greybox-levitator" and is_levitator(data) and "segments" not in options:
         # A rig log: identify on the segments where the ball levitates under control.
         options["segments"] = levitator_checks(data)[1]
+    next(steps)
     result = get_method(method)(data, **options)
+    steps.close()
     out = result.to_dict()
     out["recording"] = args.recording
     if result.extras.get("B_intersample") is not None:
