@@ -11,22 +11,13 @@ import pytest
 import maglevid
 from maglevid.identify.result import IdentificationResult
 from maglevid.physics.amb import AMBParameters
-from maglevid.simulate import simulate_amb_loop
 
 NOMINAL = AMBParameters.nominal()
 
 
 @pytest.fixture(scope="module")
-def faulty():
-    # R1 +20 % under the demo's sensor noise (5 nm, 10 uA): the README's example.
-    return simulate_amb_loop(
-        NOMINAL.with_fault(R1=1.2),
-        nominal=NOMINAL,
-        dt=1e-4,
-        n_samples=20_000,
-        noise_std=(5e-9, 1e-5, 1e-5),
-        rng=1,
-    )
+def faulty(amb_r1_fault):
+    return amb_r1_fault  # tests/conftest.py: R1 +20 %, the README's bearing
 
 
 @pytest.fixture(scope="module")

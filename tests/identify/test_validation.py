@@ -8,7 +8,6 @@ import pytest
 import maglevid
 from maglevid.identify.validation import compare, residual_tests
 from maglevid.physics.amb import AMBParameters
-from maglevid.simulate import simulate_amb_loop
 
 NOMINAL = AMBParameters.nominal()
 
@@ -70,16 +69,8 @@ def test_bad_arguments_are_one_clear_error():
 
 
 @pytest.fixture(scope="module")
-def faulty():
-    # R1 +20 % with the controller and observer designed on the nominal bearing.
-    return simulate_amb_loop(
-        NOMINAL.with_fault(R1=1.2),
-        nominal=NOMINAL,
-        dt=1e-4,
-        n_samples=20_000,
-        noise_std=(5e-9, 1e-5, 1e-5),
-        rng=1,
-    )
+def faulty(amb_r1_fault):
+    return amb_r1_fault  # tests/conftest.py: R1 +20 %, the README's bearing
 
 
 def test_compare_simulates_the_unstable_bearing_in_closed_loop(faulty):
