@@ -116,3 +116,39 @@ def test_history_frame_has_units(tmp_path, faulty):
     assert r1.unit == "Ω" and r1.baseline == NOMINAL.R1
     assert df[df.parameter == "ki1"].unit.iloc[0] == "N·A⁻¹"
     assert str(df.recorded_at.dtype).startswith("datetime64") and df.recorded_at.dt.tz is not None
+
+
+@pytest.mark.parametrize(
+    "first",
+    [
+        "import maglevid",
+        "from maglevid.diagnose.history import open_history",
+        "import maglevid.identify.arx",
+        "from maglevid.diagnose import pipeline",
+        "from maglevid import diagnose, identify",
+    ],
+)
+def test_the_names_are_the_functions_whatever_is_imported_first(first):
+    # The subpackages of the same names must never shadow the functions.
+    import subprocess
+    import sys
+
+    code = (
+        f"{first}\nimport inspect, maglevid\n"
+        "assert inspect.isfunction(maglevid.diagnose), maglevid.diagnose\n"
+        "assert inspect.isfunction(maglevid.identify), maglevid.identify\n"
+        "print('ok')"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)
+    assert out.returncode == 0 and out.stdout.strip() == "ok", out.stderr
+
+
+def test_import_maglevid_stays_light():
+    # `import maglevid` (every CLI call) does not load the diagnosis: it is bound
+    # on first use of maglevid.diagnose / maglevid.identify.
+    import subprocess
+    import sys
+
+    code = "import sys, maglevid\nprint('maglevid.diagnose.pipeline' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"

@@ -12,13 +12,10 @@ the parameters over time, and say what changed and where.
 
 from __future__ import annotations
 
+import importlib
 import logging
+from typing import Any
 
-# The subpackages ``maglevid.identify`` and ``maglevid.diagnose`` are imported
-# (by maglevid.api) before the functions of the same names are bound here, so the
-# attributes are the functions while ``from maglevid.diagnose.x import y`` still
-# finds the subpackages in ``sys.modules``.
-from maglevid.api import diagnose, identify
 from maglevid.data import ClosedLoopData
 from maglevid.exceptions import (
     DataError,
@@ -49,3 +46,28 @@ __all__ = [
 ]
 
 logging.getLogger(__name__).addHandler(logging.NullHandler())
+
+# ``maglevid.identify`` and ``maglevid.diagnose`` are the functions of
+# maglevid.api, and also the names of two subpackages. Importing a subpackage for
+# the first time binds it as an attribute of this package; so both are imported
+# here (cheap: their __init__ are small) and their attributes removed, and the
+# functions are bound on first use by __getattr__ (maglevid.api imports the whole
+# diagnosis, scipy.optimize included: too slow for every `import maglevid`).
+# ``from maglevid.diagnose.history import open_history`` keeps working through
+# sys.modules.
+_FUNCTIONS = ("diagnose", "identify")
+for _name in _FUNCTIONS:
+    importlib.import_module(f"{__name__}.{_name}")
+    globals().pop(_name, None)
+
+
+def __getattr__(name: str) -> Any:
+    if name in _FUNCTIONS:
+        fn = getattr(importlib.import_module("maglevid.api"), name)
+        globals()[name] = fn
+        return fn
+    raise AttributeError(f"module 'maglevid' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_FUNCTIONS))
