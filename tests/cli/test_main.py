@@ -72,3 +72,16 @@ def test_method_list_has_one_described_line_per_method(capsys):
     for line in lines:
         name, _, description = line.partition("  ")
         assert name in available_methods() and len(description.strip()) > 20, line
+
+
+def test_stages_are_shown_unless_quiet(tmp_path, capsys):
+    # Issue 18: long single steps (simulate, read, identify, diagnose, write) were
+    # silent; a bar names the stage in progress.
+    out = tmp_path / "a.npz"
+    assert main(["simulate", "amb", "--n-samples", "2000", "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "simulate amb" in err and "simulating" in err and "writing" in err
+    assert main(["identify", str(out), "-q"]) == 0
+    assert capsys.readouterr().err == ""
+    assert main(["identify", str(out)]) == 0
+    assert "identifying" in capsys.readouterr().err
