@@ -104,3 +104,17 @@ def test_plots(faulty, tmp_path):
     assert len(fig.axes) == 3 * 3  # 3 outputs x (autocorrelation + 2 inputs)
     fig = plot_compare(good.compare(faulty), path=tmp_path / "compare.png")
     assert len(fig.axes) == 3 and (tmp_path / "compare.png").stat().st_size > 0
+
+
+def test_a_result_without_residuals_is_tested_on_its_one_step_predictor(faulty):
+    # A result read back from JSON has no residuals: resid predicts one step with
+    # the model (state from the last q samples) and tests those errors.
+    from maglevid.identify.result import IdentificationResult
+
+    good = maglevid.identify(faulty, "physical")
+    back = IdentificationResult.from_dict(good.to_dict())
+    assert back.residuals is None
+    a = back.resid(faulty)
+    assert a.n_samples > 19_000 and a.autocorrelation.shape == (26, 3)
+    # The exact method's predictor errors are still independent of past inputs.
+    assert np.all(a.independent)
