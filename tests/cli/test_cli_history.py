@@ -160,3 +160,31 @@ def test_json_is_strict(store_path, capsys):
     text = capsys.readouterr().out
     assert "NaN" not in text and "Infinity" not in text
     assert np.isfinite(json.loads(text)["alpha"])
+
+
+def test_a_step_is_reported_as_a_step(tmp_path, rng, capsys):
+    # An amplifier loses 20 % of its gain between two weekly recordings (the demo's
+    # AMB-3): the line says STEP with its date and size, not a drift.
+    path = tmp_path / "s.sqlite"
+    with open_history(path) as s:
+        for i in range(12):
+            kw1 = (1.0 if i < 7 else 0.8) + 0.005 * rng.standard_normal()
+            s.record_diagnosis(
+                "amp-3",
+                recording_hash=f"a{i}",
+                recorded_at=T0 + timedelta(days=7 * i),
+                method="physical",
+                verdict="-",
+                verdict_code="no_change",
+                estimates={"kw1": (kw1, 0.005, None, None, "V·V⁻¹", 1.0)},
+            )
+    code, out = run_json(capsys, "amp-3", "--store", path)
+    kw1 = out["parameters"]["kw1"]
+    assert code == 0 and kw1["verdict"] == "STEP"
+    assert kw1["step"]["at"] == (T0 + timedelta(days=49)).isoformat()
+    # Size -0.2 within 4 standard errors of the difference of the two means.
+    assert abs(kw1["step"]["size"] + 0.2) < 4 * 0.005 * (1 / 7 + 1 / 5) ** 0.5
+    assert main(["history", "amp-3", "--store", str(path)]) == 0
+    line = next(r for r in capsys.readouterr().out.splitlines() if r.startswith("kw1"))
+    assert "step at " + (T0 + timedelta(days=49)).date().isoformat() in line
+    assert line.endswith("STEP") and "p < 1e-16" in line

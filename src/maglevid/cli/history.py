@@ -290,16 +290,23 @@ def _trend_text(p: dict[str, Any]) -> str:
     step = p.get("step")
     if step:
         pct = f" ({step['percent']:+.1f} %)" if step.get("percent") is not None else ""
-        return f"step at {(step['at'] or '?')[:10]}{pct}, p = {step['p_value']:.2g}"
+        return f"step at {(step['at'] or '?')[:10]}{pct}, {_p_text(step['p_value'])}"
     latest = p.get("latest") or {}
     d = p["drift"].get(latest.get("method"), {})
     if not d or "skipped" in d:
         return "not tested (too few points)" if d else "-"
     unit = p["unit"] or ""
-    text = f"{_fmt(d['slope'], 3)} {unit}/day, p = {_fmt(d['p_value'], 2)}"
+    text = f"{_fmt(d['slope'], 3)} {unit}/day, {_p_text(d['p_value'])}"
     if d.get("projected_crossing_at"):
         text += f", limit ~{d['projected_crossing_at'][:10]}"
     return text
+
+
+def _p_text(p: float | None) -> str:
+    """A p-value as text; below 1e-16 (double precision) as a bound, never "p = 0"."""
+    if p is None:
+        return "p n/a"
+    return "p < 1e-16" if p < 1e-16 else f"p = {p:.2g}"
 
 
 def _line(name: str, p: dict[str, Any]) -> str:
@@ -311,7 +318,7 @@ def _line(name: str, p: dict[str, Any]) -> str:
     change = "-" if p["change_percent"] is None else f"{p['change_percent']:+.1f} %"
     return (
         f"{name:<10} {(p['unit'] or ''):<12} {value:>22} {change:>9}  "
-        f"{_trend_text(p):<34} {p['verdict']}"
+        f"{_trend_text(p):<46} {p['verdict']}"
     )
 
 
@@ -365,7 +372,7 @@ def format_text(result: dict[str, Any]) -> str:
         f"{result['store']})",
         "",
         f"{'parameter':<10} {'unit':<12} {'latest':>22} {'change':>9}  "
-        f"{'trend or step':<34} verdict",
+        f"{'trend or step':<46} verdict",
     ]
     order = sorted(result["parameters"].items(), key=lambda kv: _rank(*kv))
     for name, p in order:
