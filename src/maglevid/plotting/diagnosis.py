@@ -792,6 +792,14 @@ def _drift_text(drift: Mapping[str, Any]) -> tuple[str, bool]:
     return ", ".join(parts), bool(drifting)
 
 
+def _draw_step(ax, x: np.ndarray, step: Mapping[str, Any]) -> None:
+    """The two means of a step (``maglevid.diagnose.step``) over their points."""
+    k = int(step["index"])
+    for seg, level in ((x[:k], step["before"]), (x[k:], step["after"])):
+        if len(seg):
+            ax.plot([seg[0], seg[-1]], [level, level], color=COLORS["changed"], lw=1.4)
+
+
 @_styled
 def plot_trends(
     trends: Mapping[str, Mapping[str, Any]],
@@ -810,7 +818,9 @@ def plot_trends(
         ``{"time": [...], "value": [...], "std_error": [...], "drift": {...}}``
         per parameter. ``time``: ISO 8601 strings (or datetimes), shown as dates,
         or numbers (unit from an optional ``"time_unit"`` entry). ``std_error``
-        optional. ``drift`` optional: the ``to_dict()`` of
+        optional. ``step`` optional (``index``, ``before``, ``after``, ``at``,
+        ``percent``, as ``maglevid history --json`` gives it): drawn as the two
+        means instead of the drift line. ``drift`` optional: the ``to_dict()`` of
         :class:`maglevid.diagnose.drift.DriftResult` or any mapping with
         ``drifting``/``verdict`` and ``p_value``; with ``slope``, ``t_ref`` and
         ``value_at_ref`` the fitted line is drawn (time in seconds since 1970 for
@@ -883,7 +893,10 @@ def plot_trends(
             label=f"estimate ± {100 * level:.0f} % CI",
             zorder=3,
         )
-        fitted = drift_line(drift, dated=dated)
+        step = entry.get("step")
+        fitted = None if step else drift_line(drift, dated=dated)
+        if step:
+            _draw_step(ax, x, step)
         if fitted is not None and t.size >= 2:
             slope, t_ref, v_ref = fitted
             tt = np.linspace(float(t.min()), float(t.max()), 50)
@@ -897,6 +910,10 @@ def plot_trends(
                 label="fitted trend",
             )
         text, drifting = _drift_text(drift) if drift else ("", False)
+        if step:
+            pct = step.get("percent")
+            size = f" ({pct:+.1f} %)" if isinstance(pct, (int, float)) else ""
+            text, drifting = f"step at {str(step.get('at') or '?')[:10]}{size}", True
         title = labels.get(name, name)
         # The name above the drift verdict (right-aligned just over the axes): side
         # by side, a long name ran into the verdict in a narrow panel.

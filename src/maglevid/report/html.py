@@ -759,6 +759,18 @@ def _trends_section(d: Diagnosis, trends: Mapping[str, Mapping[str, Any]] | None
             if "drifting" in drift
             else "—"
         )
+        step = entry.get("step")
+        if step:
+            pct = step.get("percent")
+            verdict = f"step at {str(step.get('at') or '?')[:10]}" + (
+                f" ({_pct(pct, 1)})" if isinstance(pct, (int, float)) else ""
+            )
+            p = step.get("p_value")
+        rate = (
+            f"mean {_num(step['before'])} → {_num(step['after'])}"
+            if step
+            else _trend_rate(name, entry, drift, baselines.get(name))
+        )
         values = list(entry.get("value", ()))
         ses = list(entry.get("std_error") or [])
         latest = _num(values[-1]) if values else "—"
@@ -768,7 +780,7 @@ def _trends_section(d: Diagnosis, trends: Mapping[str, Mapping[str, Any]] | None
             f"<tr><td><b>{_e(name)}</b></td><td class=r>{len(values)}</td>"
             f"<td class=r>{latest}</td><td>{_e(verdict)}</td>"
             f"<td class=r>{_pval(p) if isinstance(p, (int, float)) else '—'}</td>"
-            f"<td>{_trend_rate(name, entry, drift, baselines.get(name))}</td></tr>"
+            f"<td>{rate}</td></tr>"
         )
     table = (
         '<table class="data"><thead><tr><th>parameter</th><th class="r">points</th>'
@@ -790,7 +802,10 @@ def _ordered_trends(
     changed = {c.name for c in d.significant_changes}
 
     def flagged(name: str) -> bool:
-        return name in changed or bool((trends[name].get("drift") or {}).get("drifting"))
+        entry = trends[name]
+        return name in changed or bool(
+            entry.get("step") or (entry.get("drift") or {}).get("drifting")
+        )
 
     return {k: trends[k] for k in sorted(trends, key=lambda k: not flagged(k))}
 
