@@ -152,3 +152,8 @@ def test_import_maglevid_stays_light():
     code = "import sys, maglevid\nprint('maglevid.diagnose.pipeline' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
+
+
+def test_identify_refuses_a_mapping_for_data_in_memory(faulty):
+    with pytest.raises(maglevid.DataError, match="mapping"):
+        maglevid.identify(faulty, mapping={"layout": "time_first"})
