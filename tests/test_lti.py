@@ -117,3 +117,19 @@ def test_dict_round_trip_and_python_control(rng):
     assert back.dt == sys.dt
     cont = StateSpace.from_control(_random_stable(rng, 2, 1, 1).to_control())
     assert cont.dt is None
+
+
+def test_channel_names_survive_python_control():
+    # Issue 18: x, i1, i2 stayed y[0..2] in python-control.
+    pytest.importorskip("control")
+    from maglevid.physics.amb import AMBParameters, amb_state_space
+
+    sys = amb_state_space(AMBParameters.nominal())
+    ctl = sys.to_control()
+    assert list(ctl.output_labels) == ["x", "i1", "i2"]
+    assert list(ctl.input_labels) == ["u1", "u2"]
+    back = StateSpace.from_control(ctl)
+    assert back.output_names == ("x", "i1", "i2") and back.state_names == sys.state_names
+    # python-control's own default labels are not taken for names.
+    plain = StateSpace.from_control(StateSpace([[0.5]], [[1.0]], [[1.0]], dt=0.1).to_control())
+    assert plain.output_names == () and plain.input_names == ()

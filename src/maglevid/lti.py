@@ -220,8 +220,18 @@ class StateSpace:
                 "python-control is not installed; `pip install maglevid[control]`"
             ) from exc
         dt = 0 if self.dt is None else self.dt
+        # Channel names travel as python-control labels (x, i1, i2 rather than y[0..2]).
+        labels = {
+            key: list(names)
+            for key, names in (
+                ("states", self.state_names),
+                ("inputs", self.input_names),
+                ("outputs", self.output_names),
+            )
+            if names
+        }
         return control.ss(
-            np.array(self.A), np.array(self.B), np.array(self.C), np.array(self.D), dt
+            np.array(self.A), np.array(self.B), np.array(self.C), np.array(self.D), dt, **labels
         )
 
     @classmethod
@@ -231,7 +241,18 @@ class StateSpace:
         if dt is True:
             raise ModelError("control.StateSpace with dt=True has no numeric sample time")
         dt = None if not dt else float(dt)
-        return cls(sys.A, sys.B, sys.C, sys.D, dt)
+
+        def names(attr: str, default: str) -> tuple[str, ...]:
+            # python-control's default labels (x[0], u[0], y[0]) are not names.
+            labels = list(getattr(sys, attr, None) or ())
+            return (
+                () if all(n == f"{default}[{i}]" for i, n in enumerate(labels)) else tuple(labels)
+            )
+
+        return cls(
+            sys.A, sys.B, sys.C, sys.D, dt,
+            names("state_labels", "x"), names("input_labels", "u"), names("output_labels", "y"),
+        )  # fmt: skip
 
 
 def _expm_balanced(M: np.ndarray) -> np.ndarray:

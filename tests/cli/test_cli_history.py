@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 from datetime import datetime, timedelta, timezone
 
 import numpy as np
@@ -88,8 +89,22 @@ def test_trends_and_drift_verdicts(store_path, capsys):
     assert lo < truth < hi
     assert not out["parameters"]["Ls1"]["drift"]["deadbeat-arx"]["drifting"]
     assert out["drifting"] == ["R1 (deadbeat-arx)"]
-    # Text: the table and the verdicts.
-    assert main(["history", "pump-7", "--store", str(store_path), "--tolerance", "R1=0.5"]) == 0
+    # Text (issue 18: was one line per point, ~600 lines for a bearing): one line
+    # per parameter, the drifting one first, with unit, latest, change, trend, verdict.
+    argv = ["history", "pump-7", "--store", str(store_path), "--tolerance", "R1=0.5"]
+    assert main(argv) == 0
+    rows = capsys.readouterr().out.strip().splitlines()
+    table = [r for r in rows if r.startswith(("R1 ", "Ls1 "))]
+    assert len(table) == 2 and table[0].startswith("R1 ")
+    assert "ohm" in table[0] and "ohm/day" in table[0] and table[0].endswith("DRIFTING")
+    assert table[1].endswith("stable")
+    # The true change at the last point: +0.002 * 98 days / 2 ohm = +9.8 %; one
+    # point's noise is 0.01 ohm = 0.5 % of the baseline, so within 3 s.e. = 1.5 %.
+    change = float(re.search(r"([+-]\d+\.\d) %", table[0]).group(1))
+    assert abs(change - 9.8) < 1.5
+    assert change == round(100 * (out["parameters"]["R1"]["latest"]["value"] - 2.0) / 2.0, 1)
+    # --points: the series behind each line and the drift tests in full.
+    assert main([*argv, "--points"]) == 0
     text = capsys.readouterr().out
     assert "R1 [ohm]" in text and "DRIFTING" in text and "no significant drift" in text
     assert "limit 2.5 ohm" in text
@@ -145,3 +160,31 @@ def test_json_is_strict(store_path, capsys):
     text = capsys.readouterr().out
     assert "NaN" not in text and "Infinity" not in text
     assert np.isfinite(json.loads(text)["alpha"])
+
+
+def test_a_step_is_reported_as_a_step(tmp_path, rng, capsys):
+    # An amplifier loses 20 % of its gain between two weekly recordings (the demo's
+    # AMB-3): the line says STEP with its date and size, not a drift.
+    path = tmp_path / "s.sqlite"
+    with open_history(path) as s:
+        for i in range(12):
+            kw1 = (1.0 if i < 7 else 0.8) + 0.005 * rng.standard_normal()
+            s.record_diagnosis(
+                "amp-3",
+                recording_hash=f"a{i}",
+                recorded_at=T0 + timedelta(days=7 * i),
+                method="physical",
+                verdict="-",
+                verdict_code="no_change",
+                estimates={"kw1": (kw1, 0.005, None, None, "V·V⁻¹", 1.0)},
+            )
+    code, out = run_json(capsys, "amp-3", "--store", path)
+    kw1 = out["parameters"]["kw1"]
+    assert code == 0 and kw1["verdict"] == "STEP"
+    assert kw1["step"]["at"] == (T0 + timedelta(days=49)).isoformat()
+    # Size -0.2 within 4 standard errors of the difference of the two means.
+    assert abs(kw1["step"]["size"] + 0.2) < 4 * 0.005 * (1 / 7 + 1 / 5) ** 0.5
+    assert main(["history", "amp-3", "--store", str(path)]) == 0
+    line = next(r for r in capsys.readouterr().out.splitlines() if r.startswith("kw1"))
+    assert "step at " + (T0 + timedelta(days=49)).date().isoformat() in line
+    assert line.endswith("STEP") and "p < 1e-16" in line

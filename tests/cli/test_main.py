@@ -33,3 +33,55 @@ def test_bad_method_option_is_one_clear_line(capsys):
     err = capsys.readouterr().err
     assert code == 1
     assert "error" in err and "Traceback" not in err
+
+
+def _leaf_parsers(parser, path=()):
+    import argparse
+
+    subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    if not subs:
+        yield path, parser
+    for action in subs:
+        for name, child in action.choices.items():
+            yield from _leaf_parsers(child, (*path, name))
+
+
+def test_every_leaf_command_takes_json_and_quiet():
+    # Issue 18: `simulate amb ... --json` and `reproduce gosiewski ... --json` were rejected.
+    from maglevid.cli.main import build_parser
+
+    leaves = list(_leaf_parsers(build_parser()))
+    assert len(leaves) >= 10
+    for path, p in leaves:
+        assert {"--json", "--quiet", "-q"} <= set(p._option_string_actions), path
+
+
+def test_json_after_a_nested_subcommand(tmp_path, capsys):
+    out = tmp_path / "a.npz"
+    argv = ["simulate", "amb", "--n-samples", "2000", "--out", str(out), "--json", "-q"]
+    assert main(argv) == 0
+    assert json.loads(capsys.readouterr().out)["n_samples"] == 2000
+
+
+def test_method_list_has_one_described_line_per_method(capsys):
+    from maglevid.identify.registry import available_methods
+
+    assert main(["identify", "x.npz", "--method", "list"]) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert len(lines) == len(available_methods())
+    for line in lines:
+        name, _, description = line.partition("  ")
+        assert name in available_methods() and len(description.strip()) > 20, line
+
+
+def test_stages_are_shown_unless_quiet(tmp_path, capsys):
+    # Issue 18: long single steps (simulate, read, identify, diagnose, write) were
+    # silent; a bar names the stage in progress.
+    out = tmp_path / "a.npz"
+    assert main(["simulate", "amb", "--n-samples", "2000", "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "simulate amb" in err and "simulating" in err and "writing" in err
+    assert main(["identify", str(out), "-q"]) == 0
+    assert capsys.readouterr().err == ""
+    assert main(["identify", str(out)]) == 0
+    assert "identifying" in capsys.readouterr().err

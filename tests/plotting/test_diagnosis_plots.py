@@ -153,8 +153,10 @@ def test_trends_plot_dates_band_and_drift_line():
     trends = example_trends()
     fig = plot_trends(trends, baselines={"R1": 17.5, "R2": 17.5}, tolerances={"R1": 0.05})
     ax = fig.axes[0]
-    assert "drifting" in ax.get_title(loc="right")
-    assert "no significant drift" in fig.axes[1].get_title(loc="right")
+    # The verdict is a text right above each panel (issue 18: no longer the right
+    # title, which a long left title ran into).
+    assert any("drifting" in t.get_text() for t in ax.texts)
+    assert any("no significant drift" in t.get_text() for t in fig.axes[1].texts)
     (trend,) = [ln for ln in ax.get_lines() if ln.get_label() == "fitted trend"]
     assert mcolors.to_hex(trend.get_color()) == COLORS["changed"]
     (base,) = [ln for ln in ax.get_lines() if ln.get_label() == "baseline"]
@@ -177,3 +179,45 @@ def test_trends_numeric_time_and_bad_input():
         plot_trends({"R1": {"time": [0, 1]}})
     with pytest.raises(DataError, match="empty"):
         plot_trends({})
+
+
+def test_trend_titles_do_not_overlap_their_drift_verdicts():
+    # Issue 18: in the report's trend grid a long panel title ran into the
+    # "no significant drift, p = ..." line beside it.
+    from maglevid.plotting.diagnosis import plot_trends
+
+    trends = example_trends()
+    labels = {k: f"{k} [N·A⁻¹] · coil 1 force/current factor, a long description" for k in trends}
+    fig = plot_trends(trends, labels=labels)
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    canvas = FigureCanvasAgg(fig)
+    canvas.draw()
+    renderer = canvas.get_renderer()
+    for ax in fig.axes:
+        if not ax.get_visible():
+            continue
+        left = ax._left_title
+        right = next(t for t in ax.texts if "drift" in t.get_text())
+        a, b = left.get_window_extent(renderer), right.get_window_extent(renderer)
+        assert not a.overlaps(b), (left.get_text(), right.get_text())
+
+
+def test_closed_loop_z_plane_is_zoomed_on_the_slow_poles():
+    # The simulator's loop has a deadbeat observer (poles at z = 0) beside slow
+    # poles near z = 1: on the whole unit circle both were blobs.
+    from maglevid.control.feedback import close_loop, controller_state_space
+    from maglevid.plotting.diagnosis import plot_pole_maps
+    from maglevid.simulate import simulate_amb_loop
+
+    loop = simulate_amb_loop(NOMINAL, nominal=NOMINAL, dt=1e-4, n_samples=200, rng=1).loop
+    base = discretize(amb_state_space(NOMINAL), 1e-4)
+    ident = discretize(amb_state_space(NOMINAL.with_fault(R1=1.2)), 1e-4)
+    K = controller_state_space(dict(loop), plant=base)
+    fig = plot_pole_maps(base, ident, closed_loop=(close_loop(base, K), close_loop(ident, K)))
+    ax = fig.axes[3]
+    lo, hi = ax.get_xlim()
+    assert hi - lo < 0.5  # a window near z = 1, not the whole circle (width 2.24)
+    assert "not shown" in ax.get_title()
+    texts = [t.get_text() for t in fig.axes[0].texts]
+    assert any("expected" in t and "magnetic bearing" in t for t in texts)

@@ -41,6 +41,38 @@ PROBES = {
     "var r=i.getBoundingClientRect();return [r.left+window.scrollX,r.top+window.scrollY,"
     "r.width,r.height,i.naturalWidth];}))",
     "body_text": "document.body.innerText",
+    # Every pair of visible text boxes (one per line of each text node) from different
+    # nodes that intersect by more than 1 px both ways: overlapping labels.
+    "overlaps": """(function(){
+      var w = document.createTreeWalker(document.body, NodeFilter.SHOW_TEXT), n, id = 0;
+      var boxes = [];
+      while ((n = w.nextNode())) {
+        var t = n.textContent.trim();
+        var el = n.parentElement;
+        if (!t || el.closest('script,style')) continue;
+        // Closed <details>: its content is not displayed (stale boxes in Chromium).
+        var d = el.closest('details');
+        if (d && !d.open && !el.closest('summary')) continue;
+        var r = document.createRange(); r.selectNodeContents(n);
+        var rs = r.getClientRects();
+        for (var i = 0; i < rs.length; i++) {
+          var b = rs[i];
+          if (b.width < 1 || b.height < 1) continue;
+          boxes.push([b.left + scrollX, b.top + scrollY, b.right + scrollX,
+                      b.bottom + scrollY, id, t.slice(0, 40)]);
+        }
+        id++;
+      }
+      var out = [];
+      for (var i = 0; i < boxes.length; i++) for (var j = i + 1; j < boxes.length; j++) {
+        var a = boxes[i], c = boxes[j];
+        if (a[4] === c[4]) continue;
+        var ox = Math.min(a[2], c[2]) - Math.max(a[0], c[0]);
+        var oy = Math.min(a[3], c[3]) - Math.max(a[1], c[1]);
+        if (ox > 1 && oy > 1) out.push([a[5], c[5], ox, oy]);
+      }
+      return JSON.stringify({boxes: boxes.length, overlaps: out.slice(0, 20)});
+    })()""",
 }
 
 
@@ -120,6 +152,15 @@ def test_screenshot_shows_the_charts(fault_page):
         Image.fromarray(px[: min(h, bottom)]).save(path, optimize=True)
 
 
+def test_no_two_text_boxes_intersect(fault_page, blocked_report):
+    # Issue 18: layout overlaps (titles running into notes) are checked where they
+    # happen, in the rendered page; the figures' own texts in tests/plotting.
+    for res, least in ((fault_page[0], 300), (_open(blocked_report)[0], 50)):
+        found = json.loads(res.values["overlaps"])
+        assert found["boxes"] > least  # the probe saw the page's text
+        assert found["overlaps"] == [], found["overlaps"]
+
+
 def test_cannot_diagnose_page(blocked_report):
     res, px = _open(blocked_report)
     assert res.errors == []
@@ -152,3 +193,21 @@ def test_the_harness_sees_what_the_report_test_must_not_see(tmp_path):
     assert "undefinedFunction" in text
     assert res.values["ok"] == "false"
     assert any(u.startswith("http://127.0.0.1:9/") for u in res.requests)
+
+
+def test_the_overlap_probe_finds_an_overlap(tmp_path):
+    # Guard against a vacuous pass of the overlap check: two labels drawn on top
+    # of each other are found, the same labels side by side are not.
+    page = tmp_path / "overlap.html"
+    page.write_text(
+        "<!DOCTYPE html><html><body>"
+        "<span style='position:absolute;left:10px;top:10px'>panel title R1</span>"
+        "<span style='position:absolute;left:40px;top:12px'>no significant drift</span>"
+        "<span style='position:absolute;left:10px;top:100px'>left</span>"
+        "<span style='position:absolute;left:300px;top:100px'>right</span>"
+        "</body></html>",
+        encoding="utf-8",
+    )
+    res = load_page(page.as_uri(), expressions={"overlaps": PROBES["overlaps"]})
+    found = json.loads(res.values["overlaps"])["overlaps"]
+    assert [pair[:2] for pair in found] == [["panel title R1", "no significant drift"]]

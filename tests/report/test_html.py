@@ -299,3 +299,54 @@ def test_identified_model_falls_back_to_the_identification(fault_diagnosis):
     v5 = fault_diagnosis.percentage_index["A_p"][2, 2]
     assert f'<span class="vtag">v5</span>{v5:+.4f}' in html
     assert html.count("<img ") == 3
+
+
+# ------------------------------------------------------------- issue 18: cosmetics
+def test_units_are_unambiguous_with_words_on_hover(fault_html):
+    # ki's unit was "N/A", which reads as "not applicable".
+    assert '<abbr title="newton per ampere">N·A⁻¹</abbr>' in fault_html
+    assert ">N/A<" not in fault_html
+
+
+def test_no_internals_and_no_paper_sentence(fault_html, fault_diagnosis):
+    text = unescape(re.sub(r"<[^>]+>", " ", fault_html))
+    assert "Example II" not in text  # the paper's numbers belong to `reproduce gosiewski`
+    assert "option: " not in text and "fit: " not in text
+    assert "one_step_fit_percent" not in text.split("diagnosis-data")[0]
+    assert "None" not in re.sub(
+        r'<script type="application/json".*?</script>', "", fault_html, flags=re.S
+    )
+    assert "one-step prediction fit of" in text
+
+
+def test_every_note_once(fault_html):
+    notes = re.findall(r"<h3>Notes</h3><ul>(.*?)</ul>", fault_html, re.S)
+    items = re.findall(r"<li>(.*?)</li>", notes[0]) if notes else []
+    assert len(items) == len(set(items))
+    # The loop note is shown once, with the pole maps.
+    assert fault_html.count("The diagnosis carries no controller") <= 1
+
+
+def test_expected_unstable_pole_is_labelled_as_expected(fault_html):
+    # The bearing's open-loop pole at +455 rad/s is physics, not a fault.
+    assert "unstable: expected for a magnetic bearing" in fault_html
+    assert "unstable (the baseline is not)" not in fault_html
+
+
+def test_trend_panels_changed_first_and_v_in_their_own_group(fault_diagnosis):
+    from diagnosis_examples import example_trends
+    from maglevid.report.html import _ordered_trends
+
+    trends = example_trends()
+    flat = trends["R2"]
+    trends = {
+        "K1": flat, "R2": flat, "v5": flat, "R1": trends["R1"], "v2": flat, "kw2": flat,
+    }  # fmt: skip
+    ordered = list(_ordered_trends(fault_diagnosis, trends))
+    assert ordered[0] == "R1"  # the changed (and drifting) parameter leads
+    assert ordered[1:] == ["K1", "R2", "v5", "v2", "kw2"]  # the rest keep their order
+    html = render_report(fault_diagnosis, trends=trends, generated_at=GENERATED)
+    section = html[html.index('id="trends"') :]
+    assert section.index("<h3>Physical parameters</h3>") < section.index(
+        "<h3>Model elements v1..v9"
+    )

@@ -81,3 +81,30 @@ def test_report_shows_the_history(history):
     )
     assert "<img" in html and "could not be drawn" not in html
     assert "drifting" in html and "leaves the tolerance band around 2026-0" in html
+
+
+def test_a_step_travels_from_the_history_to_the_report(tmp_path):
+    # The history judged a step (amplifier 1 loses 20 % between two recordings):
+    # the report draws the two means and says "step at ...", not a drift line.
+    from maglevid.cli.history import history_summary
+
+    t0 = datetime(2026, 1, 5, tzinfo=timezone.utc)
+    rng = np.random.default_rng(5)
+    with open_history(tmp_path / "h.sqlite") as store:
+        for i in range(10):
+            kw1 = (1.0 if i < 6 else 0.8) + 0.004 * rng.standard_normal()
+            store.record_diagnosis(
+                "amp", recording_hash=f"h{i}", recorded_at=t0 + timedelta(days=7 * i),
+                method="physical", verdict="-", verdict_code="no_change",
+                estimates={"kw1": (kw1, 0.004, None, None, "V·V⁻¹", 1.0)},
+            )  # fmt: skip
+        trends = trends_from_history(history_summary(store, "amp"))
+    step = trends["kw1"]["step"]
+    assert step["index"] == 6 and step["at"] == (t0 + timedelta(days=42)).isoformat()
+    fig = plot_trends(trends)
+    texts = [t.get_text() for t in fig.axes[0].texts]
+    assert any(t.startswith("step at 2026-02-16") for t in texts)
+    # Two horizontal segments at the two means, no fitted line.
+    segments = [ln for ln in fig.axes[0].lines if len(ln.get_ydata()) == 2]
+    levels = sorted(float(y[0]) for y in (ln.get_ydata() for ln in segments) if y[0] == y[1])
+    assert levels == pytest.approx([step["after"], step["before"]])

@@ -48,8 +48,14 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         return {"presets": available_presets()}
     if args.input is None or args.output is None:
         raise DataError("convert needs INPUT and OUTPUT (or --presets)")
+    from maglevid.cli._progress import stages
+
+    steps = stages(("reading", "writing"), desc="convert", args=args)
+    next(steps)
     data = read_recording(args.input, format=args.format, mapping=args.mapping)
+    next(steps)
     path = write_recording(data, args.output, format=args.to, overwrite=args.overwrite)
+    steps.close()
     out: dict[str, Any] = {
         "read": args.input,
         "written": str(path),

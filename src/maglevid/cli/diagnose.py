@@ -22,6 +22,18 @@ its numbers. Bad data give "cannot diagnose, because ..." instead of a guess.
   maglevid diagnose rec.npz --baseline nominal --report rec.html
   maglevid diagnose rec.npz --machine B7 --store fleet.sqlite --baseline history
   maglevid diagnose rec.npz --tolerance R1=0.1 --tolerance kw1=0.02 --json
+  maglevid diagnose rec.npz --baseline bearing-7.json
+
+--baseline FILE.json is one JSON object of parameter values in SI units,
+e.g. the bearing's acceptance test:
+
+  {"m": 1.8, "i0": 0.5, "x0": 0.00035, "R1": 17.5, "R2": 17.5,
+   "Ls1": 0.086, "Ls2": 0.086, "K1": 0.00024, "K2": 0.00024, "kw1": 1.0, "kw2": 1.0}
+
+m [kg], i0 [A], x0 [m], R1 R2 [ohm], Ls1 Ls2 [H], K1 K2 = N^2 A mu0 [H*m],
+kw1 kw2 [V/V]. With all eleven the fault is isolated (which coil, amplifier,
+...); a partial set (e.g. {"R1": 17.5, "kw1": 1.0}) is compared parameter by
+parameter without isolation. Values are taken as exact (no standard error).
 """
 
 
@@ -31,7 +43,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--baseline",
         default="nominal",
         help="'nominal' (design values stored in the recording), 'history' (the machine's "
-        "latest identification in --store) or a JSON file of AMB parameters (default: nominal)",
+        "latest identification in --store) or a JSON file of AMB parameters in SI units, "
+        "format below (default: nominal)",
     )
     parser.add_argument("--machine", default=None, help="machine name (for the history)")
     parser.add_argument(
@@ -107,6 +120,10 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         from maglevid.diagnose.history import open_history
 
         store = open_history(args.store)
+    from maglevid.cli._progress import stages
+
+    steps = stages(("diagnosing", "writing the report"), desc="diagnose", args=args)
+    next(steps)
     diag = diagnose(
         args.recording,
         baseline=_baseline(args.baseline),
@@ -118,6 +135,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     )
     out = diag.to_dict()
     if args.report:
+        next(steps)
         from maglevid.report import write_report
 
         trends = None
@@ -128,6 +146,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             hist = history_summary(store, diag.machine, parameters=None, method=diag.method)
             trends = trends_from_history(hist, method=diag.method)
         out["report"] = str(write_report(diag, args.report, trends=trends))
+    steps.close()
     if store is not None:
         store.close()
     if args.fail_on_fault and diag.verdict_code in ("fault", "unexplained_change", "drift"):

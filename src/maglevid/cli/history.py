@@ -11,11 +11,15 @@ COMMAND = "history"
 HELP = "parameter trends of a machine, with a drift test per parameter"
 DESCRIPTION = """\
 Show how the physical parameters of a machine evolved over its stored
-diagnoses (value +- standard error per recording) and test each for a linear
-drift (weighted least squares, t-test on the slope; or Mann-Kendall).
+diagnoses: one line per parameter with its unit, the latest value +- standard
+error, the change from the baseline, the trend (linear drift: weighted least
+squares, t-test on the slope; or Mann-Kendall) or the step that describes the
+series better, and a verdict (DRIFTING, STEP, stable). Changed parameters come
+first; --points lists the series behind each line.
 
   maglevid history --list                          # machines in the store
-  maglevid history pump-7                          # every parameter
+  maglevid history pump-7                          # one line per parameter
+  maglevid history pump-7 --parameter R1 --points  # and the values behind it
   maglevid history pump-7 --parameter R1 Ls1 --tolerance R1=0.2 --json
 
 The store is --store PATH_OR_URL, else $MAGLEVID_HISTORY, else
@@ -65,6 +69,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="NAME=VALUE",
         help="band half-width of a parameter (its unit) around its stored baseline; "
         "projects when the trend leaves it; repeatable",
+    )
+    parser.add_argument(
+        "--points",
+        action="store_true",
+        help=f"also list each parameter's series (the last {_TEXT_POINTS}; --json has all)",
     )
     parser.add_argument(
         "--fail-on-drift",
@@ -142,6 +151,52 @@ def _drift(
     return out
 
 
+def _overview(trend: Any, drift: dict[str, dict], alpha: float) -> dict[str, Any]:
+    """Latest value, change from the baseline, step test and the parameter's verdict.
+
+    The step and trend are judged on the latest method's points (methods have
+    different biases; mixing them fakes changes).
+    """
+    import numpy as np
+
+    from maglevid.diagnose.step import detect_step, step_fits_better
+
+    n = len(trend)
+    if n == 0:
+        return {"latest": None, "change_percent": None, "step": None, "verdict": "no data"}
+    last = n - 1
+    method = str(trend.method[last])
+    rows = trend.method == method
+    se_last = float(trend.std_error[last])
+    base = float(trend.baseline[last])
+    change = 100.0 * (trend.value[last] - base) / base if np.isfinite(base) and base else None
+    t, y, se = trend.time[rows], trend.value[rows], trend.std_error[rows]
+    step = detect_step(y, se, alpha=alpha)
+    d = drift.get(method, {})
+    step_dict = None
+    verdict = "stable"
+    if step is not None and step.significant and step_fits_better(t / _DAY, y, se, step):
+        step_dict = step.to_dict()
+        step_dict["at"] = _iso(float(t[step.index]))
+        step_dict["percent"] = 100.0 * step.size / step.before if step.before else None
+        verdict = "STEP"
+    elif d.get("drifting"):
+        verdict = "DRIFTING"
+    elif "skipped" in d or not d:
+        verdict = "too few points"
+    return {
+        "latest": {
+            "value": float(trend.value[last]),
+            "std_error": se_last if math.isfinite(se_last) else None,
+            "recorded_at": _iso(float(trend.time[last])),
+            "method": method,
+        },
+        "change_percent": None if change is None else float(change),
+        "step": step_dict,
+        "verdict": verdict,
+    }
+
+
 def history_summary(
     store: Any,
     machine: str,
@@ -181,6 +236,7 @@ def history_summary(
         }
         drifting += [f"{name} ({m})" for m, d in drift.items() if d.get("drifting")]
         out[name] = {"unit": trend.unit, "points": points, "drift": drift}
+        out[name].update(_overview(trend, drift, alpha))
     n_diag = len({q["diagnosis_id"] for v in out.values() for q in v["points"]})
     return {
         "store": store.location,
@@ -216,11 +272,86 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             tolerances=_tolerances(args.tolerance),
         )
     result["exit_code"] = 3 if (args.fail_on_drift and result["drifting"]) else 0
+    result["points"] = bool(args.points)
     return result
 
 
 def _fmt(x: float | None, digits: int = 6) -> str:
     return "n/a" if x is None else f"{x:.{digits}g}"
+
+
+def _rank(name: str, p: dict[str, Any]) -> tuple[int, bool]:
+    """Changed parameters first, then drifting ones, v1..v9 after the physical ones."""
+    flagged = {"STEP": 0, "DRIFTING": 1}.get(p.get("verdict", ""), 2)
+    return flagged, name[:1] == "v" and name[1:].isdigit()
+
+
+def _trend_text(p: dict[str, Any]) -> str:
+    step = p.get("step")
+    if step:
+        pct = f" ({step['percent']:+.1f} %)" if step.get("percent") is not None else ""
+        return f"step at {(step['at'] or '?')[:10]}{pct}, {_p_text(step['p_value'])}"
+    latest = p.get("latest") or {}
+    d = p["drift"].get(latest.get("method"), {})
+    if not d or "skipped" in d:
+        return "not tested (too few points)" if d else "-"
+    unit = p["unit"] or ""
+    text = f"{_fmt(d['slope'], 3)} {unit}/day, {_p_text(d['p_value'])}"
+    if d.get("projected_crossing_at"):
+        text += f", limit ~{d['projected_crossing_at'][:10]}"
+    return text
+
+
+def _p_text(p: float | None) -> str:
+    """A p-value as text; below 1e-16 (double precision) as a bound, never "p = 0"."""
+    if p is None:
+        return "p n/a"
+    return "p < 1e-16" if p < 1e-16 else f"p = {p:.2g}"
+
+
+def _line(name: str, p: dict[str, Any]) -> str:
+    latest = p.get("latest")
+    if latest is None:
+        return f"{name:<10} {(p['unit'] or ''):<12} {'-':>22}"
+    se = latest["std_error"]
+    value = f"{latest['value']:.5g}" + (f" ± {se:.2g}" if se is not None else "")
+    change = "-" if p["change_percent"] is None else f"{p['change_percent']:+.1f} %"
+    return (
+        f"{name:<10} {(p['unit'] or ''):<12} {value:>22} {change:>9}  "
+        f"{_trend_text(p):<46} {p['verdict']}"
+    )
+
+
+def _series(name: str, p: dict[str, Any]) -> list[str]:
+    unit = p["unit"] or ""
+    lines = ["", f"{name} [{unit}]" if unit else name]
+    pts = p["points"]
+    if len(pts) > _TEXT_POINTS:
+        lines.append(f"  ... {len(pts) - _TEXT_POINTS} earlier points (all in --json)")
+    for q in pts[-_TEXT_POINTS:]:
+        se = q["std_error"]
+        pm = f" ± {se:.3g}" if se is not None else " (no s.e.)"
+        when = q["recorded_at"][:16].replace("T", " ")
+        lines.append(f"  {when}  {q['value']:.6g}{pm}  {q['method']}")
+    for method, d in p["drift"].items():
+        if "skipped" in d:
+            lines.append(f"  drift ({method}): not tested: {d['skipped']}")
+            continue
+        verdict = "DRIFTING" if d["drifting"] else "no significant drift"
+        lines.append(
+            f"  drift ({d['method']}, {method}): slope {_fmt(d['slope'], 3)} {unit}/day "
+            f"± {_fmt(d['slope_se'], 2)}, p = {_fmt(d['p_value'], 2)}: {verdict}"
+        )
+        if d.get("projected_crossing_at"):
+            ci = d.get("crossing_ci_at") or [None, None]
+            lines.append(
+                f"    limit {_fmt(d['limit'])} {unit} (baseline {_fmt(d['baseline'])} ± "
+                f"{_fmt(d['tolerance'])}) reached about {d['projected_crossing_at'][:10]} "
+                f"({d['confidence']:.0%} CI {(ci[0] or '-inf')[:10]} .. "
+                f"{(ci[1] or '+inf')[:10]})"
+            )
+        lines.extend(f"    note: {n}" for n in d["notes"])
+    return lines
 
 
 def format_text(result: dict[str, Any]) -> str:
@@ -236,44 +367,19 @@ def format_text(result: dict[str, Any]) -> str:
             last = (m["last_recorded_at"] or "-")[:19]
             lines.append(f"  {m['name']:<24} {m['n_diagnoses']:>9}  {first:<19}  {last}")
         return "\n".join(lines)
-    last = _TEXT_POINTS
     lines = [
         f"machine {result['machine']}  ({result['n_diagnoses']} diagnoses; store "
-        f"{result['store']})"
+        f"{result['store']})",
+        "",
+        f"{'parameter':<10} {'unit':<12} {'latest':>22} {'change':>9}  "
+        f"{'trend or step':<46} verdict",
     ]
-    for name, p in result["parameters"].items():
-        unit = p["unit"] or ""
-        lines.append("")
-        lines.append(f"{name} [{unit}]" if unit else name)
-        pts = p["points"]
-        if len(pts) > last:
-            lines.append(f"  ... {len(pts) - last} earlier points (all in --json)")
-        for q in pts[-last:]:
-            se = q["std_error"]
-            pm = f" ± {se:.3g}" if se is not None else " (no s.e.)"
-            lines.append(
-                f"  {q['recorded_at'][:16].replace('T', ' ')}  {q['value']:.6g}{pm}  {q['method']}"
-            )
-        for method, d in p["drift"].items():
-            if "skipped" in d:
-                lines.append(f"  drift ({method}): not tested: {d['skipped']}")
-                continue
-            verdict = "DRIFTING" if d["drifting"] else "no significant drift"
-            rel = "<" if d["drifting"] else ">="
-            lines.append(
-                f"  drift ({d['method']}, {method}): slope {_fmt(d['slope'], 3)} {unit}/day "
-                f"± {_fmt(d['slope_se'], 2)}, p = {_fmt(d['p_value'], 2)} {rel} "
-                f"{d['alpha']:g}: {verdict}"
-            )
-            if d.get("projected_crossing_at"):
-                ci = d.get("crossing_ci_at") or [None, None]
-                lines.append(
-                    f"    limit {_fmt(d['limit'])} {unit} (baseline {_fmt(d['baseline'])} ± "
-                    f"{_fmt(d['tolerance'])}) reached about {d['projected_crossing_at'][:10]} "
-                    f"({d['confidence']:.0%} CI {(ci[0] or '-inf')[:10]} .. "
-                    f"{(ci[1] or '+inf')[:10]})"
-                )
-            lines.extend(f"    note: {n}" for n in d["notes"])
+    order = sorted(result["parameters"].items(), key=lambda kv: _rank(*kv))
+    for name, p in order:
+        lines.append(_line(name, p))
+    if result.get("points"):
+        for name, p in order:
+            lines.extend(_series(name, p))
     if result["drifting"]:
         lines.append("")
         lines.append("drifting: " + ", ".join(result["drifting"]))

@@ -6,7 +6,7 @@ import argparse
 import json
 from typing import Any
 
-from maglevid.identify.registry import available_methods, get_method
+from maglevid.identify.registry import describe_methods, get_method
 
 COMMAND = "identify"
 HELP = "identify the plant (and its physical parameters) from a recording"
@@ -132,12 +132,16 @@ def _run_streamed(args: argparse.Namespace, options: dict[str, Any]) -> dict[str
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
     if args.method == "list":
-        return {"methods": sorted(available_methods())}
+        described = describe_methods()
+        return {"methods": list(described), "descriptions": described}
     options = _parse_options(args.option)
     if _should_stream(args):
         return _run_streamed(args, options)
+    from maglevid.cli._progress import stages
     from maglevid.io import read_recording
 
+    steps = stages(("reading", "identifying"), desc="identify", args=args)
+    next(steps)
     data = read_recording(args.recording, mapping=args.mapping)
     method = args.method or _default_method(data)
     from maglevid.diagnose.levitator import is_levitator, levitator_checks
@@ -145,15 +149,36 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     if method == "greybox-levitator" and is_levitator(data) and "segments" not in options:
         # A rig log: identify on the segments where the ball levitates under control.
         options["segments"] = levitator_checks(data)[1]
+    next(steps)
     result = get_method(method)(data, **options)
+    steps.close()
     out = result.to_dict()
     out["recording"] = args.recording
+    if result.extras.get("B_intersample") is not None:
+        out["intersample_numerators"] = _intersample_numerators(result.extras)
     return out
+
+
+def _intersample_numerators(extras: Any) -> dict[str, Any]:
+    """The B_j (j = 1..p-1, coefficients of z^0..z^-n) with standard errors (Sun et al.)."""
+    import numpy as np
+
+    B = np.asarray(extras["B_intersample"], dtype=float)
+    se = extras.get("B_intersample_std_error")
+    return {
+        "j": list(range(1, B.shape[0] + 1)),
+        "powers_of_z": [-k for k in range(B.shape[1])],
+        "B": B.tolist(),
+        "std_error": None if se is None else np.asarray(se, dtype=float).tolist(),
+    }
 
 
 def format_text(result: dict[str, Any]) -> str:
     if "methods" in result:
-        return "methods: " + ", ".join(result["methods"])
+        width = max(map(len, result["methods"]))
+        return "\n".join(
+            f"{name:<{width}}  {result['descriptions'][name]}" for name in result["methods"]
+        )
     lines = [f"recording: {result['recording']}", f"method: {result['method']}"]
     if result.get("streamed"):
         st = result["streamed"]
@@ -175,5 +200,13 @@ def format_text(result: dict[str, Any]) -> str:
         lines.append("discrete poles: " + ", ".join(f"{a:.6g}{b:+.3g}j" for a, b in zip(re, im)))
     for k, v in (result.get("fit") or {}).items():
         lines.append(f"fit {k}: {v:.6g}")
+    num = result.get("intersample_numerators")
+    if num:
+        ses = num["std_error"] or [[None] * len(b) for b in num["B"]]
+        for j, b, e in zip(num["j"], num["B"], ses):
+            terms = ", ".join(
+                f"{c:.4g}" + (f" ± {s:.2g}" if s is not None else "") for c, s in zip(b, e)
+            )
+            lines.append(f"B_{j} (z^0..z^-{len(b) - 1}): {terms}")
     lines.extend(f"note: {n}" for n in result.get("notes", []))
     return "\n".join(lines)

@@ -53,16 +53,31 @@ def build_parser() -> argparse.ArgumentParser:
             description=getattr(mod, "DESCRIPTION", mod.HELP),
             formatter_class=argparse.RawDescriptionHelpFormatter,
         )
-        # --json / --quiet are accepted after the subcommand too.
-        p.add_argument(
-            "--json", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS
-        )
-        p.add_argument(
-            "-q", "--quiet", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS
-        )
         mod.add_arguments(p)
         p.set_defaults(_run=mod.run, _format=getattr(mod, "format_text", None))
+        _add_common_options(p)
     return parser
+
+
+def _add_common_options(parser: argparse.ArgumentParser) -> None:
+    """--json and --quiet on every command and sub-command, before or after its arguments."""
+    subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    for action in subs:
+        for child in set(action.choices.values()):
+            _add_common_options(child)
+    have = parser._option_string_actions
+    if "--json" not in have:
+        parser.add_argument(
+            "--json", action="store_true", default=argparse.SUPPRESS, help="print JSON"
+        )
+    if "--quiet" not in have:
+        parser.add_argument(
+            "-q",
+            "--quiet",
+            action="store_true",
+            default=argparse.SUPPRESS,
+            help="no progress bars",
+        )
 
 
 def _json_default(o: Any) -> Any:

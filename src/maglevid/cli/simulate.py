@@ -38,8 +38,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
+    from maglevid.cli._progress import stages
     from maglevid.io import write_recording
 
+    steps = stages(("simulating", "writing"), desc=f"simulate {args.scenario}", args=args)
+    next(steps)
     data = args._scenario(args)
+    next(steps)
     path = write_recording(data, args.out, overwrite=args.overwrite)
+    steps.close()
     return {"written": str(path), "recording": repr(data), "n_samples": data.n_samples}

@@ -2,16 +2,19 @@
 
 from __future__ import annotations
 
+import html
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
+from maglevid._tables import html_table, number
 from maglevid.diagnose.compare import ParameterChange
 from maglevid.diagnose.isolate import IsolationResult
 from maglevid.identify.result import IdentificationResult, _jsonable
 from maglevid.lti import StateSpace
+from maglevid.physics.units import parameter_unit as _unit
 
 __all__ = ["DIAGNOSIS_VERSION", "VERDICT_CODES", "Diagnosis", "QualityCheck"]
 
@@ -26,6 +29,18 @@ VERDICT_CODES = (
     "unexplained_change",  # significant changes no hypothesis explains
     "cannot_diagnose",  # the data do not allow a diagnosis (quality)
 )
+
+
+_FRAME_COLUMNS = (
+    "baseline", "estimate", "std_error", "change_percent", "ci_low_percent", "ci_high_percent",
+    "tolerance_percent", "status", "unit",
+)  # fmt: skip
+
+
+def _percent_interval(c: ParameterChange) -> tuple[float, float]:
+    """The change's confidence interval in % of the baseline (NaN for a zero baseline)."""
+    b = c.baseline if c.baseline != 0 else float("nan")
+    return 100 * c.change_ci[0] / b, 100 * c.change_ci[1] / b
 
 
 @dataclass(frozen=True)
@@ -148,14 +163,71 @@ class Diagnosis:
                 f"{'95% CI of change %':>22}  status"
             )
             for c in self.changes:
-                b = c.baseline if c.baseline != 0 else float("nan")
-                lo, hi = (100 * c.change_ci[0] / b, 100 * c.change_ci[1] / b)
+                lo, hi = _percent_interval(c)
                 lines.append(
                     f"{c.name:>10} {c.baseline:>12.5g} {c.estimate:>12.5g} "
                     f"{c.change_percent:>+10.2f} [{lo:>+9.2f}, {hi:>+9.2f}]  {c.status}"
                 )
         lines.extend(f"note: {n}" for n in self.notes)
         return "\n".join(lines)
+
+    def __repr__(self) -> str:
+        changed = ", ".join(c.name for c in self.significant_changes) or "none"
+        verdict = self.verdict if len(self.verdict) <= 100 else self.verdict[:99] + "…"
+        return (
+            f"<Diagnosis {self.verdict_code}: {verdict!r} machine={self.machine!r} "
+            f"method={self.method!r} changed=[{changed}]>"
+        )
+
+    def to_dataframe(self) -> Any:
+        """Every compared parameter as a ``pandas.DataFrame`` indexed by name.
+
+        Columns: ``baseline``, ``estimate``, ``std_error``, ``change_percent``,
+        ``ci_low_percent``, ``ci_high_percent`` (the 95 % interval of the change,
+        in % of the baseline), ``tolerance_percent``, ``status``, ``unit``.
+        """
+        import pandas as pd
+
+        cols: dict[str, list[Any]] = {k: [] for k in _FRAME_COLUMNS}
+        for c in self.changes:
+            lo, hi = _percent_interval(c)
+            row = (
+                c.baseline,
+                c.estimate,
+                c.std_error,
+                c.change_percent,
+                lo,
+                hi,
+                100 * c.tolerance,
+            )
+            for k, v in zip(_FRAME_COLUMNS, (*row, c.status, _unit(c.name))):
+                cols[k].append(v)
+        return pd.DataFrame(cols, index=pd.Index([c.name for c in self.changes], name="parameter"))
+
+    def _repr_html_(self) -> str:
+        rows = []
+        for c in self.changes:
+            lo, hi = _percent_interval(c)
+            rows.append(
+                (
+                    c.name,
+                    _unit(c.name) or "",
+                    number(c.baseline),
+                    number(c.estimate),
+                    f"{c.change_percent:+.2f} %",
+                    f"{lo:+.2f} … {hi:+.2f} %",
+                    c.status,
+                )
+            )
+        header = ("parameter", "unit", "baseline", "estimate", "change", "95 % interval", "status")
+        reasons = "".join(f"<li>{html.escape(r)}</li>" for r in self.reasons)
+        return (
+            f"<div><p><b>{html.escape(self.verdict_code.replace('_', ' '))}</b>: "
+            f"{html.escape(self.verdict)}</p>"
+            + (f"<ul>{reasons}</ul>" if reasons else "")
+            + (html_table(header, rows) if rows else "")
+            + f"<p>method: {html.escape(self.method)}</p></div>"
+        )
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-safe, versioned: the same content as the report, for machines."""

@@ -1035,6 +1035,27 @@ class HistoryStore:
             "unit": _readonly([r[8] for r in rows], object),
         }
 
+    def to_dataframe(
+        self,
+        machine: str,
+        *,
+        parameters: Sequence[str] | None = None,
+        method: str | None = None,
+    ) -> Any:
+        """:meth:`estimates_table` as a ``pandas.DataFrame`` (long format, oldest first).
+
+        One row per (diagnosis, parameter) with ``recorded_at`` (UTC), ``method``,
+        ``parameter``, ``value``, ``std_error``, ``ci_low``, ``ci_high``,
+        ``baseline`` and ``unit``; ``df.pivot(index="recorded_at",
+        columns="parameter", values="value")`` gives one column per parameter.
+        """
+        import pandas as pd
+
+        table = self.estimates_table(machine, parameters=parameters, method=method)
+        df = pd.DataFrame({k: v for k, v in table.items() if k != "time"})
+        df["recorded_at"] = pd.to_datetime(df["recorded_at"], utc=True)
+        return df
+
     # -- health ---------------------------------------------------------------
     def check(self) -> list[str]:
         """Consistency problems of the store; an empty list means healthy.

@@ -36,6 +36,7 @@ from maglevid.diagnose.isolate import HYPOTHESES, IsolationResult, isolate_fault
 from maglevid.exceptions import DataError, MaglevidError
 from maglevid.lti import StateSpace
 from maglevid.physics.amb import V_NAMES, AMBParameters, amb_state_space
+from maglevid.physics.units import parameter_unit
 
 __all__ = ["DIAGNOSED_PARAMETERS", "choose_method", "diagnose", "recording_hash"]
 
@@ -581,7 +582,7 @@ def _record(
                 se if np.isfinite(se) else None,
                 cis[k][0] if np.isfinite(cis[k][0]) else None,
                 cis[k][1] if np.isfinite(cis[k][1]) else None,
-                None,
+                parameter_unit(k),
                 None if b is None else float(b[0]),
             )
     summary = diag.to_dict()

@@ -426,7 +426,12 @@ def run_reproduction(args: argparse.Namespace) -> dict[str, Any]:
     }
     fig_fits: dict[str, Any] = {}
     fig_data = None
-    for i, (ex, fault) in enumerate(EXAMPLES.items()):
+    from maglevid.cli._progress import progress
+
+    examples = progress(
+        list(enumerate(EXAMPLES.items())), desc="examples I-III", total=len(EXAMPLES), args=args
+    )
+    for i, (ex, fault) in examples:
         plant = nominal.with_fault(**fault) if fault else nominal
         printed = {k: _jsonable(v) for k, v in PRINTED.get(ex, {}).items()}
         entry: dict[str, Any] = {"fault": fault, "printed": printed}
@@ -467,7 +472,8 @@ def run_reproduction(args: argparse.Namespace) -> dict[str, Any]:
 
     # The diagnostic case: observer on the nominal model, noise free.
     diag: dict[str, Any] = {}
-    for j, (label, fault) in enumerate(DIAGNOSTIC_FAULTS.items()):
+    cases = progress(list(enumerate(DIAGNOSTIC_FAULTS.items())), desc="diagnostic case", args=args)
+    for j, (label, fault) in cases:
         plant = nominal.with_fault(**fault)
         data = _record(
             plant,
@@ -505,13 +511,15 @@ def run_reproduction(args: argparse.Namespace) -> dict[str, Any]:
     result["diagnostic_case"] = diag
 
     if int(args.nonlinear_samples) > 0:
-        result["nonlinear_plant"] = _nonlinear_check(args, nominal, dt, exc)
+        for _ in progress([None], desc="nonlinear plant", args=args):
+            result["nonlinear_plant"] = _nonlinear_check(args, nominal, dt, exc)
     if int(args.runs) > 0:
         result["monte_carlo"] = _monte_carlo(args, noise)
     if not args.no_figures and fig_data is not None:
         out_dir = Path(args.out)
         out_dir.mkdir(parents=True, exist_ok=True)
-        result["figures"] = _impulse_figures(fig_data, fig_fits, nominal, out_dir, dt)
+        for _ in progress([None], desc="figures", args=args):
+            result["figures"] = _impulse_figures(fig_data, fig_fits, nominal, out_dir, dt)
     return result
 
 

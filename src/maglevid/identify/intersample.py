@@ -860,6 +860,11 @@ def fit_intersample(
         "a": a_full,
         "b": b_full,
         "B_intersample": B_ls,
+        # Standard errors of the B_j coefficients (delta method, OE Jacobian); None
+        # without refinement.
+        "B_intersample_std_error": None
+        if cov_a_B is None
+        else np.sqrt(np.clip(np.diag(cov_a_B)[n:], 0.0, None)).reshape(B_ls.shape),
         "simo_model": simo,
         "numerator_variants": variants,
         "poles": np.roots(a_full),

@@ -3,7 +3,9 @@
 A module of :mod:`maglevid.identify` registers methods by defining
 ``METHODS = {"name": fit_function}``; each function takes a
 :class:`~maglevid.data.ClosedLoopData` and keyword options and returns an
-:class:`~maglevid.identify.result.IdentificationResult`.
+:class:`~maglevid.identify.result.IdentificationResult`. Its one-line
+description (``--method list``) is ``DESCRIPTIONS[name]`` where the module
+defines it, else the first line of the function's docstring.
 """
 
 from __future__ import annotations
@@ -14,7 +16,7 @@ from typing import Any
 from maglevid._plugins import modules_with
 from maglevid.exceptions import DataError
 
-__all__ = ["available_methods", "get_method"]
+__all__ = ["available_methods", "describe_methods", "get_method"]
 
 
 def available_methods() -> dict[str, Callable[..., Any]]:
@@ -34,3 +36,14 @@ def get_method(name: str) -> Callable[..., Any]:
     if name not in methods:
         raise DataError(f"unknown method {name!r}; available: {', '.join(sorted(methods))}")
     return methods[name]
+
+
+def describe_methods() -> dict[str, str]:
+    """One line of description per registered method, by name (sorted)."""
+    out: dict[str, str] = {}
+    for mod in modules_with("maglevid.identify", "METHODS"):
+        described = getattr(mod, "DESCRIPTIONS", {})
+        for name, fn in mod.METHODS.items():
+            doc = (getattr(fn, "__doc__", None) or "").strip().splitlines()
+            out[name] = described.get(name) or (doc[0].replace("``", "") if doc else "")
+    return dict(sorted(out.items()))

@@ -11,7 +11,10 @@ from typing import Any
 import numpy as np
 from scipy import special  # not scipy.stats: 0.6 s to import for one quantile
 
+from maglevid._tables import html_table, number
+from maglevid.exceptions import DataError
 from maglevid.lti import StateSpace
+from maglevid.physics.units import PARAMETER_INFO, parameter_unit
 
 __all__ = ["RESULT_VERSION", "IdentificationResult", "propagate_covariance"]
 
@@ -136,17 +139,72 @@ class IdentificationResult:
         lines.extend(f"note: {n}" for n in self.notes)
         return "\n".join(lines)
 
-    def _repr_html_(self) -> str:
+    def _table_rows(
+        self, level: float = 0.95
+    ) -> list[tuple[str, float, float, float, float, str]]:
         se = self.std_errors()
-        rows = "".join(
-            f"<tr><td>{html.escape(k)}</td><td>{v:.6g}</td><td>{se[k]:.3g}</td></tr>"
+        ci = self.confidence_intervals(level)
+        return [
+            (k, v, se[k], ci[k][0], ci[k][1], parameter_unit(k) or "")
             for k, v in self.parameters.items()
+        ]
+
+    def __repr__(self) -> str:
+        return (
+            f"<IdentificationResult method={self.method!r} N={self.n_samples} "
+            f"parameters={len(self.parameters)} notes={len(self.notes)}>"
         )
+
+    def _repr_html_(self) -> str:
+        rows = [
+            (k, number(v, 6), unit, number(e, 3), f"{number(lo)} … {number(hi)}")
+            for k, v, e, lo, hi, unit in self._table_rows()
+        ]
+        titles = [PARAMETER_INFO.get(r[0], ("",))[0] for r in rows]
+        table = html_table(
+            ("parameter", "estimate", "unit", "std. error", "95 % interval"), rows, titles=titles
+        )
+        fit = "; ".join(f"{html.escape(k)} = {v:.4g}" for k, v in self.fit.items())
         notes = "".join(f"<li>{html.escape(n)}</li>" for n in self.notes)
         return (
             f"<div><b>maglevid identification</b>: {html.escape(self.method)}, "
-            f"N={self.n_samples}<table><tr><th>parameter</th><th>estimate</th>"
-            f"<th>std. error</th></tr>{rows}</table><ul>{notes}</ul></div>"
+            f"N = {self.n_samples}{table}"
+            + (f"<p>fit: {fit}</p>" if fit else "")
+            + (f"<ul>{notes}</ul>" if notes else "")
+            + "</div>"
+        )
+
+    def resid(self, data: Any, **options: Any) -> Any:
+        """Residual analysis on ``data``; see :func:`maglevid.identify.validation.resid`."""
+        from maglevid.identify.validation import resid
+
+        return resid(self, data, **options)
+
+    def compare(self, data: Any, **options: Any) -> Any:
+        """k-step and simulation fit; see :func:`maglevid.identify.validation.compare`."""
+        from maglevid.identify.validation import compare
+
+        return compare(self, data, **options)
+
+    def to_dataframe(self, level: float = 0.95) -> Any:
+        """The estimates as a ``pandas.DataFrame`` indexed by parameter name.
+
+        Columns: ``estimate``, ``std_error``, ``ci_low``, ``ci_high`` (the
+        two-sided ``level`` interval, normal approximation) and ``unit`` (SI,
+        ``None`` where maglevid does not know the parameter).
+        """
+        import pandas as pd
+
+        rows = self._table_rows(level)
+        return pd.DataFrame(
+            {
+                "estimate": [r[1] for r in rows],
+                "std_error": [r[2] for r in rows],
+                "ci_low": [r[3] for r in rows],
+                "ci_high": [r[4] for r in rows],
+                "unit": [r[5] or None for r in rows],
+            },
+            index=pd.Index([r[0] for r in rows], name="parameter"),
         )
 
     def to_dict(self) -> dict[str, Any]:
@@ -172,6 +230,45 @@ class IdentificationResult:
             else np.asarray(self.singular_values).tolist(),
             "notes": list(self.notes),
         }
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> IdentificationResult:
+        """Rebuild a result from :meth:`to_dict` (residuals and extras are not stored).
+
+        ``IdentificationResult.from_dict(r.to_dict()).to_dict() == r.to_dict()``.
+
+        Raises
+        ------
+        DataError
+            Not a maglevid identification dictionary, or a newer version.
+        """
+        if not isinstance(d, Mapping) or d.get("format") != "maglevid-identification":
+            raise DataError(
+                "not a maglevid identification result (format 'maglevid-identification')"
+            )
+        if int(d.get("version", 0)) > RESULT_VERSION:
+            raise DataError(
+                f"identification result version {d.get('version')} is newer than this "
+                f"maglevid reads ({RESULT_VERSION}); upgrade maglevid"
+            )
+
+        def model(key: str) -> StateSpace | None:
+            return None if d.get(key) is None else StateSpace.from_dict(d[key])
+
+        params = {k: float("nan") if v is None else v for k, v in d["parameters"].items()}
+        sv = d.get("singular_values")
+        return cls(
+            method=d["method"],
+            model=model("model"),
+            parameters=params,
+            covariance=None if d.get("covariance") is None else np.asarray(d["covariance"], float),
+            n_samples=int(d.get("n_samples", 0)),
+            options=dict(d.get("options") or {}),
+            fit=dict(d.get("fit") or {}),
+            singular_values=None if sv is None else np.asarray(sv, dtype=float),
+            notes=tuple(d.get("notes") or ()),
+            continuous_model=model("continuous_model"),
+        )
 
 
 def propagate_covariance(

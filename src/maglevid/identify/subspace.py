@@ -1455,3 +1455,8 @@ def _method(algorithm: str):  # type: ignore[no-untyped-def]
 
 #: Methods for ``maglevid identify --method NAME`` (see identify/registry.py).
 METHODS = {"moesp": _method("moesp"), "n4sid": _method("n4sid")}
+#: One line per method for ``maglevid identify --method list``.
+DESCRIPTIONS = {
+    "moesp": "MOESP subspace identification of a black-box state-space model u -> y",
+    "n4sid": "N4SID subspace identification of a black-box state-space model u -> y",
+}

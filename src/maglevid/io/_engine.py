@@ -362,8 +362,14 @@ def assemble(
             plan.append((sig, i, spec, table.resolve(spec.column)))
     for i, spec in enumerate(mapping.extra):
         plan.append(("extra", i, spec, table.resolve(spec.column)))
+    wide = {
+        spec: [table.resolve(c) for c in spec.intersamples]
+        for sig, _, spec, _ in plan
+        if spec.intersamples
+    }
     time_key = None if mapping.time is None else table.resolve(mapping.time.column)
-    keys = list(dict.fromkeys([k for *_, k in plan] + ([] if time_key is None else [time_key])))
+    keys = [k for *_, k in plan] + [k for ks in wide.values() for k in ks]
+    keys = list(dict.fromkeys(keys + ([] if time_key is None else [time_key])))
     raw = table.load(keys)
 
     oriented: dict[Key, np.ndarray] = {}
@@ -395,8 +401,11 @@ def assemble(
     for sig, i, spec, key in plan:
         if sig == "extra":
             continue
-        values, label = column_of(spec, key)
-        _check_unit(table, spec, key, label)
+        if spec in wide:
+            values, label = _interleaved(table, spec, wide[spec], column_of)
+        else:
+            values, label = column_of(spec, key)
+            _check_unit(table, spec, key, label)
         if sig == "y":
             if length is None:
                 length = values.size
@@ -552,6 +561,29 @@ def assemble(
         )
     except DataError as exc:
         raise table.error(str(exc)) from None
+
+
+def _interleaved(
+    table: Table, spec: ChannelSpec, keys: Sequence[Key], column_of: Any
+) -> tuple[np.ndarray, str]:
+    """One output of the wide layout: ``p`` columns of one row per period, sample by sample.
+
+    Row ``m`` of column ``j`` is ``y(mT + jT/p)``, so the interleaved series is
+    ``[row 0 of columns 0..p-1, row 1 of columns 0..p-1, ...]`` (Sun et al., Fig. 2).
+    """
+    cols, labels = [], []
+    for key in keys:
+        one = ChannelSpec(column=key, index=spec.index, unit=spec.unit, file_unit=spec.file_unit)
+        values, label = column_of(one, key)
+        _check_unit(table, spec, key, label)
+        if cols and values.size != cols[0].size:
+            raise table.error(
+                f"has {values.size} rows; inter-sample column {labels[0]!r} has {cols[0].size}",
+                column=label,
+            )
+        cols.append(values)
+        labels.append(label)
+    return np.column_stack(cols).ravel(), "+".join(labels)
 
 
 def _scaled(spec: ChannelSpec) -> bool:

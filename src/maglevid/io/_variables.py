@@ -15,7 +15,9 @@ variable    shape           meaning
 ``extra_*``   vector        extra channels named in ``metadata``
 ==========  ==============  ======================================================
 
-Without ``metadata`` the channels are named ``y1, y2, ...`` and have no units.
+Without ``metadata`` the channels are named ``y1, y2, ...`` and have no units;
+the variable names are then compared without case (``Y``, ``U``, ``DT``) and
+MATLAB's ``Ts`` is accepted for ``dt``.
 Row and column vectors are one channel; a matrix with fewer rows than columns
 (channels x samples) is an error unless the mapping sets ``layout``.
 """
@@ -88,6 +90,8 @@ def read_variables(
     matlab: bool,
 ) -> ClosedLoopData:
     """Shared reader of NPZ/MAT variables (native, plain, or through a mapping)."""
+    if "metadata" not in arrays and not (mapping is not None and mapping.has_signals):
+        arrays, shapes = _plain_names(path, arrays, shapes)
     table = ArrayTable(path, arrays, kind=fmt, matlab=matlab)
     if mapping is not None and mapping.has_signals:
         md = _native.source_metadata({}, path, fmt) | {"mapping": mapping.origin}
@@ -125,6 +129,39 @@ def read_variables(
     native = replace(native, layout=layout)
     return assemble(
         table, native, extra_metadata=_native.source_metadata(desc.metadata, path, fmt)
+    )
+
+
+#: Names a plain file may use for a variable, compared without case: MATLAB's
+#: ``Ts`` is the sample time (System Identification Toolbox, ``iddata``).
+_ALIASES = {"ts": "dt"}
+_PLAIN = (*SIGNALS, *_SCALARS)
+
+
+def _plain_names(
+    path: Path, arrays: Mapping[str, Any], shapes: Mapping[str, tuple[int, ...]]
+) -> tuple[dict[str, Any], dict[str, tuple[int, ...]]]:
+    """A plain file's variables under maglevid's names: ``Y``, ``U`` and ``Ts`` too.
+
+    Two variables that mean the same (``y`` and ``Y``; ``dt`` and ``Ts``) are an
+    error naming both, never a silent choice.
+    """
+    renamed: dict[str, str] = {}
+    for name in arrays:
+        key = name.lower()
+        key = _ALIASES.get(key, key)
+        if key in _PLAIN:
+            if key in renamed:
+                raise FileFormatError(
+                    f"holds both {renamed[key]!r} and {name!r}, which both mean {key!r}; keep one",
+                    path=str(path),
+                    column=name,
+                )
+            renamed[key] = name
+    back = {orig: key for key, orig in renamed.items()}
+    return (
+        {back.get(n, n): v for n, v in arrays.items()},
+        {back.get(n, n): v for n, v in shapes.items()},
     )
 
 

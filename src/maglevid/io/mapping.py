@@ -95,6 +95,7 @@ _TEXT_KEYS = {"delimiter", "comment", "skip_lines", "header", "encoding", "decim
 _TIME_KEYS = {"column", "unit", "scale", "tolerance", "rate_tolerance"}
 _CHANNEL_KEYS = {"column", "index", "name", "unit", "file_unit", "scale", "offset"}
 _EXTRA_KEYS = {*_CHANNEL_KEYS, "rate"}
+_OUTPUT_KEYS = {*_CHANNEL_KEYS, "intersamples"}
 #: Rates an extra channel may have: ``"output"`` (one value per output sample) or
 #: ``"control"`` (one per control period; held over the period in row-per-output files).
 RATES = ("output", "control")
@@ -158,6 +159,9 @@ class ChannelSpec:
     scale: float = 1.0
     offset: float = 0.0
     rate: str | None = None
+    #: Wide inter-sampled layout (outputs only): the ``p`` columns holding the
+    #: samples ``y(mT + j T/p)``, ``j = 0..p-1``, of one row per control period.
+    intersamples: tuple[str | int, ...] = ()
 
     @property
     def expected_file_unit(self) -> str | None:
@@ -470,15 +474,26 @@ def _parse_channel(err: _Err, key: str, raw: Any) -> ChannelSpec:
     if not isinstance(raw, Mapping):
         return ChannelSpec(column=_column_ref(err, key, raw))
     is_extra = key.startswith("extra")
-    _check_keys(err, key, raw, _EXTRA_KEYS if is_extra else _CHANNEL_KEYS)
+    allowed = _EXTRA_KEYS if is_extra else _OUTPUT_KEYS if key.startswith("y") else _CHANNEL_KEYS
+    _check_keys(err, key, raw, allowed)
     rate = raw.get("rate")
     if rate is not None and rate not in RATES:
         raise err(f"{key}.rate", f"expected one of {RATES}; got {rate!r}")
-    if "column" not in raw:
+    inter = raw.get("intersamples")
+    if inter is not None:
+        if not isinstance(inter, list) or len(inter) < 2 or "column" in raw:
+            raise err(
+                f"{key}.intersamples",
+                "expected a list of the p >= 2 columns y(mT + jT/p), j = 0..p-1, of one row "
+                f"per control period (instead of 'column'); got {inter!r}",
+            )
+        inter = tuple(_column_ref(err, f"{key}.intersamples[{i}]", c) for i, c in enumerate(inter))
+    elif "column" not in raw:
         raise err(key, "needs 'column' (header name, 0-based index or variable name)")
     index = raw.get("index")
     return ChannelSpec(
-        column=_column_ref(err, f"{key}.column", raw["column"]),
+        column=inter[0] if inter else _column_ref(err, f"{key}.column", raw["column"]),
+        intersamples=inter or (),
         index=None if index is None else _integer(err, f"{key}.index", index, minimum=0),
         name=None if raw.get("name") is None else _string(err, f"{key}.name", raw["name"]),
         unit=_string(err, f"{key}.unit", raw.get("unit", "")),
@@ -585,6 +600,14 @@ def _parse(raw: dict[str, Any], *, origin: str, path: str | None, depth: int) ->
     signals = {s: _parse_channels(err, s, raw[s]) for s in SIGNALS if s in raw}
     if signals and "y" not in signals:
         raise err("y", "a mapping that places signals must place 'y' (the outputs)")
+    widths = {len(c.intersamples) for c in signals.get("y", ())}
+    if widths - {0}:
+        if len(widths) > 1:
+            raise err("y", "give 'intersamples' for every output channel, with p columns each")
+        p_wide = widths.pop()
+        if kw.get("p", p_wide) != p_wide:
+            raise err("p", f"p={kw['p']}, but 'intersamples' lists {p_wide} columns per output")
+        kw["p"] = p_wide
     kw["signals"] = signals
     if "extra" in raw:
         extra = _parse_channels(err, "extra", raw["extra"])

@@ -326,9 +326,17 @@ def _z_plane(ax, pairs, *, focus: np.ndarray | None, title: str) -> None:
     """Draw z-plane poles with the unit circle; ``focus`` zooms on those poles."""
     for p, kind, label in pairs:
         _scatter_poles(ax, p, kind=kind, label=label)
+    allp = np.concatenate([p for p, _, _ in pairs])
+    if focus is None:
+        # A loop with a deadbeat observer has poles at z = 0 and slow ones near
+        # z = 1: on the whole circle both are blobs. Zoom on the slow ones and
+        # count the others in the title.
+        slow = allp[np.abs(allp) > 0.5]
+        if 0 < slow.size < allp.size:
+            focus = slow
+            title += f"\n{allp.size - slow.size} pole(s) with |z| ≤ 0.5 not shown"
     if focus is None:
         th = np.linspace(0, 2 * np.pi, 400)
-        allp = np.concatenate([p for p, _, _ in pairs])
         r = max(1.12, float(np.max(np.abs(allp))) * 1.08)
         xc, yc, half = 0.0, 0.0, r
     else:
@@ -344,6 +352,24 @@ def _z_plane(ax, pairs, *, focus: np.ndarray | None, title: str) -> None:
     ax.set_ylabel("Im z")
     ax.set_title(title)
     ax.ticklabel_format(useOffset=False)
+
+
+def _label_expected_unstable(ax, baseline_poles: np.ndarray) -> None:
+    """Name the baseline's unstable pole: a magnetic bearing is open-loop unstable by physics."""
+    unstable = baseline_poles[baseline_poles.real > 0]
+    if not unstable.size:
+        return
+    p = unstable[np.argmax(unstable.real)]
+    ax.annotate(
+        "unstable pole: expected\nfor a magnetic bearing",
+        xy=(p.real, p.imag),
+        xytext=(-12, 28),
+        textcoords="offset points",
+        ha="right",
+        fontsize=8,
+        color="#374151",
+        arrowprops={"arrowstyle": "->", "color": "#6b7280", "lw": 0.8},
+    )
 
 
 @_styled
@@ -385,6 +411,7 @@ def plot_pole_maps(
     si, _ = _continuous_poles(identified)
     open_pairs = [(sb, "baseline", "baseline plant"), (si, "identified", "identified plant")]
     _s_plane(axes[0, 0], open_pairs, focus=np.concatenate([sb, si]), title="open loop: s-plane")
+    _label_expected_unstable(axes[0, 0], sb)
     if has_z:
         _z_plane(
             axes[0, 1],
@@ -765,6 +792,14 @@ def _drift_text(drift: Mapping[str, Any]) -> tuple[str, bool]:
     return ", ".join(parts), bool(drifting)
 
 
+def _draw_step(ax, x: np.ndarray, step: Mapping[str, Any]) -> None:
+    """The two means of a step (``maglevid.diagnose.step``) over their points."""
+    k = int(step["index"])
+    for seg, level in ((x[:k], step["before"]), (x[k:], step["after"])):
+        if len(seg):
+            ax.plot([seg[0], seg[-1]], [level, level], color=COLORS["changed"], lw=1.4)
+
+
 @_styled
 def plot_trends(
     trends: Mapping[str, Mapping[str, Any]],
@@ -783,7 +818,9 @@ def plot_trends(
         ``{"time": [...], "value": [...], "std_error": [...], "drift": {...}}``
         per parameter. ``time``: ISO 8601 strings (or datetimes), shown as dates,
         or numbers (unit from an optional ``"time_unit"`` entry). ``std_error``
-        optional. ``drift`` optional: the ``to_dict()`` of
+        optional. ``step`` optional (``index``, ``before``, ``after``, ``at``,
+        ``percent``, as ``maglevid history --json`` gives it): drawn as the two
+        means instead of the drift line. ``drift`` optional: the ``to_dict()`` of
         :class:`maglevid.diagnose.drift.DriftResult` or any mapping with
         ``drifting``/``verdict`` and ``p_value``; with ``slope``, ``t_ref`` and
         ``value_at_ref`` the fitted line is drawn (time in seconds since 1970 for
@@ -856,7 +893,10 @@ def plot_trends(
             label=f"estimate ± {100 * level:.0f} % CI",
             zorder=3,
         )
-        fitted = drift_line(drift, dated=dated)
+        step = entry.get("step")
+        fitted = None if step else drift_line(drift, dated=dated)
+        if step:
+            _draw_step(ax, x, step)
         if fitted is not None and t.size >= 2:
             slope, t_ref, v_ref = fitted
             tt = np.linspace(float(t.min()), float(t.max()), 50)
@@ -870,12 +910,22 @@ def plot_trends(
                 label="fitted trend",
             )
         text, drifting = _drift_text(drift) if drift else ("", False)
+        if step:
+            pct = step.get("percent")
+            size = f" ({pct:+.1f} %)" if isinstance(pct, (int, float)) else ""
+            text, drifting = f"step at {str(step.get('at') or '?')[:10]}{size}", True
         title = labels.get(name, name)
-        ax.set_title(title, loc="left")
+        # The name above the drift verdict (right-aligned just over the axes): side
+        # by side, a long name ran into the verdict in a narrow panel.
+        ax.set_title(title, loc="left", pad=15 if text else 6)
         if text:
-            ax.set_title(
+            ax.text(
+                1.0,
+                1.01,
                 text,
-                loc="right",
+                transform=ax.transAxes,
+                ha="right",
+                va="bottom",
                 fontsize=9,
                 fontweight="bold" if drifting else "normal",
                 color=COLORS["changed"] if drifting else "#374151",

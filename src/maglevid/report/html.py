@@ -40,6 +40,7 @@ from typing import Any
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from maglevid.control.feedback import close_loop, controller_state_space
 from maglevid.diagnose.compare import DEFAULT_TOLERANCE
 from maglevid.diagnose.diagnosis import Diagnosis
 from maglevid.diagnose.isolate import FaultHypothesis
@@ -47,7 +48,7 @@ from maglevid.diagnose.percentage import percentage_index
 from maglevid.exceptions import DataError, MaglevidError
 from maglevid.lti import StateSpace, discretize
 from maglevid.physics.amb import amb_matrices
-from maglevid.report.loop import close_loop, controller_state_space
+from maglevid.physics.units import PARAMETER_INFO, UNIT_WORDS
 
 __all__ = ["VERDICT_STYLE", "render_report", "write_report"]
 
@@ -61,39 +62,6 @@ VERDICT_STYLE: dict[str, tuple[str, str]] = {
     "fault": ("#b91c1c", "Fault"),
     "unexplained_change": ("#c2410c", "Unexplained change"),
     "cannot_diagnose": ("#475569", "Cannot diagnose"),
-}
-
-#: What each parameter is, and its SI unit.
-PARAMETER_INFO: dict[str, tuple[str, str]] = {
-    "m": ("rotor mass", "kg"),
-    "i0": ("bias current", "A"),
-    "x0": ("air gap", "m"),
-    "R1": ("coil 1 resistance", "Ω"),
-    "R2": ("coil 2 resistance", "Ω"),
-    "Ls1": ("coil 1 leakage inductance", "H"),
-    "Ls2": ("coil 2 leakage inductance", "H"),
-    "Lo1": ("coil 1 air-gap inductance", "H"),
-    "Lo2": ("coil 2 air-gap inductance", "H"),
-    "L1": ("coil 1 inductance", "H"),
-    "L2": ("coil 2 inductance", "H"),
-    "K1": ("coil 1 constant N²Aμ0", "H·m"),
-    "K2": ("coil 2 constant N²Aμ0", "H·m"),
-    "ki1": ("coil 1 force/current factor", "N/A"),
-    "ki2": ("coil 2 force/current factor", "N/A"),
-    "ks1": ("coil 1 force/displacement factor", "N/m"),
-    "ks2": ("coil 2 force/displacement factor", "N/m"),
-    "ks_sum": ("total force/displacement factor", "N/m"),
-    "kw1": ("amplifier 1 gain", "V/V"),
-    "kw2": ("amplifier 2 gain", "V/V"),
-    "v1": ("(ks1 + ks2)/m", "1/s²"),
-    "v2": ("ki1/m", "m/(s²·A)"),
-    "v3": ("ki2/m", "m/(s²·A)"),
-    "v4": ("ki1/L1", "A/m"),
-    "v5": ("R1/L1", "1/s"),
-    "v6": ("ki2/L2", "A/m"),
-    "v7": ("R2/L2", "1/s"),
-    "v8": ("kw1/L1", "A/(V·s)"),
-    "v9": ("kw2/L2", "A/(V·s)"),
 }
 
 #: Relative size below which a baseline element is a structural zero of A_p, B_p.
@@ -201,6 +169,12 @@ def _figure_html(
 
 def _na(text: str) -> str:
     return f'<p class="note">{_e(text)}</p>'
+
+
+def _unit_html(unit: str) -> str:
+    """A unit with its words as a tooltip (N·A⁻¹: "newton per ampere")."""
+    words = UNIT_WORDS.get(unit)
+    return f'<abbr title="{_e(words)}">{_e(unit)}</abbr>' if words else _e(unit)
 
 
 def _label(name: str) -> str:
@@ -464,7 +438,7 @@ def _parameters_section(d: Diagnosis) -> str:
         cls = ' class="hl"' if c.significant else ""
         rows.append(
             f"<tr{cls}><td><b>{_e(c.name)}</b><div class=small>{_e(desc)}</div></td>"
-            f"<td>{_e(unit)}</td><td class=r>{_num(b)}{base_se}</td>"
+            f"<td>{_unit_html(unit)}</td><td class=r>{_num(b)}{base_se}</td>"
             f"<td class=r>{_num(c.estimate)} ± {_num(c.std_error, 2)}</td>"
             f"<td class=r><b>{_pct(c.change_percent)}</b></td><td class=r>{ci}</td>"
             f"<td class=r>±{100 * c.tolerance:g} %</td>"
@@ -576,9 +550,7 @@ def _percentage_section(d: Diagnosis) -> str:
         "Gosiewski &amp; Paszowski's matrix percentage indexes, "
         "A<sub>p</sub> = (A<sub>identified</sub> − A<sub>baseline</sub>) / "
         "A<sub>baseline</sub> · 100 % by array division (continuous-time A<sub>c</sub>, "
-        "B<sub>c</sub> in physical coordinates), in the paper's 4×4 and 4×2 layout. "
-        + summary
-        + "In the paper's Example II (R1 +20 %) only v5 moves, by 19.77 %."
+        "B<sub>c</sub> in physical coordinates), in the paper's 4×4 and 4×2 layout. " + summary
     )
     return _section(
         "percentage", 3, title, f'<div class="pi-wrap">{tables}</div>{legend}', lead=lead
@@ -607,7 +579,16 @@ def _pole_table(base: StateSpace, ident: StateSpace, dt: float | None) -> str:
         zeta = -i.real / abs(i) if complex_pair else float("nan")
         rel = 100 * abs(i - b) / abs(b) if abs(b) > 0 else float("nan")
         zi = f"{_num(abs(np.exp(i * dt)), 6)}" if dt else "—"
-        stab = '<span class="status st-changed">unstable</span>' if i.real > 0 else ""
+        if i.real > 0 and b.real > 0:
+            stab = (
+                '<span class="status st-unchanged" title="a magnetic bearing is open-loop '
+                'unstable by physics (negative stiffness of the magnets)">unstable: expected '
+                "for a magnetic bearing</span>"
+            )
+        elif i.real > 0:
+            stab = '<span class="status st-changed">unstable (the baseline is not)</span>'
+        else:
+            stab = ""
         rows.append(
             f"<tr><td class=r>{s(b)}</td><td class=r>{s(i)}</td><td class=r>{_pct(rel, 2, False)}"
             f"</td><td class=r>{_num(wn, 4)}</td><td class=r>{_num(zeta, 3)}</td>"
@@ -749,12 +730,26 @@ def _trends_section(d: Diagnosis, trends: Mapping[str, Mapping[str, Any]] | None
         k: (f"{k} [{PARAMETER_INFO[k][1]}] · {PARAMETER_INFO[k][0]}" if k in PARAMETER_INFO else k)
         for k in trends
     }
-    fig, _ = _figure_html(
-        lambda: plot_trends(trends, baselines=baselines, tolerances=tolerances, labels=labels),
-        "Trend of each parameter over time",
-        "Each recording's estimate with its 95 % confidence interval, the baseline (dashed), "
-        "the tolerance band (shaded) and the drift test's fitted line and verdict.",
-    )
+    trends = _ordered_trends(d, trends)
+    groups = [
+        ("Physical parameters", {k: v for k, v in trends.items() if not _is_v(k)}),
+        ("Model elements v1..v9 (Gosiewski & Paszowski eq. (4))", {
+            k: v for k, v in trends.items() if _is_v(k)
+        }),
+    ]  # fmt: skip
+    groups = [(head, group) for head, group in groups if group]
+    figs = []
+    for head, group in groups:
+        fig, _ = _figure_html(
+            lambda group=group: plot_trends(
+                group, baselines=baselines, tolerances=tolerances, labels=labels
+            ),
+            f"Trend of each parameter over time: {head}",
+            "Each recording's estimate with its 95 % confidence interval, the baseline "
+            "(dashed), the tolerance band (shaded) and the drift test's fitted line and "
+            "verdict. Changed and drifting parameters come first.",
+        )
+        figs.append((f"<h3>{_e(head)}</h3>" if len(groups) > 1 else "") + fig)
     rows = []
     for name, entry in trends.items():
         drift = entry.get("drift") or {}
@@ -763,6 +758,18 @@ def _trends_section(d: Diagnosis, trends: Mapping[str, Mapping[str, Any]] | None
             ("drifting" if drift.get("drifting") else "no significant drift")
             if "drifting" in drift
             else "—"
+        )
+        step = entry.get("step")
+        if step:
+            pct = step.get("percent")
+            verdict = f"step at {str(step.get('at') or '?')[:10]}" + (
+                f" ({_pct(pct, 1)})" if isinstance(pct, (int, float)) else ""
+            )
+            p = step.get("p_value")
+        rate = (
+            f"mean {_num(step['before'])} → {_num(step['after'])}"
+            if step
+            else _trend_rate(name, entry, drift, baselines.get(name))
         )
         values = list(entry.get("value", ()))
         ses = list(entry.get("std_error") or [])
@@ -773,7 +780,7 @@ def _trends_section(d: Diagnosis, trends: Mapping[str, Mapping[str, Any]] | None
             f"<tr><td><b>{_e(name)}</b></td><td class=r>{len(values)}</td>"
             f"<td class=r>{latest}</td><td>{_e(verdict)}</td>"
             f"<td class=r>{_pval(p) if isinstance(p, (int, float)) else '—'}</td>"
-            f"<td>{_trend_rate(name, entry, drift, baselines.get(name))}</td></tr>"
+            f"<td>{rate}</td></tr>"
         )
     table = (
         '<table class="data"><thead><tr><th>parameter</th><th class="r">points</th>'
@@ -781,7 +788,26 @@ def _trends_section(d: Diagnosis, trends: Mapping[str, Mapping[str, Any]] | None
         "<th>trend</th></tr></thead>"
         f"<tbody>{''.join(rows)}</tbody></table>"
     )
-    return _section("trends", 6, title, fig + table)
+    return _section("trends", 6, title, "".join(figs) + table)
+
+
+def _is_v(name: str) -> bool:
+    return name[:1] == "v" and name[1:].isdigit()
+
+
+def _ordered_trends(
+    d: Diagnosis, trends: Mapping[str, Mapping[str, Any]]
+) -> dict[str, Mapping[str, Any]]:
+    """Changed (this diagnosis) and drifting parameters first, then the others, in order."""
+    changed = {c.name for c in d.significant_changes}
+
+    def flagged(name: str) -> bool:
+        entry = trends[name]
+        return name in changed or bool(
+            entry.get("step") or (entry.get("drift") or {}).get("drifting")
+        )
+
+    return {k: trends[k] for k in sorted(trends, key=lambda k: not flagged(k))}
 
 
 def _quality_section(d: Diagnosis) -> str:
@@ -829,6 +855,27 @@ def _matrix_html(M: np.ndarray) -> str:
     return f'<table class="matrix">{rows}</table>'
 
 
+#: Words for the fit diagnostics of the identification methods.
+_FIT_WORDS = {
+    "one_step_fit_percent": "one-step prediction fit of {} [%]",
+    "intersample_fit_percent": "inter-sample fit of {} [%]",
+    "structure_residual": "departure from the structure of eq. (4) (relative)",
+    "regression_condition": "condition number of the regression",
+    "sigma_w": "noise standard deviation",
+}
+
+
+def _fit_label(key: str) -> str:
+    """``one_step_fit_percent_x`` -> "one-step prediction fit of x [%]"."""
+    for stem, words in _FIT_WORDS.items():
+        if key == stem:
+            return words.format("all outputs") if "{}" in words else words
+        if key.startswith(stem + "_") and "{}" in words:
+            channel = key[len(stem) + 1 :]
+            return words.format("the worst output" if channel == "min" else channel)
+    return key.replace("_", " ")
+
+
 def _method_section(d: Diagnosis, loop_note: str) -> str:
     ident = d.identification
     parts = []
@@ -841,8 +888,12 @@ def _method_section(d: Diagnosis, loop_note: str) -> str:
     items: list[tuple[str, Any]] = []
     if ident is not None:
         items.append(("samples (control periods)", f"{ident.n_samples:,}"))
-        items.extend((f"option: {k}", v) for k, v in ident.options.items())
-        items.extend((f"fit: {k}", float(v)) for k, v in ident.fit.items())
+        items.extend(
+            (f"option {k}", v)
+            for k, v in ident.options.items()
+            if v is not None and not isinstance(v, Mapping)
+        )
+        items.extend((_fit_label(k), float(v)) for k, v in ident.fit.items())
     if d.dt:
         items.append(("control period dt [s]", float(d.dt)))
     if d.isolation is not None:
@@ -853,9 +904,10 @@ def _method_section(d: Diagnosis, loop_note: str) -> str:
         items.append(("recording hash", d.recording_hash))
     if items:
         parts.append(_kv_table(items))
-    notes = list(d.notes) + (list(ident.notes) if ident is not None else [])
-    if loop_note:
-        notes.append(loop_note)
+    # Each note once (the diagnosis repeats some of the identification's); the
+    # loop note is shown with the pole maps it explains.
+    notes = list(dict.fromkeys([*d.notes, *(ident.notes if ident is not None else ())]))
+    notes = [n for n in notes if n != loop_note]
     if notes:
         parts.append("<h3>Notes</h3><ul>" + "".join(f"<li>{_e(n)}</li>" for n in notes) + "</ul>")
     base, idm = _as_continuous(d.baseline_model), _as_continuous(d.identified_model)

@@ -44,7 +44,8 @@ def trends_from_history(
     Returns
     -------
     dict
-        ``{name: {"time", "value", "std_error", "drift", "unit", "method"}}``, plus
+        ``{name: {"time", "value", "std_error", "drift", "unit", "method"}}`` (and
+        ``"step"`` when the history judged a step rather than a trend), plus
         ``"baseline"`` and the relative ``"tolerance"`` when the drift test had a
         band (the history's band half-width is absolute, the report's relative);
         a parameter without points of ``method`` is left out. A drift test the
@@ -98,4 +99,7 @@ def trends_from_history(
             "unit": entry.get("unit"),
             "method": chosen,
         }
+        step = entry.get("step")
+        if step and (entry.get("latest") or {}).get("method") == chosen:
+            out[name]["step"] = dict(step)  # the history judged a step, not a trend
     return out

@@ -1,0 +1,83 @@
+"""The plain-function API for notebooks and scripts: ``maglevid.identify``, ``maglevid.diagnose``.
+
+Both are ordinary functions with real signatures (``inspect.signature`` and
+``help()`` show their parameters), exported at the top of the package::
+
+    import maglevid
+    result = maglevid.identify("rec.npz")                 # IdentificationResult
+    diagnosis = maglevid.diagnose("rec.npz", baseline="nominal")
+
+The subpackages of the same names stay importable as before
+(``from maglevid.diagnose.history import open_history``,
+``from maglevid.identify.arx import fit_arx``); only the attribute
+``maglevid.diagnose`` is the function.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+from maglevid.data import ClosedLoopData
+from maglevid.diagnose.pipeline import choose_method, diagnose
+from maglevid.identify.registry import get_method
+from maglevid.identify.result import IdentificationResult
+
+__all__ = ["diagnose", "identify"]
+
+
+def identify(
+    data: ClosedLoopData | str | os.PathLike[str],
+    method: str | None = None,
+    *,
+    mapping: Any = None,
+    **options: Any,
+) -> IdentificationResult:
+    """Identify the open-loop plant of one closed-loop recording.
+
+    Parameters
+    ----------
+    data : ClosedLoopData or path
+        The recording, or a file :func:`maglevid.io.read_recording` reads
+        (``.npz``, ``.csv`` + ``.json``, ``.mat``, ``.parquet``).
+    method : str, optional
+        A registered method (``maglevid identify --method list`` shows them
+        with one line each). Default: the method the diagnosis would choose
+        for this recording (:func:`maglevid.diagnose.pipeline.choose_method`):
+        ``"physical"`` for a two-coil bearing, ``"intersample"`` for an
+        inter-sampled suspension, ``"greybox-levitator"`` for a levitator.
+    mapping : dict, str or path-like, optional
+        Column mapping for a rig's own log (only with a path).
+    **options
+        Options of the method (see its docstring), e.g. ``n_lags=30``.
+
+    Returns
+    -------
+    IdentificationResult
+        Model, parameters with covariance, fit, residuals and notes.
+
+    Raises
+    ------
+    DataError
+        Unknown method or option, or data the method cannot use.
+    FileFormatError
+        A file that cannot be read.
+
+    Examples
+    --------
+    >>> import maglevid
+    >>> from maglevid.simulate.amb import simulate_amb_recording  # doctest: +SKIP
+    >>> result = maglevid.identify(simulate_amb_recording(n_samples=4000))  # doctest: +SKIP
+    >>> result.to_dataframe()  # doctest: +SKIP
+    """
+    if not isinstance(data, ClosedLoopData):
+        from maglevid.io import read_recording
+
+        data = read_recording(data, mapping=mapping)
+    elif mapping is not None:
+        from maglevid.exceptions import DataError
+
+        raise DataError("`mapping` applies to a file path, not to a ClosedLoopData")
+    if method is None:
+        method = choose_method(data)[0]
+    return get_method(method)(data, **options)
