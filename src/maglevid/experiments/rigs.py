@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import logging
 from collections.abc import Callable, Iterable
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -48,7 +49,13 @@ from maglevid.identify.greybox import fit_equilibrium_line, fit_greybox_levitato
 from maglevid.identify.indirect import fit_indirect
 from maglevid.identify.pem import fit_pem
 from maglevid.identify.twostage import fit_two_stage
-from maglevid.physics.levitator import LevitatorParameters, equilibrium, linearize, unstable_pole
+from maglevid.physics.levitator import (
+    LevitatorParameters,
+    equilibrium,
+    integrate_zoh,
+    linearize,
+    unstable_pole,
+)
 
 __all__ = [
     "PAPER",
@@ -77,6 +84,7 @@ UAQ_I_STEP = 5.0 / (2.2 * 1023)
 #: A twin of the UAQ rig: upstream inductance law and mass, and a driver fitted to
 #: the records (u -> i: incremental 9.8 V/A, 2.6 V offset, ~17 ms time constant;
 #: see docs/real-rigs.md), i.e. ``R = 5.05 ohm``, ``ku = 0.515``, ``v0 = 1.36 V``.
+PUBLISHED = LevitatorParameters.uaq()
 UAQ_TWIN = LevitatorParameters(R=5.05, ku=0.515, v0=1.36)
 
 
@@ -177,6 +185,67 @@ def simulate_uaq_twin(
     )
 
 
+def simulate_pd_dither_levitator(
+    n: int = 6000,
+    *,
+    params: LevitatorParameters = PUBLISHED,
+    y0: float = 0.005,
+    dt: float = 0.002,
+    kp: float = 131.0,
+    kd: float = 2.0,
+    kc: float = 30.0,
+    dither: float = 0.01,
+    force_noise: float = 0.3,
+    y_noise: float = 1e-5,
+    i_noise: float = 1e-3,
+    u_limits: tuple[float, float] = (-24.0, 24.0),
+    rng: np.random.Generator | None = None,
+) -> ClosedLoopData:
+    """A rig log with a dither and no ``r`` column: a one-coil levitator under a PD loop.
+
+    The PD law on the gap sets a current reference with a white binary dither
+    ``d`` (+-``dither`` A) added, and a current amplifier applies ``u = kc (i_ref - i)
+    + R i_ref`` (proportional with the resistive drop fed forward; clipped to
+    ``u_limits``)::
+
+        i_ref = i0 + kp (y - y0) + kd (y_k - y_{k-1})/dt + d_k,   u = kc (i_ref - i) + R i_ref
+
+    The log holds only ``y = [gap, i]`` and ``u`` (what such rigs record); ``d``
+    is kept in ``metadata["truth_dither"]`` for tests. Default gains place the
+    linear closed-loop mechanical poles near 60 rad/s, damping 0.7, for the UAQ
+    published physics at 5 mm (``kp b = p^2 + 60^2``, ``kd b = 2 0.7 60``, ``b = 2 g/i0``).
+    """
+    rng = np.random.default_rng(0) if rng is None else rng
+    i0, _ = equilibrium(params, y0)
+    d = dither * np.sign(rng.standard_normal(n))
+    w = rng.standard_normal(n) * force_noise
+    ny_ = rng.standard_normal(n) * y_noise
+    ni_ = rng.standard_normal(n) * i_noise
+    x = np.array([y0, 0.0, i0])
+    Y, U = np.empty((n, 2)), np.empty(n)
+    y_prev = y0
+    for t in range(n):
+        ym, im = x[0] + ny_[t], x[2] + ni_[t]
+        i_ref = i0 + kp * (ym - y0) + kd * (ym - y_prev) / dt + d[t]
+        u = float(np.clip(kc * (i_ref - im) + params.R * i_ref, *u_limits))
+        Y[t], U[t], y_prev = (ym, im), u, ym
+        pw = replace(params, g=params.g + w[t])  # held force disturbance over the period
+        x = integrate_zoh(pw, x, u, dt, substeps=4, gap_limits=(1e-4, 0.02))
+    return ClosedLoopData(
+        y=Y,
+        u=U,
+        dt=dt,
+        names={"y": ("gap", "i"), "u": ("u",)},
+        units={"y": ("m", "A"), "u": ("V",)},
+        metadata={
+            "source": "simulate_pd_dither_levitator",
+            "truth": params.to_dict(),
+            "truth_pole_rad_s": unstable_pole(params, float(np.mean(Y[:, 0]))),
+            "truth_dither": d.tolist(),
+        },
+    )
+
+
 # ========================================================================================
 # UAQ levitator: real records
 # ========================================================================================
@@ -197,7 +266,6 @@ ID_POSITION_RANGE = (1.5e-3, 12e-3)
 ID_MAX_TRACKING = 3e-3
 #: Gap at which poles are compared with the published physics.
 Y_REF = 0.005
-PUBLISHED = LevitatorParameters.uaq()
 
 
 def default_data_dir() -> Path:

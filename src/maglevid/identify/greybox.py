@@ -37,7 +37,7 @@ from typing import Any
 
 import numpy as np
 import scipy.linalg as sla
-from scipy import optimize
+from scipy import optimize, signal
 
 from maglevid.data import ClosedLoopData
 from maglevid.exceptions import DataError, IdentificationError
@@ -300,6 +300,21 @@ class _GreyboxModel:
         return yhat, resid
 
 
+def _one_step(inn: InnovationsModel, Y: np.ndarray, U: np.ndarray) -> np.ndarray:
+    """``inn.predict(Y, U, k=1)`` as linear filters (the predictor from ``[y, u]`` to
+    ``yhat`` is LTI with zero initial state): the same numbers at C speed."""
+    AK = inn.A - inn.K @ inn.C
+    Bz = np.hstack([inn.K, inn.B - inn.K @ inn.D])
+    Dz = np.hstack([np.zeros((inn.C.shape[0], inn.K.shape[1])), inn.D])
+    Z = np.hstack([Y, U])
+    out = np.zeros_like(Y, dtype=float)
+    for m in range(Z.shape[1]):
+        num, den = signal.ss2tf(AK, Bz[:, m : m + 1], inn.C, Dz[:, m : m + 1])
+        for j in range(Y.shape[1]):
+            out[:, j] += signal.lfilter(num[j], den, Z[:, m])
+    return out
+
+
 def _check_options(model: str, current_hold: str, force_law: str, *, extras: bool) -> None:
     if model not in MODELS:
         raise DataError(f"`model` must be one of {MODELS}; got {model!r}")
@@ -544,7 +559,7 @@ def _solve(
                 inn, Yd, U = gm.predictor(th, s)
             except (np.linalg.LinAlgError, ValueError, ZeroDivisionError, FloatingPointError):
                 return np.full(n_res, 1e3)
-            e = (Yd - inn.predict(Yd, U, k=1)) * wts[None, :]
+            e = (Yd - _one_step(inn, Yd, U)) * wts[None, :]
             out.append(e[burn:].ravel())
         r = np.concatenate(out)
         return r if np.all(np.isfinite(r)) else np.full(n_res, 1e3)

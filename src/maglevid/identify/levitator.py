@@ -444,11 +444,11 @@ def _with_consensus(
     names = list(best.parameters)
     cov = np.array(best.covariance, dtype=float, copy=True)
     j = names.index("pole_rad_s")
-    se = (hi - lo) / (2 * 1.959963984540054)  # the hull read as a 95 % normal interval
+    # conservative symmetric reading of the hull: point +- 1.96 se contains [lo, hi]
+    se = max(point - lo, hi - point) / 1.959963984540054
     cov[j, :] = cov[:, j] = 0.0
     cov[j, j] = se**2
     params = dict(best.parameters)
-    params["pole_rad_s"] = 0.5 * (lo + hi) if not lo <= point <= hi else point
     n_sup = sum(t["supported"] for t in table)
     chosen = table[0]["model"]
     notes = [
@@ -458,7 +458,7 @@ def _with_consensus(
         f"{n_sup} of {len(table)} candidates within {SUPPORT_MARGIN} points count as supported",
         f"consensus pole {point:.4g} rad/s, 95 % interval [{lo:.4g}, {hi:.4g}]: the hull of the "
         "supported models' intervals on all segments and on each fold (model uncertainty); "
-        "pole_rad_s std. error = that hull / 3.92",
+        "pole_rad_s std. error = the larger side of the hull / 1.96 (symmetric, conservative)",
         *best.notes,
     ]
     extras = dict(best.extras)
