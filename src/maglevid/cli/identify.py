@@ -111,7 +111,7 @@ def _should_stream(args: argparse.Namespace) -> bool:
         return bool(args.stream)
     from pathlib import Path
 
-    path = Path(args.recording)
+    path = Path(args.recording[0])
     return path.suffix.lower() == ".parquet" and (
         path.is_file() and path.stat().st_size > STREAM_THRESHOLD_BYTES
     )
@@ -180,6 +180,14 @@ def _run_one(path: str, args: argparse.Namespace, options: dict[str, Any]) -> di
     out = result.to_dict()
     out.update(recording=path, plant_kind=kind, plant_kind_reason=kind_reason,
                method_reason=reason)  # fmt: skip
+    if kind == "mimo":
+        from maglevid.plants import unidentifiable_reason
+
+        why = unidentifiable_reason(data)
+        if why is not None:
+            out["plant_identifiable"] = False
+            notes.append("the poles above are of a model of the closed-loop data, not the "
+                         f"plant's: {why}")  # fmt: skip
     out["notes"] = notes + out["notes"]
     if "consensus" in result.extras:
         _add_consensus(out, result)

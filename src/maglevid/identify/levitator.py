@@ -183,15 +183,30 @@ def _folds(segs: list[tuple[int, int]]) -> tuple[list, list]:
     return [(a, mid)], [(mid, b)]
 
 
-def _candidates(force_laws: Sequence[str], flux_lag: Sequence[bool]) -> list[dict[str, Any]]:
+def _candidates(
+    force_laws: Sequence[str], flux_lag: Sequence[bool], equilibrium: Sequence[bool]
+) -> list[dict[str, Any]]:
+    """The grid of grey boxes. Without the equilibrium tie only the dynamics speak:
+    at one gap the exponential and inverse-power laws then coincide with the
+    inverse-square one (same ``p``, ``b = 2 g/i``), so only the inverse-square and
+    the permanent-magnet (current gain free through ``i_m``) laws are kept there."""
     for law in force_laws:
         if law not in FORCE_LAWS:
             raise DataError(f"`force_laws`: {law!r} is not one of {FORCE_LAWS}")
-    return [{"force_law": law, "flux_lag": lag} for law in force_laws for lag in flux_lag]
+    out = []
+    for tie in equilibrium:
+        laws = [w for w in force_laws if tie or w in ("inverse-square", "permanent-magnet")]
+        out += [
+            {"force_law": w, "flux_lag": lag, "use_equilibrium": tie}
+            for w in laws
+            for lag in flux_lag
+        ]
+    return out
 
 
 def _label(c: dict[str, Any]) -> str:
-    return c["force_law"] + (" + flux lag" if c["flux_lag"] else "")
+    tie = "" if c["use_equilibrium"] else ", dynamics only"
+    return c["force_law"] + (" + flux lag" if c["flux_lag"] else "") + tie
 
 
 def _pole_ci(res: IdentificationResult) -> tuple[float, float, float] | None:
@@ -242,6 +257,7 @@ def fit_levitator(
     segments: Sequence[Sequence[int]] | None = None,
     force_laws: Sequence[str] = FORCE_LAWS,
     flux_lag: Sequence[bool] = (False, True),
+    equilibrium: Sequence[bool] = (True, False),
     y_ref: float | None = None,
     k_step: int = 5,
     m: float = 0.018,
@@ -260,6 +276,9 @@ def fit_levitator(
         Candidate force laws (default: all of ``FORCE_LAWS``).
     flux_lag : sequence of bool
         Fit each law without and/or with a flux lag.
+    equilibrium : sequence of bool
+        Fit each law with and/or without the tie of the current level to the law's
+        equilibrium (without: the dynamics alone, ``i0`` = the segment's mean current).
     y_ref : float, optional
         Gap at which the pole is reported (default: mean gap of the segments).
     k_step : int
@@ -278,7 +297,8 @@ def fit_levitator(
     """
     return fit_levitator_sessions(
         [data], segments=None if segments is None else [segments], force_laws=force_laws,
-        flux_lag=flux_lag, y_ref=y_ref, k_step=k_step, m=m, gap=gap, current=current,
+        flux_lag=flux_lag, equilibrium=equilibrium, y_ref=y_ref, k_step=k_step, m=m,
+        gap=gap, current=current,
     )  # fmt: skip
 
 
@@ -288,6 +308,7 @@ def fit_levitator_sessions(
     segments: Sequence[Sequence[Sequence[int]]] | None = None,
     force_laws: Sequence[str] = FORCE_LAWS,
     flux_lag: Sequence[bool] = (False, True),
+    equilibrium: Sequence[bool] = (True, False),
     y_ref: float | None = None,
     k_step: int = 5,
     m: float = 0.018,
@@ -332,7 +353,7 @@ def fit_levitator_sessions(
     )
     common = {"y_ref": y_ref, "m": m, "gap": gap, "current": current}
     rows = []
-    for cand in _candidates(force_laws, flux_lag):
+    for cand in _candidates(force_laws, flux_lag, equilibrium):
         ev = _evaluate(pooled, folds, cand, common, k_step) if len(folds) > 1 else {
             "validation": float("nan"), "fold_poles": []}  # fmt: skip
         rows.append({"candidate": cand, **ev})

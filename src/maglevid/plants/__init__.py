@@ -38,10 +38,19 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+
 from maglevid.data import ClosedLoopData
 from maglevid.exceptions import DataError
 
-__all__ = ["KINDS", "PlantKind", "choose_method", "infer_kind", "stated_kind"]
+__all__ = [
+    "KINDS",
+    "PlantKind",
+    "choose_method",
+    "infer_kind",
+    "stated_kind",
+    "unidentifiable_reason",
+]
 
 
 @dataclass(frozen=True)
@@ -149,3 +158,54 @@ def choose_method(data: ClosedLoopData) -> tuple[str, str]:
         method = "pem"
         reason = "a levitator log without the coil current: direct prediction error u -> gap"
     return method, f"plant kind {kind} ({why_kind}); method {method}: {reason}"
+
+
+#: A command explained by the outputs to this R^2 is an exact linear feedback law.
+EXACT_LAW_R2 = 0.9999
+
+
+def unidentifiable_reason(data: ClosedLoopData) -> str | None:
+    """Why a closed-loop record cannot give the open-loop plant, or ``None``.
+
+    A record without an excitation ``r`` whose every command is an exact linear
+    function (difference equation ``na = nb = 2``, ``nk = 0``) of the outputs
+    leaves only the noise to drive the loop: the direct method's identifiability
+    rests on the noise model alone, and a linear model ``u -> y`` fitted to it may
+    equally be the inverse of the controller (Ljung 1999, sec. 13.4; Söderström &
+    Stoica 1989, sec. 10.3). Saturated samples (at the command's extreme values)
+    are left out of the law's fit, and the law is fitted on each quarter of the
+    record (the best quarter counts: lift-off and rest are not under the law).
+    """
+    if data.r is not None or data.u is None or data.p != 1:
+        return None
+    worst = 1.0
+    for j in range(data.nu):
+        worst = min(worst, _best_law_r2(data.y_control, data.u[:, j]))
+    if worst < EXACT_LAW_R2:
+        return None
+    return (
+        "no excitation r, and every command is an exact linear function of the outputs "
+        f"(controller difference equation na = nb = 2: R^2 >= {worst:.6f}): only noise "
+        "drives the loop, so u -> y cannot be told from the controller's inverse and no "
+        "open-loop pole is claimed; a dither added to the command (logged, or recoverable "
+        "from the law) would identify the plant"
+    )
+
+
+def _best_law_r2(y: Any, u: Any, pieces: int = 4) -> float:
+    from maglevid.diagnose.quality import fit_controller_arx
+    from maglevid.exceptions import IdentificationError
+
+    n = u.shape[0]
+    best = 0.0
+    for q in range(pieces):
+        mask = np.zeros(n, dtype=bool)
+        mask[q * n // pieces : (q + 1) * n // pieces] = True
+        mask &= (u > u.min()) & (u < u.max())
+        try:
+            fit = fit_controller_arx(y, u, na=2, nb=2, nk=0, mask=mask)
+        except IdentificationError:
+            continue
+        if np.isfinite(fit.r_squared):
+            best = max(best, fit.r_squared)
+    return best
