@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Sequence
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -52,6 +53,9 @@ log = logging.getLogger(__name__)
 
 #: The range reaches this many quiet-levitation standard deviations beyond the reference.
 SPREAD_WIDTH = 10.0
+#: Quantile of the 1 s windows' spread read as quiet levitation (robust to a body lost
+#: for up to three quarters of the record).
+QUIET_QUANTILE = 0.25
 #: Tracking-error limit as a share of the levitating range.
 TRACKING_SHARE = 0.25
 #: Candidates within this many percentage points of the best held-out k-step fit
@@ -89,18 +93,18 @@ def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
 
 
 def _window_scale(x: np.ndarray, n: int) -> float:
-    """Median over windows of ``n`` samples of the windowed standard deviation: the
-    spread of quiet levitation, robust to falls and lift-offs (under half the windows)."""
+    """``QUIET_QUANTILE`` of the standard deviations over windows of ``n`` samples: the
+    spread of quiet levitation, robust to falls and lift-offs."""
     m = x.size // n
     if m < 1:
         return float(np.std(x))
-    return float(np.median(np.std(x[: m * n].reshape(m, n), axis=1)))
+    return float(np.quantile(np.std(x[: m * n].reshape(m, n), axis=1), QUIET_QUANTILE))
 
 
 def levitation_range(data: ClosedLoopData) -> tuple[tuple[float, float], str]:
     """The gap range [m] counted as levitating, learned from the record, and how.
 
-    ``sigma`` is the median over 1 s windows of the gap's (with a reference: the
+    ``sigma`` is the lower quartile over 1 s windows of the gap's (with a reference: the
     tracking error's) standard deviation, i.e. the spread of quiet levitation; the
     range is the reference span (without one: the median gap) widened by
     ``SPREAD_WIDTH sigma`` and by twice the largest reference step (a step of ``h``
@@ -183,6 +187,31 @@ def _folds(segs: list[tuple[int, int]]) -> tuple[list, list]:
     return [(a, mid)], [(mid, b)]
 
 
+#: Why each frame (:func:`fit_levitator`'s ``frame``).
+FRAME_NOTES = {
+    "command": (
+        "frame: command u -> [gap, current] (electromechanical grey box): the measured "
+        "current is a noisy, quantised output of the loop, not an exogenous input - as the "
+        "input of i -> gap it is an errors-in-variables model whose current gain, and with "
+        "it the pole, is biased (Soderstrom 2007); the logged command is known exactly"
+    ),
+    "current": (
+        "frame: measured current i -> gap (mechanical force-law family): no command logged, "
+        "or chosen; the current's measurement noise biases the gain (errors in variables)"
+    ),
+}
+
+
+def _frame(data: ClosedLoopData, frame: str, current: str) -> str:
+    if frame not in ("auto", "command", "current"):
+        raise DataError(f"`frame` must be 'auto', 'command' or 'current'; got {frame!r}")
+    if frame == "auto":
+        return "command" if data.u is not None and data.ny >= 2 else "current"
+    if frame == "command" and (data.u is None or data.ny < 2):
+        raise DataError("frame='command' needs the command u and the current as y:1")
+    return frame
+
+
 def _candidates(
     force_laws: Sequence[str], flux_lag: Sequence[bool], equilibrium: Sequence[bool]
 ) -> list[dict[str, Any]]:
@@ -205,6 +234,8 @@ def _candidates(
 
 
 def _label(c: dict[str, Any]) -> str:
+    if c.get("model") == "electromechanical":
+        return "electromechanical u -> [gap, i] (inverse-square)"
     tie = "" if c["use_equilibrium"] else ", dynamics only"
     return c["force_law"] + (" + flux lag" if c["flux_lag"] else "") + tie
 
@@ -263,6 +294,8 @@ def fit_levitator(
     m: float = 0.018,
     gap: str = "y:0",
     current: str = "y:1",
+    command: str = "u:0",
+    frame: str = "auto",
 ) -> IdentificationResult:
     """The levitator's unstable pole: model chosen by held-out prediction, one consensus.
 
@@ -285,8 +318,14 @@ def fit_levitator(
         Horizon of the validation (samples ahead).
     m : float
         Mass [kg] (only ``K/m`` enters: the pole does not depend on it).
-    gap, current : str
-        Channels of the gap [m] and the coil current [A].
+    gap, current, command : str
+        Channels of the gap [m], the coil current [A] and the command [V].
+    frame : {"auto", "command", "current"}
+        Which signal is the model's input. ``"command"``: the logged command drives
+        the electromechanical grey box ``u -> [gap, current]`` and the measured
+        current is an output; ``"current"``: the measured current drives the
+        mechanical force-law family ``i -> gap``. ``"auto"`` (default): the command
+        when it is logged (see :data:`FRAME_NOTES` for why).
 
     Returns
     -------
@@ -298,7 +337,7 @@ def fit_levitator(
     return fit_levitator_sessions(
         [data], segments=None if segments is None else [segments], force_laws=force_laws,
         flux_lag=flux_lag, equilibrium=equilibrium, y_ref=y_ref, k_step=k_step, m=m,
-        gap=gap, current=current,
+        gap=gap, current=current, command=command, frame=frame,
     )  # fmt: skip
 
 
@@ -314,6 +353,8 @@ def fit_levitator_sessions(
     m: float = 0.018,
     gap: str = "y:0",
     current: str = "y:1",
+    command: str = "u:0",
+    frame: str = "auto",
 ) -> IdentificationResult:
     """:func:`fit_levitator` on several recordings of one rig: validated across sessions.
 
@@ -353,11 +394,18 @@ def fit_levitator_sessions(
     )
     common = {"y_ref": y_ref, "m": m, "gap": gap, "current": current}
     rows = []
-    for cand in _candidates(force_laws, flux_lag, equilibrium):
+    frame = _frame(pooled, frame, current)
+    cands = (
+        [{"model": "electromechanical", "command": command}]
+        if frame == "command"
+        else _candidates(force_laws, flux_lag, equilibrium)
+    )
+    for cand in cands:
         ev = _evaluate(pooled, folds, cand, common, k_step) if len(folds) > 1 else {
             "validation": float("nan"), "fold_poles": []}  # fmt: skip
         rows.append({"candidate": cand, **ev})
-    return _consensus(pooled, pooled_segs, rows, common, k_step, exclusions, len(sessions))
+    res = _consensus(pooled, pooled_segs, rows, common, k_step, exclusions, len(sessions))
+    return replace(res, notes=(FRAME_NOTES[frame], *res.notes))
 
 
 def _exclusion_summary(rep: SegmentReport, how: str) -> dict[str, Any]:
@@ -403,38 +451,42 @@ def _consensus(
     exclusions: list[dict[str, Any]],
     n_sessions: int,
 ) -> IdentificationResult:
-    """Refit the supported candidates on every segment; point and hull interval."""
+    """Refit every candidate on all segments; the best-validated one with a pole gives the
+    point, the supported ones (within ``SUPPORT_MARGIN`` of it) the hull interval."""
+    fits = [_fit(data, segs, r["candidate"], common) for r in rows]
+    fulls = [None if isinstance(f, Exception) else _pole_ci(f) for f in fits]
     scores = np.array([r["validation"] for r in rows])
-    validated = np.isfinite(scores)
-    best_score = float(np.nanmax(scores)) if validated.any() else float("nan")
-    support = (scores >= best_score - SUPPORT_MARGIN) if validated.any() else ~validated
-    order = np.argsort(-np.where(validated, scores, -np.inf), kind="stable")
-    best = None
+    ok = np.array([f is not None for f in fulls])
+    if not ok.any():
+        raise IdentificationError(
+            "no candidate model gives an identifiable pole on these segments: "
+            + "; ".join(f"{_label(r['candidate'])}: {_why_not(f)}" for r, f in zip(rows, fits))
+        )
+    ranked = ok & np.isfinite(scores)
+    if ranked.any():
+        best_score = float(np.max(scores[ranked]))
+        support = ranked & (scores >= best_score - SUPPORT_MARGIN)
+    else:  # nothing to validate on (one fold): every identified candidate counts
+        support = ok
+    order = sorted(
+        range(len(rows)),
+        key=lambda j: (not support[j], not ok[j], -np.nan_to_num(scores[j], nan=-np.inf)),
+    )
     table, pool = [], []
     for j in order:
-        r = rows[j]
-        res = _fit(data, segs, r["candidate"], common) if support[j] else None
-        full = None if res is None or isinstance(res, Exception) else _pole_ci(res)
-        row = {
+        r, full = rows[j], fulls[j]
+        table.append({
             "model": _label(r["candidate"]),
             "held_out_fit_percent": r["validation"],
             "supported": bool(support[j]),
             "pole_rad_s": None if full is None else full[0],
             "ci95": None if full is None else [full[1], full[2]],
             "fold_poles": [None if f is None else f[0] for f in r["fold_poles"]],
-            "note": _why_not(res),
-        }  # fmt: skip
-        table.append(row)
-        if support[j] and full is not None:
-            pool.append(full)
-            pool += [f for f in r["fold_poles"] if f is not None]
-            if best is None:
-                best = res
-    if best is None:
-        raise IdentificationError(
-            "no candidate model gives an identifiable pole on these segments: "
-            + "; ".join(f"{t['model']}: {t['note'] or 'not supported'}" for t in table)
-        )
+            "note": _why_not(fits[j]),
+        })  # fmt: skip
+        if support[j]:
+            pool += [full] + [f for f in r["fold_poles"] if f is not None]
+    best = fits[order[0]]
     point = float(best.parameters["pole_rad_s"])
     lo = min(p[1] for p in pool)
     hi = max(p[2] for p in pool)
@@ -460,8 +512,6 @@ def _with_consensus(
     k_step: int,
     dt: float,
 ) -> IdentificationResult:
-    from dataclasses import replace
-
     names = list(best.parameters)
     cov = np.array(best.covariance, dtype=float, copy=True)
     j = names.index("pole_rad_s")
