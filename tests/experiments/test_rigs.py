@@ -120,4 +120,6 @@ def test_reproduce_rigs_prints_the_tables(shared_data):
     text = rigs.format_text(res)
     assert "UAQ levitator: data quality" in text and "escalon" in text
     est = res["poles"]["sessions"]["escalon"]["estimates"]
-    assert {"pem-arx i->y", "two-stage i->y", "greybox"} <= set(est)
+    assert {"pem-arx i->y", "two-stage i->y", "greybox", "levitator consensus (own gap)"} <= set(
+        est
+    )

@@ -47,6 +47,7 @@ from maglevid.diagnose.quality import (
 from maglevid.exceptions import MaglevidError
 from maglevid.identify.greybox import fit_equilibrium_line, fit_greybox_levitator
 from maglevid.identify.indirect import fit_indirect
+from maglevid.identify.levitator import fit_levitator
 from maglevid.identify.pem import fit_pem
 from maglevid.identify.twostage import fit_two_stage
 from maglevid.physics.levitator import (
@@ -418,6 +419,18 @@ def uaq_session_estimates(d: ClosedLoopData) -> dict[str, Any]:
         except MaglevidError as exc:
             est[label] = {"error": str(exc)}
 
+    try:
+        cons = fit_levitator(d)
+        c = cons.extras["consensus"]
+        y_c = float(cons.options["y_ref"])
+        est["levitator consensus (own gap)"] = {
+            "rad_s": c["pole_rad_s"], "se": float("nan"), "ci_low": c["ci95"][0],
+            "ci_high": c["ci95"][1], "gap_mm": 1e3 * y_c,
+            "published_there": unstable_pole(PUBLISHED, y_c),
+        }  # fmt: skip
+        out["notes"]["levitator consensus (own gap)"] = [c["chosen_model"]]
+    except MaglevidError as exc:
+        est["levitator consensus (own gap)"] = {"error": str(exc)}
     run("pem-arx i->y", lambda: fit_pem(d, input="y:1", na=2, nb=3, nk=0, segments=lev))
     run("pem-armax i->y", lambda: fit_pem(d, input="y:1", na=2, nb=3, nk=0, nc=2,
                                           structure="armax", segments=lev))  # fmt: skip
@@ -692,9 +705,10 @@ def format_text(result: dict[str, Any]) -> str:
             if "error" in e:
                 L.append(f"    {label:>30}: failed ({e['error'][:70]})")
             else:
+                at = f"  at {e['gap_mm']:.2f} mm" if "gap_mm" in e else ""
                 L.append(
-                    f"    {label:>30}: {e['rad_s']:7.1f} +- {_f(e['se'], '.2g'):>6}  "
-                    f"[{_f(e['ci_low'], '.1f')}, {_f(e['ci_high'], '.1f')}]"
+                    f"    {label:>30}: {_f(e['rad_s'], '7.1f')} +- {_f(e['se'], '.2g'):>6}  "
+                    f"[{_f(e['ci_low'], '.1f')}, {_f(e['ci_high'], '.1f')}]{at}"
                 )
         if "indirect_voltage_pole" in s:
             e = s["indirect_voltage_pole"]
