@@ -28,6 +28,7 @@ pooled across sessions: the folds are the sessions.
 
 from __future__ import annotations
 
+import inspect
 import logging
 from collections.abc import Sequence
 from dataclasses import replace
@@ -334,34 +335,48 @@ def fit_levitator(
         replaced by the consensus and its interval (``extras["consensus"]``) and the
         per-candidate table (``extras["candidates"]``).
     """
-    return fit_levitator_sessions(
-        [data], segments=None if segments is None else [segments], force_laws=force_laws,
-        flux_lag=flux_lag, equilibrium=equilibrium, y_ref=y_ref, k_step=k_step, m=m,
-        gap=gap, current=current, command=command, frame=frame,
-    )  # fmt: skip
+    options = {k: v for k, v in locals().items() if k not in ("data", "segments")}
+    return _fit_sessions([data], None if segments is None else [segments], **options)
 
 
 def fit_levitator_sessions(
     sessions: Sequence[ClosedLoopData],
     *,
     segments: Sequence[Sequence[Sequence[int]]] | None = None,
-    force_laws: Sequence[str] = FORCE_LAWS,
-    flux_lag: Sequence[bool] = (False, True),
-    equilibrium: Sequence[bool] = (True, False),
-    y_ref: float | None = None,
-    k_step: int = 5,
-    m: float = 0.018,
-    gap: str = "y:0",
-    current: str = "y:1",
-    command: str = "u:0",
-    frame: str = "auto",
+    **options: Any,
 ) -> IdentificationResult:
     """:func:`fit_levitator` on several recordings of one rig: validated across sessions.
 
-    With one session the folds are alternate segments; with several, each session
-    is a fold (a model must predict the sessions it was not fitted on). The final
-    fit pools every session's segments.
+    ``options`` are :func:`fit_levitator`'s. With one session the folds are
+    alternate segments; with several, each session is a fold (a model must predict
+    the sessions it was not fitted on). The final fit pools every session's segments.
     """
+    known = {
+        n: p.default
+        for n, p in inspect.signature(fit_levitator).parameters.items()
+        if p.kind is inspect.Parameter.KEYWORD_ONLY and n != "segments"
+    }
+    unknown = set(options) - set(known)
+    if unknown:
+        raise DataError(f"unknown option(s) {sorted(unknown)}; known: {sorted(known)}")
+    return _fit_sessions(sessions, segments, **{**known, **options})
+
+
+def _fit_sessions(
+    sessions: Sequence[ClosedLoopData],
+    segments: Sequence[Sequence[Sequence[int]]] | None,
+    *,
+    force_laws: Sequence[str],
+    flux_lag: Sequence[bool],
+    equilibrium: Sequence[bool],
+    y_ref: float | None,
+    k_step: int,
+    m: float,
+    gap: str,
+    current: str,
+    command: str,
+    frame: str,
+) -> IdentificationResult:
     if not sessions:
         raise DataError("no recordings given")
     dts = {float(d.dt) for d in sessions}
