@@ -64,3 +64,21 @@ def test_a_record_with_r_is_refused(log):
     data, _ = recover_excitation(log)
     with pytest.raises(DataError, match="already has an excitation"):
         recover_excitation(data)
+
+
+def test_two_stage_and_indirect_run_from_the_command_line_without_r(log, tmp_path, capsys):
+    import json
+
+    from maglevid.cli.main import main
+    from maglevid.io import write_recording
+
+    path = tmp_path / "rig.npz"
+    write_recording(log.replace(metadata={"source": "rig log"}), path)
+    for method, opts in (("two-stage", ["input=y:1", "nb=3", "nk=0"]),
+                         ("indirect", ["intermediate=y:1"])):  # fmt: skip
+        args = ["--json", "identify", str(path), "--method", method]
+        args += [a for o in opts for a in ("--option", o)]
+        assert main(args) == 0
+        res = json.loads(capsys.readouterr().out)
+        assert res["notes"][0].startswith("no excitation r logged: recovered")
+        assert res["plant_kind"] == "levitator" and res["method_reason"] == "chosen by the user"
