@@ -64,14 +64,6 @@ def levitator_baseline(data: ClosedLoopData) -> Any:
     )
 
 
-def _reference(data: ClosedLoopData) -> np.ndarray | None:
-    extras = data.metadata.get("extra_signals") if hasattr(data.metadata, "get") else None
-    if extras and "yd" in extras:
-        vals = np.asarray(extras["yd"]["values"], dtype=float)
-        return vals[:: data.p] if vals.size == data.y.shape[0] and data.p > 1 else vals
-    return None
-
-
 def levitator_checks(
     data: ClosedLoopData,
 ) -> tuple[tuple[QualityCheck, ...], list[tuple[int, int]]]:

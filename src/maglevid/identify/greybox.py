@@ -16,17 +16,23 @@ is stable, so the unstable plant is never simulated open loop.
 Models
 ------
 ``mechanical`` (default)
-    input: measured coil current ``i``; output: gap ``y``. Parameters ``a``, ``k``
-    (and ``K``). The plant whose pole the physics predicts, independent of the
-    coil and driver.
+    input: measured coil current ``i``; output: gap ``y``. Parameters of the force
+    law (``force_law``, :data:`FORCE_LAWS`: the steel ball's ``a``, ``k``; an
+    inverse power ``a``, ``n``, ``Km``; an exponential ``a``, ``Km``; a permanent
+    magnet ``a``, ``Km``, ``i_m``), optionally a flux lag ``tau`` and a gain factor
+    ``beta``. The plant whose pole the physics predicts, independent of the coil
+    and driver; the measured current as input is an errors-in-variables model
+    (its noise biases the gain), see :mod:`maglevid.identify.levitator`.
 ``electromechanical``
     input: command ``u``; outputs ``y``, ``i``. Parameters ``a``, ``k``, ``k0``,
     ``R`` and ``ku`` (driver gain); the command offset (driver drop ``v0``) is
     absorbed by the segment's mean command.
 
-Derived: the unstable pole ``p = sqrt(2 g/(a + y_ref))`` [rad/s] and ``z = exp(p dt)``
-at a reference gap, the current gain ``b = 2 g / i0`` and the equilibrium current,
-each with a delta-method standard error.
+Derived: the unstable pole ``p = sqrt(-F_y/m)`` (``sqrt(2 g/(a + y_ref))`` for the
+steel ball) [rad/s] and ``z = exp(p dt)`` at a reference gap, the current gain
+``b = F_i/m`` and the equilibrium current, each with a delta-method standard
+error. A parameter at a bound, or one whose standard error is not finite or
+exceeds its value, makes the fit claim no pole (NaN, with a note).
 """
 
 from __future__ import annotations
