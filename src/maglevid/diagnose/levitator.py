@@ -19,8 +19,6 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-import numpy as np
-
 from maglevid.data import ClosedLoopData
 from maglevid.diagnose.diagnosis import QualityCheck
 
