@@ -239,7 +239,15 @@ class _GreyboxModel:
             )
             sc = linearize(par, y0)
             Bw = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0 / float(par.inductance(y0))]])
-            return sc.A, sc.B, sc.C, Bw
+            if not o["flux_lag"]:
+                return sc.A, sc.B, sc.C, Bw
+            # force current f lags the coil current: f' = (i - f)/tau, v' = p^2 y - b f
+            A = np.zeros((4, 4))
+            A[:3, :3] = sc.A
+            A[1, 3], A[1, 2] = sc.A[1, 2], 0.0
+            A[3, 2], A[3, 3] = 1.0 / d["tau"], -1.0 / d["tau"]
+            C = np.hstack([sc.C, np.zeros((2, 1))])
+            return A, np.vstack([sc.B, [[0.0]]]), C, np.vstack([Bw, [[0.0, 0.0]]])
         _, p2, b = self.point(d, y0, self.ibar[s])
         if not o["flux_lag"]:
             A = np.array([[0.0, 1.0], [p2, 0.0]])
@@ -330,7 +338,7 @@ def _check_options(model: str, current_hold: str, force_law: str, *, extras: boo
         raise DataError(f"`force_law` must be one of {FORCE_LAWS}; got {force_law!r}")
     if model == "electromechanical" and (extras or force_law != "inverse-square"):
         raise DataError(
-            "flux_lag, free_gain, use_equilibrium=False and force laws other than "
+            "free_gain, use_equilibrium=False and force laws other than "
             "inverse-square apply to the mechanical model only"
         )
 
@@ -379,7 +387,7 @@ def fit_greybox_levitator(
         With ``False`` the segment's mean current is used as ``i0`` and only the
         dynamics speak (the force constant is then not estimated).
     flux_lag : bool
-        ``mechanical`` only: the force follows the current through a first-order
+        The force follows the current through a first-order
         lag ``tau`` (eddy currents in a solid core); ``tau`` is estimated.
     free_gain : bool
         ``mechanical`` only: the current gain is ``beta`` times the law's (``beta =
@@ -412,9 +420,7 @@ def fit_greybox_levitator(
         ``False`` (and the pole NaN) when a parameter sits at a bound or is not
         identifiable: no pole is claimed from such a fit.
     """
-    _check_options(
-        model, current_hold, force_law, extras=flux_lag or free_gain or not use_equilibrium
-    )
+    _check_options(model, current_hold, force_law, extras=free_gain or not use_equilibrium)
     ych = resolve_channel(data, gap)
     ich = resolve_channel(data, current)
     segs = resolve_segments(data, segments, min_length=burn_in + 20)
@@ -515,9 +521,10 @@ def _parameter_set(
     y0, ibar = float(y_all.mean()), float(np.mean(np.abs(i_all))) or 1.0
     law = opts["force_law"]
     if opts["model"] == "electromechanical":
-        names = ["a", "k", "k0", "R", "ku"]
-        st = {"a": p0.a, "k": p0.k, "k0": p0.k0, "R": p0.R, "ku": p0.ku}
+        names = ["a", "k", "k0", "R", "ku"] + (["tau"] if opts["flux_lag"] else [])
+        st = {"a": p0.a, "k": p0.k, "k0": p0.k0, "R": p0.R, "ku": p0.ku, "tau": 5e-3}
         lo_hi = {n: (1e-3 * st[n], np.inf) for n in names}
+        lo_hi["tau"] = (1e-5, 1.0)
     else:
         law_names = _LAW_PARAMETERS[law]
         if not opts["use_equilibrium"]:  # the force constant only sets the level of i

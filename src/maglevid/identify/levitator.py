@@ -236,7 +236,8 @@ def _candidates(
 
 def _label(c: dict[str, Any]) -> str:
     if c.get("model") == "electromechanical":
-        return "electromechanical u -> [gap, i] (inverse-square)"
+        lag = " + flux lag" if c["flux_lag"] else ""
+        return f"electromechanical u -> [gap, i] (inverse-square{lag})"
     tie = "" if c["use_equilibrium"] else ", dynamics only"
     return c["force_law"] + (" + flux lag" if c["flux_lag"] else "") + tie
 
@@ -411,7 +412,7 @@ def _fit_sessions(
     rows = []
     frame = _frame(pooled, frame, current)
     cands = (
-        [{"model": "electromechanical", "command": command}]
+        [{"model": "electromechanical", "command": command, "flux_lag": lag} for lag in flux_lag]
         if frame == "command"
         else _candidates(force_laws, flux_lag, equilibrium)
     )
