@@ -33,6 +33,9 @@ def test_command_frame_consensus_covers_the_truth(log):
     assert res.method == "levitator" and res.notes[0].startswith("frame: command")
     row = res.extras["candidates"][0]
     assert row["supported"] and len(row["fold_poles"]) == 2
+    # no r and no reference: the unlogged dither cannot be seen, so the record is flagged
+    assert res.extras["noise_only_sessions"] == [0]
+    assert any("no logged excitation" in n for n in res.notes)
 
 
 def test_current_frame_ranks_the_force_laws_by_held_out_prediction(log):

@@ -421,7 +421,31 @@ def _fit_sessions(
             "validation": float("nan"), "fold_poles": []}  # fmt: skip
         rows.append({"candidate": cand, **ev})
     res = _consensus(pooled, pooled_segs, rows, common, k_step, exclusions, len(sessions))
-    return replace(res, notes=(FRAME_NOTES[frame], *res.notes))
+    quiet = [j for j, (d, sl) in enumerate(zip(sessions, seg_lists)) if sl and _noise_only(d, sl)]
+    notes = [FRAME_NOTES[frame]]
+    if quiet:
+        notes.append(
+            "no logged excitation in session(s) "
+            + ", ".join(str(j + 1) for j in quiet)
+            + " (no r; one reference value, or none, over all segments): unless an "
+            "unlogged dither drives the loop (identify.excitation.recover_excitation finds "
+            "one), only noise does, and the estimate rests on the noise model - it can be "
+            "biased beyond its interval (docs/real-rigs.md: UAQ 'constante')"
+        )
+    return replace(
+        res, notes=(*notes, *res.notes), extras={**res.extras, "noise_only_sessions": quiet}
+    )
+
+
+def _noise_only(data: ClosedLoopData, segs: list[tuple[int, int]]) -> bool:
+    """No excitation ``r`` and one reference value over all the segments (a step between
+    two segments counts: it excites the loop at the second one's start)."""
+    ref = _reference(data)
+    if data.r is not None and (ref is None or data.r.shape[1] != 1):
+        return False
+    if ref is None:
+        return True
+    return float(np.ptp(np.concatenate([ref[a:b] for a, b in segs]))) == 0.0
 
 
 def _exclusion_summary(rep: SegmentReport, how: str) -> dict[str, Any]:
