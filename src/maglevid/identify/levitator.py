@@ -559,6 +559,11 @@ def _with_consensus(
     se = max(point - lo, hi - point) / 1.959963984540054
     cov[j, :] = cov[:, j] = 0.0
     cov[j, j] = se**2
+    if "pole_z" in names:  # z = exp(p dt): the same interval, by the delta method
+        jz = names.index("pole_z")
+        cov[jz, :] = cov[:, jz] = 0.0
+        cov[jz, jz] = (best.parameters["pole_z"] * dt * se) ** 2
+        cov[j, jz] = cov[jz, j] = best.parameters["pole_z"] * dt * se**2
     params = dict(best.parameters)
     n_sup = sum(t["supported"] for t in table)
     chosen = table[0]["model"]
