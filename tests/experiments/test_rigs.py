@@ -61,16 +61,20 @@ def test_equilibrium_line_disagrees_with_the_published_inductance_law(shared_dat
 
 
 @pytest.mark.parametrize("name", ["escalon", "multiescalon"])
-def test_greybox_pole_on_step_sessions(shared_data, name):
+def test_greybox_with_the_equilibrium_tie_obeys_the_static_force_balance(shared_data, name):
     d, _, op = _session(shared_data, name)
     res = fit_greybox_levitator(d, segments=op, y_ref=0.005)
-    lo, hi = res.confidence_intervals(0.95)["pole_rad_s"]
-    # Unstable and in the 49-54 rad/s band of the equilibrium line (50.1 and 51.9); the
-    # interval is narrow (the equilibrium currents dominate), so the band, not the CI,
-    # is the tolerance: the two sessions differ by 2 rad/s (current level drifts).
-    assert lo > 0
-    assert 48.0 < res.parameters["pole_rad_s"] < 54.0
-    assert hi - lo < 2.0
+    p = res.parameters
+    # eq. (LIN1): the reported pole is sqrt(2 g/(a + y_ref)) of the fitted a (algebra)
+    assert p["pole_rad_s"] == pytest.approx(np.sqrt(2 * 9.81 / (p["a"] + 0.005)), rel=1e-9)
+    assert res.confidence_intervals(0.95)["pole_rad_s"][0] > 0  # unstable, never reflected
+    # eq. (Q1): with the tie, the law's equilibrium current at each operating point must
+    # match the measured mean current there. Tolerance 15 mA: the measured level drifts
+    # by ~10 mA within a session (coil heating; docs/real-rigs.md) and is quantised at
+    # 2.2 mA; a wrong a (e.g. the published 5.2 mm) misses the 4-6 mm currents by more.
+    model = np.array(res.extras["segment_model_currents"])
+    measured = np.array(res.extras["segment_mean_currents"])
+    assert np.max(np.abs(model - measured)) < 15e-3
 
 
 def test_two_stage_on_the_multistep_session_agrees_with_published_physics(shared_data):
@@ -116,4 +120,6 @@ def test_reproduce_rigs_prints_the_tables(shared_data):
     text = rigs.format_text(res)
     assert "UAQ levitator: data quality" in text and "escalon" in text
     est = res["poles"]["sessions"]["escalon"]["estimates"]
-    assert {"pem-arx i->y", "two-stage i->y", "greybox"} <= set(est)
+    assert {"pem-arx i->y", "two-stage i->y", "greybox", "levitator consensus (own gap)"} <= set(
+        est
+    )

@@ -18,6 +18,13 @@ an unstable model).
 
   maglevid identify rec.npz --method deadbeat-arx --json
 
+Without --method the method follows from the plant kind (two-coil AMB,
+inter-sampled suspension, one-coil levitator, generic MIMO; stated in the
+recording or inferred), and the choice and its reason are printed. Several
+recordings of one rig are identified together and one by one:
+
+  maglevid identify A.txt B.txt C.txt --mapping uaq-levitador
+
 Records larger than memory are streamed: a Parquet recording above 256 MB (or
 any recording with --stream) is read in chunks of --chunk-size control periods
 and identified with memory independent of its length (methods physical, moesp,
@@ -33,7 +40,18 @@ STREAM_THRESHOLD_BYTES = 256 * 2**20
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("recording", help="recording file (.npz, .csv + .json, .mat, .parquet)")
+    parser.add_argument(
+        "recording",
+        nargs="+",
+        help="recording file (.npz, .csv + .json, .mat, .parquet); several sessions of one "
+        "rig give one answer and the per-session ones",
+    )
+    parser.add_argument(
+        "--recover-excitation",
+        action="store_true",
+        help="the recording has no excitation r: recover the dither from the controller law "
+        "(stated in loop['controller_law'] or fitted); automatic for two-stage and indirect",
+    )
     parser.add_argument(
         "--method",
         default=None,
@@ -84,10 +102,8 @@ def _parse_options(items: list[str]) -> dict[str, Any]:
     return out
 
 
-def _default_method(data: Any) -> str:
-    from maglevid.diagnose.pipeline import choose_method
-
-    return choose_method(data)[0]  # "physical" for AMB recordings (observer-independent)
+#: Methods that need an excitation r (recovered from the controller when not logged).
+NEEDS_EXCITATION = ("two-stage", "indirect")
 
 
 def _should_stream(args: argparse.Namespace) -> bool:
@@ -95,7 +111,7 @@ def _should_stream(args: argparse.Namespace) -> bool:
         return bool(args.stream)
     from pathlib import Path
 
-    path = Path(args.recording)
+    path = Path(args.recording[0])
     return path.suffix.lower() == ".parquet" and (
         path.is_file() and path.stat().st_size > STREAM_THRESHOLD_BYTES
     )
@@ -106,6 +122,11 @@ def _run_streamed(args: argparse.Namespace, options: dict[str, Any]) -> dict[str
     from maglevid.identify.streaming import STREAMED_METHODS, identify_streamed
     from maglevid.io import iter_recording_chunks
 
+    if len(args.recording) > 1:
+        from maglevid.exceptions import DataError
+
+        raise DataError("several recordings cannot be streamed; use --no-stream")
+    args.recording = args.recording[0]
     method = args.method or "physical"
     if method not in STREAMED_METHODS:
         from maglevid.exceptions import DataError
@@ -137,25 +158,119 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     options = _parse_options(args.option)
     if _should_stream(args):
         return _run_streamed(args, options)
+    if len(args.recording) > 1:
+        return _run_sessions(args, options)
+    return _run_one(args.recording[0], args, dict(options))
+
+
+def _run_one(path: str, args: argparse.Namespace, options: dict[str, Any]) -> dict[str, Any]:
     from maglevid.cli._progress import stages
     from maglevid.io import read_recording
+    from maglevid.plants import choose_method, infer_kind
 
     steps = stages(("reading", "identifying"), desc="identify", args=args)
     next(steps)
-    data = read_recording(args.recording, mapping=args.mapping)
-    method = args.method or _default_method(data)
-    from maglevid.diagnose.levitator import is_levitator, levitator_checks
-
-    if method == "greybox-levitator" and is_levitator(data) and "segments" not in options:
-        # A rig log: identify on the segments where the ball levitates under control.
-        options["segments"] = levitator_checks(data)[1]
+    data = read_recording(path, mapping=args.mapping)
+    kind, kind_reason = infer_kind(data)
+    method, reason = choose_method(data)
+    if args.method is not None and args.method != method:
+        method, reason = args.method, "chosen by the user"
+    notes = []
+    if data.r is None and (args.recover_excitation or method in NEEDS_EXCITATION):
+        data, notes = _recover(data, method, options)
+    if kind == "levitator" and "segments" not in options and method != "levitator":
+        options["segments"] = _levitator_segments(data, method)
     next(steps)
     result = get_method(method)(data, **options)
     steps.close()
     out = result.to_dict()
-    out["recording"] = args.recording
     if result.extras.get("B_intersample") is not None:
         out["intersample_numerators"] = _intersample_numerators(result.extras)
+    out.update(recording=path, plant_kind=kind, plant_kind_reason=kind_reason,
+               method_reason=reason)  # fmt: skip
+    if kind == "mimo":
+        from maglevid.plants import unidentifiable_reason
+
+        why = unidentifiable_reason(data)
+        if why is not None:
+            out["plant_identifiable"] = False
+            notes.append("the poles above are of a model of the closed-loop data, not the "
+                         f"plant's: {why}")  # fmt: skip
+    out["notes"] = notes + out["notes"]
+    if "consensus" in result.extras:
+        _add_consensus(out, result)
+    return out
+
+
+def _finite(v: Any) -> Any:
+    """JSON-safe: NaN and inf become None."""
+    import numpy as np
+
+    if isinstance(v, dict):
+        return {k: _finite(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_finite(x) for x in v]
+    if isinstance(v, float) and not np.isfinite(v):
+        return None
+    return v
+
+
+def _add_consensus(out: dict[str, Any], result: Any) -> None:
+    for key in ("consensus", "candidates", "segments_excluded"):
+        out[key] = _finite(result.extras[key])
+    out["ci95"]["pole_rad_s"] = list(result.extras["consensus"]["ci95"])
+
+
+def _recover(data: Any, method: str, options: dict[str, Any]) -> tuple[Any, list[str]]:
+    """The dither recovered from the controller law (no r logged)."""
+    from maglevid.identify.excitation import recover_excitation
+
+    data, rep = recover_excitation(data)
+    if method == "indirect":
+        options.setdefault("controller", data.loop["controller"])
+        options.setdefault("controller_inputs", list(data.loop["controller_inputs"]))
+    note = (
+        f"no excitation r logged: recovered from the controller law ({rep['source']}"
+        + (f", R^2 = {rep['r_squared']:.4f}" if "r_squared" in rep else "")
+        + f"; dither rms {rep['r_rms']:.3g})"
+    )
+    return data, [note]
+
+
+def _levitator_segments(data: Any, method: str) -> list[tuple[int, int]]:
+    """Learned levitating segments (operating points for the grey box)."""
+    from maglevid.identify.levitator import find_levitator_segments
+
+    rep, segs, _ = find_levitator_segments(data)
+    return segs if method == "greybox-levitator" else rep.bounds()
+
+
+def _run_sessions(args: argparse.Namespace, options: dict[str, Any]) -> dict[str, Any]:
+    """Several sessions of one rig: each on its own, then all together."""
+    from maglevid.exceptions import DataError
+    from maglevid.identify.levitator import fit_levitator_sessions
+    from maglevid.io import read_recording
+    from maglevid.plants import infer_kind
+
+    sessions = [read_recording(p, mapping=args.mapping) for p in args.recording]
+    kinds = {infer_kind(d)[0] for d in sessions}
+    if kinds != {"levitator"} or args.method not in (None, "levitator"):
+        raise DataError(
+            "several recordings are identified together for one-coil levitators (method "
+            f"levitator); these are {sorted(kinds)}"
+            + (f", method {args.method}" if args.method else "")
+        )
+    per = [_run_one(p, args, dict(options)) for p in args.recording]
+    joint = fit_levitator_sessions(sessions, **options)
+    out = joint.to_dict()
+    out.update(
+        recording=list(args.recording),
+        plant_kind="levitator",
+        plant_kind_reason="every recording is a one-coil levitator",
+        method_reason="several sessions: the model validated across sessions, one pooled fit",
+        sessions=per,
+    )
+    _add_consensus(out, joint)
     return out
 
 
@@ -179,7 +294,13 @@ def format_text(result: dict[str, Any]) -> str:
         return "\n".join(
             f"{name:<{width}}  {result['descriptions'][name]}" for name in result["methods"]
         )
-    lines = [f"recording: {result['recording']}", f"method: {result['method']}"]
+    rec = result["recording"]
+    lines = [f"recording: {', '.join(rec) if isinstance(rec, list) else rec}"]
+    if result.get("plant_kind"):
+        lines.append(f"plant kind: {result['plant_kind']} ({result['plant_kind_reason']})")
+    lines.append(f"method: {result['method']}")
+    if result.get("method_reason"):
+        lines.append(f"why: {result['method_reason']}")
     if result.get("streamed"):
         st = result["streamed"]
         lines.append(f"streamed: chunks of {st['chunk_size']}, {st['passes']} pass(es)")
@@ -209,4 +330,40 @@ def format_text(result: dict[str, Any]) -> str:
             )
             lines.append(f"B_{j} (z^0..z^-{len(b) - 1}): {terms}")
     lines.extend(f"note: {n}" for n in result.get("notes", []))
+    lines.extend(_consensus_lines(result))
     return "\n".join(lines)
+
+
+def _consensus_lines(result: dict[str, Any]) -> list[str]:
+    """The per-model table, the excluded pieces and the per-session answers."""
+    if "consensus" not in result:
+        return []
+    c = result["consensus"]
+    lo, hi = c["ci95"]
+    lines = [
+        f"consensus unstable pole: {c['pole_rad_s']:.4g} rad/s, 95 % interval "
+        f"[{lo:.4g}, {hi:.4g}] (model: {c['chosen_model']})",
+        f"{'model':>28} {'held-out fit %':>15} {'supported':>9} {'pole':>8}   95 % interval",
+    ]
+    for row in result["candidates"]:
+        ci = row["ci95"]
+        band = f"[{ci[0]:.4g}, {ci[1]:.4g}]" if ci else row["note"] or "-"
+        pole = f"{row['pole_rad_s']:.4g}" if row["pole_rad_s"] is not None else "-"
+        hof = row["held_out_fit_percent"]
+        hof_s = f"{hof:.1f}" if hof is not None and hof == hof else "-"
+        lines.append(f"{row['model']:>28} {hof_s:>15} {row['supported']!s:>9} {pole:>8}   {band}")
+    for ex in result.get("segments_excluded", []):
+        lines.append(f"segments: {ex['range']}")
+        for piece in ex["excluded"]:
+            lines.append(
+                f"  excluded {piece['start_s']:.2f}-{piece['stop_s']:.2f} s: {piece['reason']}"
+            )
+    for s in result.get("sessions", []):
+        sc = s.get("consensus") or {}
+        if sc:
+            lo, hi = sc["ci95"]
+            lines.append(
+                f"session {s['recording']}: {sc['pole_rad_s']:.4g} rad/s [{lo:.4g}, {hi:.4g}] "
+                f"({sc['chosen_model']})"
+            )
+    return lines

@@ -9,8 +9,9 @@ unstable pole ``sqrt(2 g / (a + y0))`` of the current-driven plant at the
 operating gap, compared with the published (or an earlier) parameter set.
 
 Only the segments where the ball levitates under control are used
-(:func:`maglevid.diagnose.quality.find_levitation_segments`): lift-off, falls,
-sticking to the magnet and saturation are cut out first.
+(:func:`maglevid.identify.levitator.find_levitator_segments`, the range learned
+from the record): lift-off, falls, sticking to the magnet and losses of
+tracking are cut out first, each with its reason.
 """
 
 from __future__ import annotations
@@ -18,24 +19,15 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-import numpy as np
-
 from maglevid.data import ClosedLoopData
 from maglevid.diagnose.diagnosis import QualityCheck
 
 __all__ = [
-    "LEVITATING_RANGE",
     "MIN_LEVITATING_SECONDS",
     "is_levitator",
     "levitator_baseline",
     "levitator_checks",
 ]
-
-#: Gap range [m] counted as levitating (the UAQ README's 2-10 mm).
-LEVITATING_RANGE = (2e-3, 10e-3)
-
-#: Largest tracking error |yd - y| [m] inside a usable segment.
-MAX_TRACKING = 2e-3
 
 #: Fewest seconds of usable levitation for a diagnosis: the grey box fits the
 #: ~7 Hz unstable mode, so 10 s hold ~70 of its periods.
@@ -54,9 +46,12 @@ def is_levitator(data: ClosedLoopData) -> bool:
 
 
 def levitator_baseline(data: ClosedLoopData) -> Any:
-    """The published parameter set stored with the recording (``metadata['plant']``)."""
+    """The published parameter set stored with the recording (``metadata['plant']``), or
+    ``None`` when the recording states none (a rig log without published physics)."""
     from maglevid.physics.levitator import LevitatorParameters
 
+    if not is_levitator(data):
+        return None
     plant = data.metadata["plant"]
     return LevitatorParameters(
         m=float(plant.get("m_kg", 0.018)),
@@ -67,32 +62,18 @@ def levitator_baseline(data: ClosedLoopData) -> Any:
     )
 
 
-def _reference(data: ClosedLoopData) -> np.ndarray | None:
-    extras = data.metadata.get("extra_signals") if hasattr(data.metadata, "get") else None
-    if extras and "yd" in extras:
-        vals = np.asarray(extras["yd"]["values"], dtype=float)
-        return vals[:: data.p] if vals.size == data.y.shape[0] and data.p > 1 else vals
-    return None
-
-
 def levitator_checks(
     data: ClosedLoopData,
 ) -> tuple[tuple[QualityCheck, ...], list[tuple[int, int]]]:
-    """Quality checks of a levitator log and the usable (levitating) segments."""
-    from maglevid.diagnose.quality import find_levitation_segments
+    """Quality checks of a levitator log and the usable (levitating) segments.
 
-    limits = data.metadata.get("u_range_V")
-    limits = None if limits is None else tuple(float(v) for v in np.asarray(limits).ravel()[:2])
-    rep = find_levitation_segments(
-        data.y_control[:, 0],
-        dt=data.dt,
-        position_range=LEVITATING_RANGE,
-        command=None if data.u is None else data.u[:, 0],
-        command_limits=limits,
-        reference=_reference(data),
-        max_tracking_error=MAX_TRACKING if _reference(data) is not None else None,
-    )
-    segs = rep.bounds()
+    The levitating range is learned from the record
+    (:func:`maglevid.identify.levitator.find_levitator_segments`), not fixed; the
+    segments returned are the operating points (split at reference steps).
+    """
+    from maglevid.identify.levitator import find_levitator_segments
+
+    rep, segs, how = find_levitator_segments(data)
     seconds = sum(b - a for a, b in segs) * data.dt
     total = data.n_samples * data.dt
     lost = rep.excluded_by_reason()
@@ -106,7 +87,7 @@ def levitator_checks(
             threshold=MIN_LEVITATING_SECONDS,
             message=(
                 f"{seconds:.1f} s of {total:.1f} s levitating under control in {len(segs)} "
-                f"segment(s); excluded: {why}"
+                f"segment(s) ({how}); excluded: {why}"
                 + ("" if ok else ": too little usable levitation to identify the plant")
             ),
         ),
@@ -120,7 +101,14 @@ def levitator_estimates(result: Any) -> tuple[dict[str, tuple[float, float]], fl
     p = result.parameters
     y_ref = float(result.options.get("y_ref"))
     keys = [k for k in ("pole_rad_s", "a", "k", "current_gain", "i0") if k in p]
-    return {k: (p[k], se[k]) for k in keys}, y_ref
+    out = {k: (p[k], se[k]) for k in keys}
+    if "consensus" in result.extras:  # the pole's interval is the consensus hull
+        lo, hi = result.extras["consensus"]["ci95"]
+        out["pole_rad_s"] = (
+            p["pole_rad_s"],
+            max(p["pole_rad_s"] - lo, hi - p["pole_rad_s"]) / 1.96,
+        )
+    return out, y_ref
 
 
 def levitator_baseline_values(base: Any, y_ref: float) -> dict[str, tuple[float, float]]:
@@ -135,3 +123,35 @@ def levitator_baseline_values(base: Any, y_ref: float) -> dict[str, tuple[float,
         "current_gain": (current_gain(base, y_ref), 0.0),
         "i0": (float(i0), 0.0),
     }
+
+
+def levitator_without_baseline(
+    result: Any,
+    estimates: dict[str, tuple[float, float]],
+    y_ref: float,
+    quality: Any,
+    notes: list[str],
+    common: dict[str, Any],
+) -> Any:
+    """The diagnosis of a levitator log with no published physics and no history: the
+    identified pole and parameters with their intervals, nothing compared."""
+    from maglevid.diagnose.diagnosis import Diagnosis
+
+    p, se = estimates["pole_rad_s"]
+    lo, hi = (result.extras.get("consensus") or {}).get("ci95", (p - 1.96 * se, p + 1.96 * se))
+    reasons = (
+        f"unstable pole {p:.4g} rad/s (95 % CI {lo:.4g} … {hi:.4g}) at the operating gap "
+        f"{1e3 * y_ref:.3g} mm; no baseline (no published physics in the recording, no "
+        "history): nothing to compare with",
+    )
+    return Diagnosis(
+        verdict="No baseline: identified, not compared",
+        verdict_code="no_change",
+        reasons=reasons,
+        identification=result,
+        quality=quality,
+        baseline={"source": "none", "parameters": {}},
+        identified_model=result.continuous_model,
+        notes=(*notes, "record this diagnosis in a history store to compare later ones with it"),
+        **common,
+    )

@@ -65,30 +65,11 @@ def recording_hash(data: ClosedLoopData) -> str:
 
 
 def choose_method(data: ClosedLoopData) -> tuple[str, str]:
-    """The identification method for this recording, and why (one sentence)."""
-    from maglevid.diagnose.levitator import is_levitator
+    """The identification method for this recording, and why: from its plant kind
+    (:func:`maglevid.plants.choose_method`)."""
+    from maglevid.plants import choose_method as choose_for_kind
 
-    if is_levitator(data):
-        return (
-            "greybox-levitator",
-            "a single-magnet levitator log without a known excitation or state-feedback loop: "
-            "the grey-box model of the magnet (mass known; inductance length scale and force "
-            "constant fitted by k-step prediction on the levitating segments) gives the "
-            "unstable pole with its confidence interval",
-        )
-    if data.p > 1:
-        return (
-            "intersample",
-            f"outputs are inter-sampled p={data.p} times per control period: the direct "
-            "inter-sampling method (Sun et al.) identifies the unstable plant from u and y alone",
-        )
-    return (
-        "physical",
-        "identifies the plant u -> y directly and transforms it to physical coordinates: exact "
-        "whatever the controller and observer (the observer was built on the nominal bearing, "
-        "which a fault makes wrong), and consistent under measurement noise through "
-        "instruments made from the known excitation r",
-    )
+    return choose_for_kind(data)
 
 
 def _baseline_from_loop(data: ClosedLoopData) -> AMBParameters | None:
@@ -243,6 +224,11 @@ def _diagnose_levitator(
         return _cannot_diagnose([str(exc)], quality, common, prefix="identification failed: ")
     notes.extend(result.notes)
     estimates, y_ref = lev.levitator_estimates(result)
+    if not np.isfinite(estimates["pole_rad_s"][0]):
+        return _cannot_diagnose(
+            [n for n in result.notes if n.startswith("no pole")] or ["no pole identified"],
+            quality, common, prefix="identification gave no pole: ",
+        )  # fmt: skip
     if baseline == "history" and store is not None and machine is not None:
         try:
             stored = store.latest_estimates(
@@ -257,6 +243,8 @@ def _diagnose_levitator(
         source_b = "earlier identification (history)"
     else:
         base_vals, source_b = {}, ""
+    if not base_vals and lev.levitator_baseline(data) is None:
+        return lev.levitator_without_baseline(result, estimates, y_ref, quality, notes, common)
     if not base_vals:
         base = lev.levitator_baseline(data)
         base_vals = lev.levitator_baseline_values(base, y_ref)
@@ -409,9 +397,9 @@ def diagnose(
         "method": method,
         "method_reason": why,
     }
-    from maglevid.diagnose.levitator import is_levitator
+    from maglevid.plants import infer_kind
 
-    if is_levitator(data) and method == "greybox-levitator":
+    if infer_kind(data)[0] == "levitator" and method in ("levitator", "greybox-levitator"):
         diag = _diagnose_levitator(
             data, baseline, common, tol, level, method_options, notes, store, machine, when
         )

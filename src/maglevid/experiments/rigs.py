@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import logging
 from collections.abc import Callable, Iterable
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -46,9 +47,16 @@ from maglevid.diagnose.quality import (
 from maglevid.exceptions import MaglevidError
 from maglevid.identify.greybox import fit_equilibrium_line, fit_greybox_levitator
 from maglevid.identify.indirect import fit_indirect
+from maglevid.identify.levitator import fit_levitator
 from maglevid.identify.pem import fit_pem
 from maglevid.identify.twostage import fit_two_stage
-from maglevid.physics.levitator import LevitatorParameters, equilibrium, linearize, unstable_pole
+from maglevid.physics.levitator import (
+    LevitatorParameters,
+    equilibrium,
+    integrate_zoh,
+    linearize,
+    unstable_pole,
+)
 
 __all__ = [
     "PAPER",
@@ -77,6 +85,7 @@ UAQ_I_STEP = 5.0 / (2.2 * 1023)
 #: A twin of the UAQ rig: upstream inductance law and mass, and a driver fitted to
 #: the records (u -> i: incremental 9.8 V/A, 2.6 V offset, ~17 ms time constant;
 #: see docs/real-rigs.md), i.e. ``R = 5.05 ohm``, ``ku = 0.515``, ``v0 = 1.36 V``.
+PUBLISHED = LevitatorParameters.uaq()
 UAQ_TWIN = LevitatorParameters(R=5.05, ku=0.515, v0=1.36)
 
 
@@ -177,6 +186,67 @@ def simulate_uaq_twin(
     )
 
 
+def simulate_pd_dither_levitator(
+    n: int = 6000,
+    *,
+    params: LevitatorParameters = PUBLISHED,
+    y0: float = 0.005,
+    dt: float = 0.002,
+    kp: float = 131.0,
+    kd: float = 2.0,
+    kc: float = 30.0,
+    dither: float = 0.01,
+    force_noise: float = 0.3,
+    y_noise: float = 1e-5,
+    i_noise: float = 1e-3,
+    u_limits: tuple[float, float] = (-24.0, 24.0),
+    rng: np.random.Generator | None = None,
+) -> ClosedLoopData:
+    """A rig log with a dither and no ``r`` column: a one-coil levitator under a PD loop.
+
+    The PD law on the gap sets a current reference with a white binary dither
+    ``d`` (+-``dither`` A) added, and a current amplifier applies ``u = kc (i_ref - i)
+    + R i_ref`` (proportional with the resistive drop fed forward; clipped to
+    ``u_limits``)::
+
+        i_ref = i0 + kp (y - y0) + kd (y_k - y_{k-1})/dt + d_k,   u = kc (i_ref - i) + R i_ref
+
+    The log holds only ``y = [gap, i]`` and ``u`` (what such rigs record); ``d``
+    is kept in ``metadata["truth_dither"]`` for tests. Default gains place the
+    linear closed-loop mechanical poles near 60 rad/s, damping 0.7, for the UAQ
+    published physics at 5 mm (``kp b = p^2 + 60^2``, ``kd b = 2 0.7 60``, ``b = 2 g/i0``).
+    """
+    rng = np.random.default_rng(0) if rng is None else rng
+    i0, _ = equilibrium(params, y0)
+    d = dither * np.sign(rng.standard_normal(n))
+    w = rng.standard_normal(n) * force_noise
+    ny_ = rng.standard_normal(n) * y_noise
+    ni_ = rng.standard_normal(n) * i_noise
+    x = np.array([y0, 0.0, i0])
+    Y, U = np.empty((n, 2)), np.empty(n)
+    y_prev = y0
+    for t in range(n):
+        ym, im = x[0] + ny_[t], x[2] + ni_[t]
+        i_ref = i0 + kp * (ym - y0) + kd * (ym - y_prev) / dt + d[t]
+        u = float(np.clip(kc * (i_ref - im) + params.R * i_ref, *u_limits))
+        Y[t], U[t], y_prev = (ym, im), u, ym
+        pw = replace(params, g=params.g + w[t])  # held force disturbance over the period
+        x = integrate_zoh(pw, x, u, dt, substeps=4, gap_limits=(1e-4, 0.02))
+    return ClosedLoopData(
+        y=Y,
+        u=U,
+        dt=dt,
+        names={"y": ("gap", "i"), "u": ("u",)},
+        units={"y": ("m", "A"), "u": ("V",)},
+        metadata={
+            "source": "simulate_pd_dither_levitator",
+            "truth": params.to_dict(),
+            "truth_pole_rad_s": unstable_pole(params, float(np.mean(Y[:, 0]))),
+            "truth_dither": d.tolist(),
+        },
+    )
+
+
 # ========================================================================================
 # UAQ levitator: real records
 # ========================================================================================
@@ -197,7 +267,6 @@ ID_POSITION_RANGE = (1.5e-3, 12e-3)
 ID_MAX_TRACKING = 3e-3
 #: Gap at which poles are compared with the published physics.
 Y_REF = 0.005
-PUBLISHED = LevitatorParameters.uaq()
 
 
 def default_data_dir() -> Path:
@@ -350,6 +419,18 @@ def uaq_session_estimates(d: ClosedLoopData) -> dict[str, Any]:
         except MaglevidError as exc:
             est[label] = {"error": str(exc)}
 
+    try:
+        cons = fit_levitator(d)
+        c = cons.extras["consensus"]
+        y_c = float(cons.options["y_ref"])
+        est["levitator consensus (own gap)"] = {
+            "rad_s": c["pole_rad_s"], "se": float("nan"), "ci_low": c["ci95"][0],
+            "ci_high": c["ci95"][1], "gap_mm": 1e3 * y_c,
+            "published_there": unstable_pole(PUBLISHED, y_c),
+        }  # fmt: skip
+        out["notes"]["levitator consensus (own gap)"] = [c["chosen_model"]]
+    except MaglevidError as exc:
+        est["levitator consensus (own gap)"] = {"error": str(exc)}
     run("pem-arx i->y", lambda: fit_pem(d, input="y:1", na=2, nb=3, nk=0, segments=lev))
     run("pem-armax i->y", lambda: fit_pem(d, input="y:1", na=2, nb=3, nk=0, nc=2,
                                           structure="armax", segments=lev))  # fmt: skip
@@ -624,9 +705,10 @@ def format_text(result: dict[str, Any]) -> str:
             if "error" in e:
                 L.append(f"    {label:>30}: failed ({e['error'][:70]})")
             else:
+                at = f"  at {e['gap_mm']:.2f} mm" if "gap_mm" in e else ""
                 L.append(
-                    f"    {label:>30}: {e['rad_s']:7.1f} +- {_f(e['se'], '.2g'):>6}  "
-                    f"[{_f(e['ci_low'], '.1f')}, {_f(e['ci_high'], '.1f')}]"
+                    f"    {label:>30}: {_f(e['rad_s'], '7.1f')} +- {_f(e['se'], '.2g'):>6}  "
+                    f"[{_f(e['ci_low'], '.1f')}, {_f(e['ci_high'], '.1f')}]{at}"
                 )
         if "indirect_voltage_pole" in s:
             e = s["indirect_voltage_pole"]

@@ -1,0 +1,598 @@
+"""One-coil levitators: segments, model family and one consensus answer (``levitator``).
+
+What a real levitator log needs before any fit, and how the answer is chosen:
+
+1. **Segments from the data** (:func:`find_levitator_segments`). The levitating
+   range is learned, not fixed (:func:`levitation_range`): the reference span
+   widened by ``SPREAD_WIDTH`` quiet-levitation standard deviations and twice the
+   largest reference step. The tracking-error limit is ``TRACKING_SHARE`` of the
+   range. Every excluded piece keeps its reason (lift-off, below/above the range,
+   command at a limit, tracking, guard, short). The pieces are then split at
+   reference steps, one operating point each.
+2. **Candidates**: the grey-box force laws of :data:`~maglevid.identify.greybox.FORCE_LAWS`,
+   each without and with a flux lag. Each is fitted on one half of the segments
+   (alternate segments; halves of one segment if there is only one) and
+   validated by ``k``-step prediction of the gap on the other half, and the other
+   way round: the *held-out* ``k``-step fit (mean of the two folds) ranks them.
+3. **Consensus**: the best-validated candidate, refitted on every segment, gives
+   the point; every candidate whose held-out fit is within ``SUPPORT_MARGIN``
+   percentage points of the best counts as equally supported, and the interval is
+   the hull of the 95 % intervals of the supported candidates' fits on all
+   segments and on each half - it covers the spread between segments and models
+   (model uncertainty), not only noise. A fit with a parameter at a bound or not
+   identifiable claims no pole and enters neither the point nor the interval.
+
+Several recordings of one rig (:func:`fit_levitator_sessions`) are validated and
+pooled across sessions: the folds are the sessions.
+"""
+
+from __future__ import annotations
+
+import inspect
+import logging
+from collections.abc import Sequence
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+
+from maglevid.data import ClosedLoopData
+from maglevid.diagnose.quality import SegmentReport, find_levitation_segments, split_segments
+from maglevid.exceptions import DataError, IdentificationError, MaglevidError
+from maglevid.identify.greybox import FORCE_LAWS, fit_greybox_levitator, validate_greybox
+from maglevid.identify.result import IdentificationResult
+
+__all__ = [
+    "METHODS",
+    "find_levitator_segments",
+    "fit_levitator",
+    "fit_levitator_sessions",
+    "levitation_range",
+]
+
+log = logging.getLogger(__name__)
+
+#: The range reaches this many quiet-levitation standard deviations beyond the reference.
+SPREAD_WIDTH = 10.0
+#: Quantile of the 1 s windows' spread read as quiet levitation (robust to a body lost
+#: for up to three quarters of the record).
+QUIET_QUANTILE = 0.25
+#: Tracking-error limit as a share of the levitating range.
+TRACKING_SHARE = 0.25
+#: Candidates within this many percentage points of the best held-out k-step fit
+#: count as equally supported by the data.
+SUPPORT_MARGIN = 2.0
+#: Shortest operating-point segment [s] for the grey box.
+MIN_SEGMENT_SECONDS = 2.0
+
+
+def _reference(data: ClosedLoopData) -> np.ndarray | None:
+    if data.r is not None and data.r.shape[1] == 1:
+        return np.asarray(data.r[:, 0], dtype=float)
+    extras = data.metadata.get("extra_signals") if hasattr(data.metadata, "get") else None
+    if extras and "yd" in extras:
+        return np.asarray(extras["yd"]["values"], dtype=float)
+    return None
+
+
+def _command_limits(data: ClosedLoopData) -> tuple[float, float] | None:
+    stated = data.metadata.get("u_range_V") if hasattr(data.metadata, "get") else None
+    if stated is not None:
+        lo, hi = (float(v) for v in np.asarray(stated).ravel()[:2])
+        return lo, hi
+    if data.u is None:
+        return None
+    u = data.u[:, 0]
+    lo, hi = float(u.min()), float(u.max())  # a limit is where the command dwells
+    at = [np.mean(np.isclose(u, v, rtol=0, atol=1e-9 * max(1.0, abs(v)))) for v in (lo, hi)]
+    return (lo, hi) if min(at) > 0.01 else None
+
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    edges = np.flatnonzero(np.diff(np.r_[0, mask.astype(int), 0]))
+    return list(zip(edges[::2], edges[1::2]))
+
+
+def _window_scale(x: np.ndarray, n: int) -> float:
+    """``QUIET_QUANTILE`` of the standard deviations over windows of ``n`` samples: the
+    spread of quiet levitation, robust to falls and lift-offs."""
+    m = x.size // n
+    if m < 1:
+        return float(np.std(x))
+    return float(np.quantile(np.std(x[: m * n].reshape(m, n), axis=1), QUIET_QUANTILE))
+
+
+def levitation_range(data: ClosedLoopData) -> tuple[tuple[float, float], str]:
+    """The gap range [m] counted as levitating, learned from the record, and how.
+
+    ``sigma`` is the lower quartile over 1 s windows of the gap's (with a reference: the
+    tracking error's) standard deviation, i.e. the spread of quiet levitation; the
+    range is the reference span (without one: the median gap) widened by
+    ``SPREAD_WIDTH sigma`` and by twice the largest reference step (a step of ``h``
+    may swing the body by up to ``2 h`` in a lightly damped loop).
+    """
+    y = data.y_control[:, 0]
+    ref = _reference(data)
+    n = max(2, round(1.0 / data.dt))
+    if ref is None:
+        sigma = _window_scale(y, n)
+        lo = hi = float(np.median(y))
+        step = 0.0
+    else:
+        sigma = _window_scale(y - ref, n)
+        lo, hi = float(ref.min()), float(ref.max())
+        step = float(np.max(np.abs(np.diff(ref)), initial=0.0))
+    w = SPREAD_WIDTH * sigma + 2.0 * step
+    rng = (max(lo - w, 1e-12) if lo > 0 else lo - w, hi + w)
+    how = (
+        f"range {_mm(rng[0])}-{_mm(rng[1])} mm learned from the data: "
+        + ("reference span" if ref is not None else "median gap")
+        + f" +- ({SPREAD_WIDTH:g} x {1e6 * sigma:.0f} um quiet spread"
+        + (f" + 2 x {_mm(step)} mm largest reference step)" if step else ")")
+    )
+    return rng, how
+
+
+def _mm(v: float | None) -> str:
+    return "-" if v is None else f"{1e3 * v:.2f}"
+
+
+def find_levitator_segments(
+    data: ClosedLoopData, *, min_seconds: float = MIN_SEGMENT_SECONDS
+) -> tuple[SegmentReport, list[tuple[int, int]], str]:
+    """Levitating pieces with every exclusion's reason, and the operating-point segments.
+
+    Returns
+    -------
+    report : SegmentReport
+        What :func:`~maglevid.diagnose.quality.find_levitation_segments` found with the
+        learned range (``report.excluded``: each piece and its reason).
+    segments : list of (start, stop)
+        The levitating pieces split at reference steps (one operating point each),
+        at least ``min_seconds`` long.
+    how : str
+        The learned range and thresholds, in words.
+    """
+    rng, how = levitation_range(data)
+    ref = _reference(data)
+    limits = _command_limits(data)
+    track = TRACKING_SHARE * (rng[1] - rng[0])
+    rep = find_levitation_segments(
+        data.y_control[:, 0],
+        dt=data.dt,
+        position_range=rng,
+        command=None if data.u is None else data.u[:, 0],
+        command_limits=limits,
+        reference=ref,
+        max_tracking_error=track if ref is not None else None,
+        exclude_saturation=False,
+    )
+    n_min = round(min_seconds / data.dt)
+    segs = rep.bounds()
+    if ref is not None:
+        steps = np.r_[False, np.diff(ref) != 0]
+        # a continuously moving reference (sine, chirp) is not split: one linearisation
+        # at the segment's mean gap
+        if steps.mean() < 0.05:
+            segs = split_segments(segs, steps, min_length=n_min)
+    segs = [s for s in segs if s[1] - s[0] >= n_min]
+    how += f"; tracking limit {_mm(track) if ref is not None else '-'} mm"
+    return rep, segs, how
+
+
+def _folds(segs: list[tuple[int, int]]) -> tuple[list, list]:
+    if len(segs) >= 2:
+        return segs[0::2], segs[1::2]
+    a, b = segs[0]
+    mid = (a + b) // 2
+    return [(a, mid)], [(mid, b)]
+
+
+#: Why each frame (:func:`fit_levitator`'s ``frame``).
+FRAME_NOTES = {
+    "command": (
+        "frame: command u -> [gap, current] (electromechanical grey box): the measured "
+        "current is a noisy, quantised output of the loop, not an exogenous input - as the "
+        "input of i -> gap it is an errors-in-variables model whose current gain, and with "
+        "it the pole, is biased (Soderstrom 2007); the logged command is known exactly"
+    ),
+    "current": (
+        "frame: measured current i -> gap (mechanical force-law family): no command logged, "
+        "or chosen; the current's measurement noise biases the gain (errors in variables)"
+    ),
+}
+
+
+def _frame(data: ClosedLoopData, frame: str, current: str) -> str:
+    if frame not in ("auto", "command", "current"):
+        raise DataError(f"`frame` must be 'auto', 'command' or 'current'; got {frame!r}")
+    if frame == "auto":
+        return "command" if data.u is not None and data.ny >= 2 else "current"
+    if frame == "command" and (data.u is None or data.ny < 2):
+        raise DataError("frame='command' needs the command u and the current as y:1")
+    return frame
+
+
+def _candidates(
+    force_laws: Sequence[str], flux_lag: Sequence[bool], equilibrium: Sequence[bool]
+) -> list[dict[str, Any]]:
+    """The grid of grey boxes. Without the equilibrium tie only the dynamics speak:
+    at one gap the exponential and inverse-power laws then coincide with the
+    inverse-square one (same ``p``, ``b = 2 g/i``), so only the inverse-square and
+    the permanent-magnet (current gain free through ``i_m``) laws are kept there."""
+    for law in force_laws:
+        if law not in FORCE_LAWS:
+            raise DataError(f"`force_laws`: {law!r} is not one of {FORCE_LAWS}")
+    out = []
+    for tie in equilibrium:
+        laws = [w for w in force_laws if tie or w in ("inverse-square", "permanent-magnet")]
+        out += [
+            {"force_law": w, "flux_lag": lag, "use_equilibrium": tie}
+            for w in laws
+            for lag in flux_lag
+        ]
+    return out
+
+
+def _label(c: dict[str, Any]) -> str:
+    if c.get("model") == "electromechanical":
+        lag = " + flux lag" if c["flux_lag"] else ""
+        return f"electromechanical u -> [gap, i] (inverse-square{lag})"
+    tie = "" if c["use_equilibrium"] else ", dynamics only"
+    return c["force_law"] + (" + flux lag" if c["flux_lag"] else "") + tie
+
+
+def _pole_ci(res: IdentificationResult) -> tuple[float, float, float] | None:
+    if not res.extras.get("pole_identified", False):
+        return None
+    p = res.parameters["pole_rad_s"]
+    lo, hi = res.confidence_intervals(0.95)["pole_rad_s"]
+    if not all(np.isfinite([p, lo, hi])):
+        return None
+    return float(p), float(lo), float(hi)
+
+
+def _fit(data: ClosedLoopData, segs: list, cand: dict[str, Any], common: dict[str, Any]) -> Any:
+    try:
+        return fit_greybox_levitator(data, segments=segs, **cand, **common)
+    except MaglevidError as exc:
+        return exc
+
+
+def _evaluate(
+    data: ClosedLoopData,
+    folds: list[tuple[ClosedLoopData, list]],
+    cand: dict[str, Any],
+    common: dict[str, Any],
+    k_step: int,
+) -> dict[str, Any]:
+    """Fit on each fold, validate on the others; the held-out k-step fit and the fold poles."""
+    scores, fold_poles = [], []
+    for j, (dj, sj) in enumerate(folds):
+        res = _fit(dj, sj, cand, common)
+        if isinstance(res, Exception):
+            scores.append(float("nan"))
+            continue
+        fold_poles.append(_pole_ci(res))
+        held = [
+            validate_greybox(res, dk, sk, k_step=k_step)
+            for k, (dk, sk) in enumerate(folds)
+            if k != j
+        ]
+        scores.append(float(np.mean(held)))
+    return {"validation": float(np.mean(scores)) if scores else float("nan"),
+            "fold_poles": fold_poles}  # fmt: skip
+
+
+def fit_levitator(
+    data: ClosedLoopData,
+    *,
+    segments: Sequence[Sequence[int]] | None = None,
+    force_laws: Sequence[str] = FORCE_LAWS,
+    flux_lag: Sequence[bool] = (False, True),
+    equilibrium: Sequence[bool] = (True, False),
+    y_ref: float | None = None,
+    k_step: int = 5,
+    m: float = 0.018,
+    gap: str = "y:0",
+    current: str = "y:1",
+    command: str = "u:0",
+    frame: str = "auto",
+) -> IdentificationResult:
+    """The levitator's unstable pole: model chosen by held-out prediction, one consensus.
+
+    Parameters
+    ----------
+    data : ClosedLoopData
+        A one-coil levitator log with the gap and the coil current as outputs.
+    segments : list of (start, stop), optional
+        Operating-point segments (default: :func:`find_levitator_segments`).
+    force_laws : sequence of str
+        Candidate force laws (default: all of ``FORCE_LAWS``).
+    flux_lag : sequence of bool
+        Fit each law without and/or with a flux lag.
+    equilibrium : sequence of bool
+        Fit each law with and/or without the tie of the current level to the law's
+        equilibrium (without: the dynamics alone, ``i0`` = the segment's mean current).
+    y_ref : float, optional
+        Gap at which the pole is reported (default: mean gap of the segments).
+    k_step : int
+        Horizon of the validation (samples ahead).
+    m : float
+        Mass [kg] (only ``K/m`` enters: the pole does not depend on it).
+    gap, current, command : str
+        Channels of the gap [m], the coil current [A] and the command [V].
+    frame : {"auto", "command", "current"}
+        Which signal is the model's input. ``"command"``: the logged command drives
+        the electromechanical grey box ``u -> [gap, current]`` and the measured
+        current is an output; ``"current"``: the measured current drives the
+        mechanical force-law family ``i -> gap``. ``"auto"`` (default): the command
+        when it is logged (see :data:`FRAME_NOTES` for why).
+
+    Returns
+    -------
+    IdentificationResult
+        The best-validated grey box refitted on every segment, with ``pole_rad_s``
+        replaced by the consensus and its interval (``extras["consensus"]``) and the
+        per-candidate table (``extras["candidates"]``).
+    """
+    options = {k: v for k, v in locals().items() if k not in ("data", "segments")}
+    return _fit_sessions([data], None if segments is None else [segments], **options)
+
+
+def fit_levitator_sessions(
+    sessions: Sequence[ClosedLoopData],
+    *,
+    segments: Sequence[Sequence[Sequence[int]]] | None = None,
+    **options: Any,
+) -> IdentificationResult:
+    """:func:`fit_levitator` on several recordings of one rig: validated across sessions.
+
+    ``options`` are :func:`fit_levitator`'s. With one session the folds are
+    alternate segments; with several, each session is a fold (a model must predict
+    the sessions it was not fitted on). The final fit pools every session's segments.
+    """
+    known = {
+        n: p.default
+        for n, p in inspect.signature(fit_levitator).parameters.items()
+        if p.kind is inspect.Parameter.KEYWORD_ONLY and n != "segments"
+    }
+    unknown = set(options) - set(known)
+    if unknown:
+        raise DataError(f"unknown option(s) {sorted(unknown)}; known: {sorted(known)}")
+    return _fit_sessions(sessions, segments, **{**known, **options})
+
+
+def _fit_sessions(
+    sessions: Sequence[ClosedLoopData],
+    segments: Sequence[Sequence[Sequence[int]]] | None,
+    *,
+    force_laws: Sequence[str],
+    flux_lag: Sequence[bool],
+    equilibrium: Sequence[bool],
+    y_ref: float | None,
+    k_step: int,
+    m: float,
+    gap: str,
+    current: str,
+    command: str,
+    frame: str,
+) -> IdentificationResult:
+    if not sessions:
+        raise DataError("no recordings given")
+    dts = {float(d.dt) for d in sessions}
+    if len(dts) > 1:
+        raise DataError(f"the sessions have different sample times {sorted(dts)}")
+    seg_lists, exclusions = [], []
+    for j, d in enumerate(sessions):
+        if segments is not None:
+            seg_lists.append([(int(a), int(b)) for a, b in segments[j]])
+            exclusions.append({"range": "given", "excluded": []})
+            continue
+        rep, segs, how = find_levitator_segments(d)
+        seg_lists.append(segs)
+        exclusions.append(_exclusion_summary(rep, how))
+    if not any(seg_lists):
+        raise IdentificationError(
+            "no levitating segment of at least "
+            f"{MIN_SEGMENT_SECONDS} s: " + "; ".join(e["range"] for e in exclusions)
+        )
+    pooled, pooled_segs = _pool(sessions, seg_lists)
+    if len(sessions) > 1:
+        folds = [(d, s) for d, s in zip(sessions, seg_lists) if s]
+    else:
+        folds = [(pooled, f) for f in _folds(pooled_segs)]
+    y = pooled.y_control[:, 0]
+    y_ref = (
+        float(np.mean(np.concatenate([y[a:b] for a, b in pooled_segs])))
+        if y_ref is None
+        else y_ref
+    )
+    common = {"y_ref": y_ref, "m": m, "gap": gap, "current": current}
+    rows = []
+    frame = _frame(pooled, frame, current)
+    cands = (
+        [{"model": "electromechanical", "command": command, "flux_lag": lag} for lag in flux_lag]
+        if frame == "command"
+        else _candidates(force_laws, flux_lag, equilibrium)
+    )
+    for cand in cands:
+        ev = _evaluate(pooled, folds, cand, common, k_step) if len(folds) > 1 else {
+            "validation": float("nan"), "fold_poles": []}  # fmt: skip
+        rows.append({"candidate": cand, **ev})
+    res = _consensus(pooled, pooled_segs, rows, common, k_step, exclusions, len(sessions))
+    quiet = [j for j, (d, sl) in enumerate(zip(sessions, seg_lists)) if sl and _noise_only(d, sl)]
+    notes = [FRAME_NOTES[frame]]
+    if quiet:
+        notes.append(
+            "no logged excitation in session(s) "
+            + ", ".join(str(j + 1) for j in quiet)
+            + " (no r; one reference value, or none, over all segments): unless an "
+            "unlogged dither drives the loop (identify.excitation.recover_excitation finds "
+            "one), only noise does, and the estimate rests on the noise model - it can be "
+            "biased beyond its interval (docs/real-rigs.md: UAQ 'constante')"
+        )
+    return replace(
+        res, notes=(*notes, *res.notes), extras={**res.extras, "noise_only_sessions": quiet}
+    )
+
+
+def _noise_only(data: ClosedLoopData, segs: list[tuple[int, int]]) -> bool:
+    """No excitation ``r`` and one reference value over all the segments (a step between
+    two segments counts: it excites the loop at the second one's start)."""
+    ref = _reference(data)
+    if data.r is not None and (ref is None or data.r.shape[1] != 1):
+        return False
+    if ref is None:
+        return True
+    return float(np.ptp(np.concatenate([ref[a:b] for a, b in segs]))) == 0.0
+
+
+def _exclusion_summary(rep: SegmentReport, how: str) -> dict[str, Any]:
+    return {
+        "range": how,
+        "excluded": [
+            {"start_s": iv.start * rep.dt, "stop_s": iv.stop * rep.dt, "reason": iv.reason}
+            for iv in rep.excluded
+        ],
+        "excluded_seconds": rep.excluded_by_reason(),
+    }
+
+
+def _pool(
+    sessions: Sequence[ClosedLoopData], seg_lists: list[list[tuple[int, int]]]
+) -> tuple[ClosedLoopData, list[tuple[int, int]]]:
+    """One record of the sessions end to end; segments never cross a session boundary."""
+    if len(sessions) == 1:
+        return sessions[0], seg_lists[0]
+    ys, us, segs, off = [], [], [], 0
+    for d, sl in zip(sessions, seg_lists):
+        ys.append(d.y_control)
+        us.append(d.u)
+        segs += [(a + off, b + off) for a, b in sl]
+        off += d.n_samples
+    first = sessions[0]
+    pooled = ClosedLoopData(
+        y=np.vstack(ys),
+        u=np.vstack(us),
+        dt=first.dt,
+        names={k: v for k, v in first.names.items() if k in ("y", "u")},
+        units={k: v for k, v in first.units.items() if k in ("y", "u")},
+    )
+    return pooled, segs
+
+
+def _consensus(
+    data: ClosedLoopData,
+    segs: list[tuple[int, int]],
+    rows: list[dict[str, Any]],
+    common: dict[str, Any],
+    k_step: int,
+    exclusions: list[dict[str, Any]],
+    n_sessions: int,
+) -> IdentificationResult:
+    """Refit every candidate on all segments; the best-validated one with a pole gives the
+    point, the supported ones (within ``SUPPORT_MARGIN`` of it) the hull interval."""
+    fits = [_fit(data, segs, r["candidate"], common) for r in rows]
+    fulls = [None if isinstance(f, Exception) else _pole_ci(f) for f in fits]
+    scores = np.array([r["validation"] for r in rows])
+    ok = np.array([f is not None for f in fulls])
+    if not ok.any():
+        raise IdentificationError(
+            "no candidate model gives an identifiable pole on these segments: "
+            + "; ".join(f"{_label(r['candidate'])}: {_why_not(f)}" for r, f in zip(rows, fits))
+        )
+    ranked = ok & np.isfinite(scores)
+    if ranked.any():
+        best_score = float(np.max(scores[ranked]))
+        support = ranked & (scores >= best_score - SUPPORT_MARGIN)
+    else:  # nothing to validate on (one fold): every identified candidate counts
+        support = ok
+    order = sorted(
+        range(len(rows)),
+        key=lambda j: (not support[j], not ok[j], -np.nan_to_num(scores[j], nan=-np.inf)),
+    )
+    table, pool = [], []
+    for j in order:
+        r, full = rows[j], fulls[j]
+        table.append({
+            "model": _label(r["candidate"]),
+            "held_out_fit_percent": r["validation"],
+            "supported": bool(support[j]),
+            "pole_rad_s": None if full is None else full[0],
+            "ci95": None if full is None else [full[1], full[2]],
+            "fold_poles": [None if f is None else f[0] for f in r["fold_poles"]],
+            "note": _why_not(fits[j]),
+        })  # fmt: skip
+        if support[j]:
+            pool += [full] + [f for f in r["fold_poles"] if f is not None]
+    best = fits[order[0]]
+    point = float(best.parameters["pole_rad_s"])
+    lo = min(p[1] for p in pool)
+    hi = max(p[2] for p in pool)
+    return _with_consensus(best, point, lo, hi, table, exclusions, n_sessions, k_step, data.dt)
+
+
+def _why_not(res: Any) -> str:
+    if res is None:
+        return ""
+    if isinstance(res, Exception):
+        return str(res)
+    return "; ".join(n for n in res.notes if n.startswith("no pole"))
+
+
+def _with_consensus(
+    best: IdentificationResult,
+    point: float,
+    lo: float,
+    hi: float,
+    table: list[dict[str, Any]],
+    exclusions: list[dict[str, Any]],
+    n_sessions: int,
+    k_step: int,
+    dt: float,
+) -> IdentificationResult:
+    names = list(best.parameters)
+    cov = np.array(best.covariance, dtype=float, copy=True)
+    j = names.index("pole_rad_s")
+    # conservative symmetric reading of the hull: point +- 1.96 se contains [lo, hi]
+    se = max(point - lo, hi - point) / 1.959963984540054
+    cov[j, :] = cov[:, j] = 0.0
+    cov[j, j] = se**2
+    if "pole_z" in names:  # z = exp(p dt): the same interval, by the delta method
+        jz = names.index("pole_z")
+        cov[jz, :] = cov[:, jz] = 0.0
+        cov[jz, jz] = (best.parameters["pole_z"] * dt * se) ** 2
+        cov[j, jz] = cov[jz, j] = best.parameters["pole_z"] * dt * se**2
+    params = dict(best.parameters)
+    n_sup = sum(t["supported"] for t in table)
+    chosen = table[0]["model"]
+    notes = [
+        f"model chosen by {k_step}-step prediction on held-out "
+        + ("sessions" if n_sessions > 1 else "segments")
+        + f": {chosen} (held-out fit {table[0]['held_out_fit_percent']:.1f} %); "
+        f"{n_sup} of {len(table)} candidates within {SUPPORT_MARGIN} points count as supported",
+        f"consensus pole {point:.4g} rad/s, 95 % interval [{lo:.4g}, {hi:.4g}]: the hull of the "
+        "supported models' intervals on all segments and on each fold (model uncertainty); "
+        "pole_rad_s std. error = the larger side of the hull / 1.96 (symmetric, conservative)",
+        *best.notes,
+    ]
+    extras = dict(best.extras)
+    extras.update(
+        consensus={"pole_rad_s": point, "ci95": [lo, hi], "chosen_model": chosen,
+                   "k_step": k_step, "n_sessions": n_sessions},
+        candidates=table,
+        segments_excluded=exclusions,
+    )  # fmt: skip
+    return replace(
+        best,
+        method="levitator",
+        parameters=params,
+        covariance=cov,
+        notes=tuple(notes),
+        extras=extras,
+        options={**best.options, "candidates": [t["model"] for t in table]},
+    )
+
+
+METHODS = {"levitator": fit_levitator}

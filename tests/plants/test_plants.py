@@ -1,0 +1,52 @@
+"""Plant kinds: what a recording is decides the method (maglevid.plants)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from maglevid.data import ClosedLoopData
+from maglevid.exceptions import DataError
+from maglevid.physics.amb import AMBParameters
+from maglevid.plants import KINDS, choose_method, infer_kind, unidentifiable_reason
+from maglevid.simulate.amb import simulate_amb_loop
+from maglevid.simulate.suspension import simulate_suspension
+
+
+def _record(ny, nu, **kw):
+    return ClosedLoopData(y=np.zeros((60, ny)), u=np.zeros((60, nu)), dt=0.01, **kw)
+
+
+def test_each_kind_is_recognised_from_the_recordings_shape():
+    amb = simulate_amb_loop(AMBParameters.nominal(), n_samples=200, rng=1)
+    assert infer_kind(amb)[0] == "amb-two-coil"
+    assert choose_method(amb)[0] == "physical"
+    assert infer_kind(simulate_suspension(p=3, duration=1.0, rng=1))[0] == (
+        "intersampled-suspension"
+    )
+    assert infer_kind(_record(2, 1))[0] == "levitator"  # [gap, current], one coil
+    assert infer_kind(_record(9, 2))[0] == "mimo"  # Maggy's shape
+
+
+def test_a_one_input_levitator_never_gets_the_amb_method():
+    method, why = choose_method(_record(2, 1))
+    assert method == "levitator" and "plant kind levitator" in why
+    assert choose_method(_record(1, 1))[0] == "pem"  # no current logged: no grey box
+    assert all(k.default_method != "physical" for n, k in KINDS.items() if n != "amb-two-coil")
+
+
+def test_a_stated_kind_takes_precedence_over_the_inference():
+    d = _record(2, 1, loop={"plant_kind": "mimo"})
+    assert infer_kind(d) == ("mimo", "the recording states plant_kind = 'mimo'")
+    with pytest.raises(DataError, match="plant_kind 'rotor'"):
+        infer_kind(_record(2, 1, metadata={"plant_kind": "rotor"}))
+
+
+def test_noise_driven_exact_feedback_is_flagged_and_a_dither_is_not(rng):
+    # u = -2 y1 + 0.5 y2 exactly: nothing but the outputs' noise drives the loop.
+    y = rng.standard_normal((400, 2))
+    exact = ClosedLoopData(y=y, u=(-2 * y[:, 0] + 0.5 * y[:, 1])[:, None], dt=0.01)
+    assert "cannot be told from the controller's inverse" in unidentifiable_reason(exact)
+    # a dither of 10 % of the command's rms makes R^2 ~ 0.99 < 0.9999: not flagged
+    u = -2 * y[:, 0] + 0.5 * y[:, 1] + 0.2 * rng.standard_normal(400)
+    assert unidentifiable_reason(ClosedLoopData(y=y, u=u[:, None], dt=0.01)) is None
