@@ -11,6 +11,7 @@ from _amb_cases import NOMINAL, make_loop, v_est, v_true
 from maglevid.cli.main import main
 from maglevid.exceptions import DataError
 from maglevid.identify.registry import available_methods, get_method
+from maglevid.io import write_recording
 
 AMB_METHODS = ("deadbeat-arx", "deadbeat-iv", "okid-era", "physical")
 
@@ -57,9 +58,8 @@ def test_contract_errors(name, data):
 
 
 def test_identify_command_end_to_end(tmp_path, capsys, data):
-    io = pytest.importorskip("maglevid.io")
     path = tmp_path / "rec.npz"
-    io.write_recording(data, path)
+    write_recording(data, path)
     assert main(["--json", "identify", str(path), "--method", "physical"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["method"] == "physical"
