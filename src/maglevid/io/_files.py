@@ -219,10 +219,11 @@ def write_output(
     --------
     >>> import pathlib, tempfile
     >>> out = write_output(pathlib.Path(tempfile.mkdtemp()) / "a.txt", "hello")
-    >>> write_output(out, "again")
-    Traceback (most recent call last):
-    ...
-    maglevid.exceptions.FileFormatError: ...a.txt: exists; refusing to overwrite it (pass overwrite=True, or --overwrite)
+    >>> try:
+    ...     write_output(out, "again")
+    ... except FileFormatError as exc:
+    ...     print(str(exc).split(": ", 1)[1])
+    exists; refusing to overwrite it (pass overwrite=True, or --overwrite)
     """
     target = check_output(target, overwrite=overwrite, inputs=inputs)
     with atomic_path(target, overwrite=overwrite) as tmp:
