@@ -650,8 +650,15 @@ class HistoryStore:
         ------
         DataError
             An argument is malformed (checked before any write).
-        HistoryError
-            The same recording hash is stored with a different ``recorded_at``.
+
+        Notes
+        -----
+        The recording is identified by its content hash: when the same hash is
+        stored with another ``recorded_at`` (a second ``diagnose --store``
+        dated "now", or a ``fleet`` run that dated the file by its mtime), it
+        is the same recording, its first stored time is kept, and a diagnosis
+        with the same method and options is "already stored" (``created`` is
+        False).
         """
         machine = _text("machine", machine)
         recording_hash = _text("recording_hash", recording_hash)
@@ -696,10 +703,17 @@ class HistoryStore:
                 (machine_id, recording_hash),
             ).fetchone()
             if tx.ts_out(rec_time) != t_rec:
-                raise HistoryError(
-                    f"recording {recording_hash!r} of machine {machine!r} is stored with "
-                    f"recorded_at {tx.ts_out(rec_time).isoformat()}; got {t_rec.isoformat()} "
-                    "(same content, different time: check the hash or the clock)"
+                # The content hash is the recording's identity: the same bytes
+                # stored again (a second `diagnose --store`, or after `fleet`,
+                # which dates a file by its mtime where diagnose says "now") are
+                # the same recording, and its first stored time stays.
+                logger.info(
+                    "%s: recording %s of %s is stored with recorded_at %s; keeping it (got %s)",
+                    self.location,
+                    recording_hash,
+                    machine,
+                    tx.ts_out(rec_time).isoformat(),
+                    t_rec.isoformat(),
                 )
             cur = tx.execute(
                 "INSERT INTO diagnoses (machine_id, recording_id, method, options_hash, "
