@@ -25,6 +25,12 @@ n4sid; physical reads the file twice). Without --method such a file gets
 method physical. --no-stream always reads the whole file.
 
   maglevid identify hour.parquet --stream --method physical --option estimator=ls
+
+Before identifying, the recording goes through the same quality gate as
+`maglevid diagnose` (record length, u = u_f + r, outputs that respond,
+excitation, saturation, levitation, the stated controller): a failed check
+refuses with the reason; --force identifies anyway and prints the failed
+checks as warnings (also in the result's notes).
 """
 
 #: Parquet recordings larger than this are streamed unless --no-stream (about
@@ -52,6 +58,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=[],
         metavar="KEY=VALUE",
         help="method option (VALUE parsed as JSON when possible); repeatable",
+    )
+    parser.add_argument(
+        "--force",
+        action="store_true",
+        help="identify even when the quality gate fails (its reasons become warnings)",
     )
     parser.add_argument(
         "--stream",
@@ -140,15 +151,49 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
 
     data = read_recording(args.recording, mapping=args.mapping)
     method = args.method or _default_method(data)
+    fit = get_method(method)  # an unknown method is refused before the gate
+    warnings = quality_gate(data, force=args.force)
     from maglevid.diagnose.levitator import is_levitator, levitator_checks
 
     if method == "greybox-levitator" and is_levitator(data) and "segments" not in options:
         # A rig log: identify on the segments where the ball levitates under control.
         options["segments"] = levitator_checks(data)[1]
-    result = get_method(method)(data, **options)
+    result = fit(data, **options)
     out = result.to_dict()
     out["recording"] = args.recording
+    if warnings:
+        out["warnings"] = warnings
+        out["notes"] = [*warnings, *out.get("notes", [])]
     return out
+
+
+def quality_gate(data: Any, *, force: bool) -> list[str]:
+    """The checks of ``maglevid diagnose`` before an identification; the failures as text.
+
+    A failed blocking check refuses (:class:`~maglevid.exceptions.DataError`
+    naming every reason) unless ``force``; then the reasons are returned as
+    warnings. One exception to diagnose's gate: a record without any logged
+    excitation r is not refused here, because the methods made for such
+    records (the inter-sampled suspension of Sun et al., driven by noise)
+    need none, and the methods that do need r refuse it themselves.
+    """
+    from maglevid.diagnose.checks import run_checks
+    from maglevid.diagnose.levitator import is_levitator, levitator_checks
+    from maglevid.exceptions import DataError
+
+    checks = levitator_checks(data)[0] if is_levitator(data) else run_checks(data)
+    failed = [
+        q.message
+        for q in checks
+        if not q.passed and q.blocking and not (q.name == "excitation" and data.r is None)
+    ]
+    if failed and not force:
+        raise DataError(
+            "cannot identify from this recording: "
+            + "; ".join(failed)
+            + " (--force identifies anyway and reports these as warnings)"
+        )
+    return [f"quality gate failed (identified anyway with --force): {m}" for m in failed]
 
 
 def format_text(result: dict[str, Any]) -> str:
@@ -175,5 +220,7 @@ def format_text(result: dict[str, Any]) -> str:
         lines.append("discrete poles: " + ", ".join(f"{a:.6g}{b:+.3g}j" for a, b in zip(re, im)))
     for k, v in (result.get("fit") or {}).items():
         lines.append(f"fit {k}: {v:.6g}")
-    lines.extend(f"note: {n}" for n in result.get("notes", []))
+    warned = set(result.get("warnings", []))
+    lines.extend(f"warning: {n}" for n in result.get("warnings", []))
+    lines.extend(f"note: {n}" for n in result.get("notes", []) if n not in warned)
     return "\n".join(lines)

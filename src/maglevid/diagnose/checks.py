@@ -19,8 +19,10 @@ __all__ = [
     "MIN_SAMPLES",
     "check_excitation",
     "check_feedback_consistency",
+    "check_input_identity",
     "check_length",
     "check_levitation",
+    "check_output_response",
     "check_saturation",
     "run_checks",
 ]
@@ -222,10 +224,128 @@ def check_feedback_consistency(
     )
 
 
+#: u = u_f + r: relative rms of u - (u_f + r) (a constant offset, e.g. a bias
+#: voltage, removed) allowed. Digital loops log the identity exactly; 1e-3
+#: leaves room for logging quantisation (as MAX_FEEDBACK_MISMATCH).
+MAX_INPUT_IDENTITY_MISMATCH = 1e-3
+
+#: Outputs respond: the one-step ARX prediction of the outputs from their past
+#: and the inputs' must be significant at this level (F-test of the regression
+#: against "no relation", in the best channel). Pure noise passes it with this
+#: probability; any plant record of a few hundred samples passes with p ~ 0,
+#: even the noise-driven suspension of Sun et al., whose outputs are mostly
+#: sensor noise (about 10 % of their variance predictable).
+OUTPUT_RESPONSE_ALPHA = 1e-4
+
+
+def _rms(x: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.square(x - x.mean(axis=0)))))
+
+
+def check_input_identity(
+    data: ClosedLoopData, *, max_mismatch: float = MAX_INPUT_IDENTITY_MISMATCH
+) -> QualityCheck:
+    """The logged plant input is the feedback plus the excitation: u = u_f + r.
+
+    Checked wherever all three are logged. A record where u equals u_f was
+    taken with the excitation not applied (or logged but not added): every
+    closed-loop method would read r as a regressor or instrument that the
+    plant never saw, and return confident nonsense (issue 17: R1 = -1.3e7 ohm,
+    "no significant change"). A constant offset (bias voltage) is allowed.
+    """
+    name = "u = u_f + r"
+    if data.u is None or data.r is None or data.u_f is None:
+        return QualityCheck(
+            name=name, passed=True, value=float("nan"), threshold=max_mismatch,
+            message="u, u_f and r are not all logged: the identity is not checked",
+            blocking=False,
+        )  # fmt: skip
+    u, uf, r = (np.asarray(x, dtype=float) for x in (data.u, data.u_f, data.r))
+    scale = max(_rms(u), 1e-300)
+    mismatch = _rms(u - uf - r) / scale
+    ok = bool(mismatch <= max_mismatch)
+    msg = f"u differs from u_f + r by {100 * mismatch:.2g} % rms"
+    if not ok:
+        if _rms(u - uf) / scale <= max_mismatch and _rms(r) / scale > max_mismatch:
+            msg = (
+                "u equals u_f: the excitation r was not applied to the plant (or not logged as "
+                "applied), so u != u_f + r; identifying with r would be wrong"
+            )
+        elif _rms(u - r) / scale <= max_mismatch and _rms(uf) / scale > max_mismatch:
+            msg = "u equals r: the feedback u_f is not in the logged plant input, so u != u_f + r"
+        else:
+            msg += (
+                ": the logged u, u_f and r disagree (channel order, units, signs or time "
+                "alignment)"
+            )
+    return QualityCheck(name=name, passed=ok, value=mismatch, threshold=max_mismatch, message=msg)
+
+
+def check_output_response(
+    data: ClosedLoopData, *, alpha: float = OUTPUT_RESPONSE_ALPHA, lags: int = 2
+) -> QualityCheck:
+    """The outputs respond: their past and the inputs' predict them, significantly.
+
+    Each output channel (at the control rate) is regressed on ``lags`` past
+    samples of every output and input, by least squares, and the fraction of
+    its variance predicted (R^2) is F-tested against "no relation" (under
+    which R^2 ~ regressors / samples). If no channel is significant at
+    ``alpha`` the record is noise (or signals that do not belong together):
+    any model identified from it is meaningless (issue 17: pure noise gave an
+    OverflowError in the fault isolation, or "no significant change").
+    """
+    from scipy import stats
+
+    name = "outputs respond"
+    y = np.asarray(data.y_control, dtype=float)
+    u = data.u if data.u is not None else data.with_plant_input().u
+    u = np.zeros((y.shape[0], 0)) if u is None else np.asarray(u, dtype=float)
+    n = y.shape[0]
+    k = lags * (y.shape[1] + u.shape[1])
+    if n <= 4 * k + 1:
+        return QualityCheck(
+            name=name, passed=True, value=float("nan"), threshold=alpha,
+            message="too few samples to test whether the outputs respond", blocking=False,
+        )  # fmt: skip
+    cols = [np.ones(n - lags)]
+    for j in range(1, lags + 1):
+        cols.extend((y[lags - j : n - j]).T)
+        cols.extend((u[lags - j : n - j]).T)
+    phi = np.column_stack(cols)
+    target = y[lags:]
+    coef, *_ = np.linalg.lstsq(phi, target, rcond=None)
+    var = np.var(target, axis=0)
+    safe = np.where(var > 0, var, 1.0)
+    r2 = np.clip(np.where(var > 0, 1.0 - np.var(target - phi @ coef, axis=0) / safe, 0.0), 0, 1)
+    dof = n - lags - k - 1
+    f_stat = (r2 / k) / np.maximum((1.0 - r2) / dof, 1e-300)
+    p_value = float(np.min(stats.f.sf(f_stat, k, dof)))
+    best = float(np.max(r2))
+    ok = p_value < alpha
+    return QualityCheck(
+        name=name,
+        passed=ok,
+        value=p_value,
+        threshold=alpha,
+        message=(
+            f"one step of an ARX({lags}) predicts {100 * best:.3g} % of the output variance "
+            f"(p = {p_value:.2g} against no relation)"
+            + (
+                ""
+                if ok
+                else ": the outputs look like noise, not a plant responding to its inputs "
+                "(pure noise, or y and u from different records)"
+            )
+        ),
+    )
+
+
 def run_checks(data: ClosedLoopData, **options: Any) -> tuple[QualityCheck, ...]:
     """All checks, in the order a person would want to read them."""
     return (
         check_length(data, **{k: v for k, v in options.items() if k == "min_samples"}),
+        check_input_identity(data),
+        check_output_response(data),
         check_excitation(data),
         check_saturation(data),
         check_levitation(data),
