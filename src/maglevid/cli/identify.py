@@ -152,6 +152,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     data = read_recording(args.recording, mapping=args.mapping)
     method = args.method or _default_method(data)
     fit = get_method(method)  # an unknown method is refused before the gate
+    check_options(method, fit, options)
     warnings = quality_gate(data, force=args.force)
     from maglevid.diagnose.levitator import is_levitator, levitator_checks
 
@@ -165,6 +166,28 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         out["warnings"] = warnings
         out["notes"] = [*warnings, *out.get("notes", [])]
     return out
+
+
+def check_options(method: str, fit: Any, options: dict[str, Any]) -> None:
+    """Refuse an option the method does not take, naming the ones it does (one line).
+
+    The fit function's keyword parameters are its options; calling it with
+    another one would be a TypeError (a traceback at the command line).
+    """
+    import inspect
+
+    from maglevid.exceptions import DataError
+
+    params = inspect.signature(fit).parameters
+    if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
+        return
+    known = [n for n, p in params.items() if p.kind is inspect.Parameter.KEYWORD_ONLY]
+    unknown = sorted(set(options) - set(known))
+    if unknown:
+        raise DataError(
+            f"method {method!r} has no option {', '.join(map(repr, unknown))}; its options: "
+            f"{', '.join(known) or '(none)'}"
+        )
 
 
 def quality_gate(data: Any, *, force: bool) -> list[str]:
