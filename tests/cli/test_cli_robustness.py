@@ -10,6 +10,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from maglevid.cli.main import main
@@ -155,3 +156,129 @@ def test_json_error_is_one_object(tmp_path, capsys):
     assert main(["--json", "inspect", str(fifo)]) == 1
     out = json.loads(capsys.readouterr().out)
     assert out["error"] == "FileFormatError" and "FIFO" in out["message"]
+
+
+# -- one line instead of a traceback ----------------------------------------------------
+def _noise_record(amb_record, rng_seed: int = 0):
+    """Pure noise in the bearing's shapes and scales, the design values kept, no controller."""
+    rng = np.random.default_rng(rng_seed)
+    n = 4000
+    loop = {k: v for k, v in amb_record.loop.items() if k in ("nominal", "operating_point")}
+    from maglevid.data import ClosedLoopData
+
+    return ClosedLoopData(
+        y=rng.standard_normal((n, 3)) * [1e-5, 0.1, 0.1],
+        u=rng.standard_normal((n, 2)),
+        r=rng.standard_normal((n, 2)),
+        dt=1e-4,
+        loop=loop,
+    )
+
+
+@pytest.mark.parametrize("seed", [0, 1, 3])
+def test_pure_noise_is_refused_with_a_reason(tmp_path, capsys, amb_record, seed):
+    # On main: OverflowError in the fault isolation (seed-dependent), or
+    # "No significant change" with x0 off by -119 % (seed 0).
+    rec = write_recording(_noise_record(amb_record, seed), tmp_path / "noise.npz")
+    assert main(["--json", "diagnose", str(rec)]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["verdict_code"] == "cannot_diagnose"
+    assert "outputs look like noise" in out["verdict"]
+    assert main(["identify", str(rec)]) == 1
+    assert "outputs look like noise" in _one_error_line(capsys)
+
+
+def test_operating_point_not_a_number_is_one_line(tmp_path, capsys, amb_record):
+    loop = dict(amb_record.loop)
+    loop["operating_point"] = {**loop["operating_point"], "i0": "abc"}
+    from maglevid.data import ClosedLoopData
+    from maglevid.exceptions import DataError
+
+    with pytest.raises(DataError, match=r"\['i0'\] is 'abc'; expected a finite number"):
+        amb_record.replace(loop=loop)
+    # A file written by another tool: the same error at load, naming the file.
+    fields = {s: getattr(amb_record, s) for s in ("y", "u", "r", "u_f")}
+    desc = {
+        "format": "maglevid-recording", "version": 1, "dt": amb_record.dt, "p": 1,
+        "signals": {s: {"names": list(amb_record.channel_names(s)),
+                        "units": list(amb_record.channel_units(s))} for s in fields},
+        "loop": json.loads(json.dumps({"operating_point": {"i0": "abc", "m": 1.8}})),
+    }  # fmt: skip
+    path = tmp_path / "bad.npz"
+    np.savez(path, metadata=np.array(json.dumps(desc)), **fields)
+    for cmd in ("identify", "diagnose", "inspect"):
+        assert main([cmd, str(path)]) == 1
+        assert "'i0'] is 'abc'" in _one_error_line(capsys)
+    assert ClosedLoopData  # the class the loop is checked in
+
+
+def test_npz_metadata_not_utf8_is_one_line(tmp_path, capsys, amb_record):
+    path = tmp_path / "latin1.npz"
+    np.savez(path, metadata=np.array(b'{"format": "maglevid-recording", "note": "\xe9t\xe9"}'),
+             y=amb_record.y, u=amb_record.u)  # fmt: skip
+    assert main(["inspect", str(path)]) == 1
+    assert "not UTF-8" in _one_error_line(capsys)
+
+
+@pytest.fixture(scope="module")
+def suspension_p1(tmp_path_factory):
+    from maglevid.simulate.suspension import simulate_suspension
+
+    data = simulate_suspension(p=1, duration=6.0, rng=1)
+    return write_recording(data, tmp_path_factory.mktemp("susp") / "s1.npz")
+
+
+def test_unknown_method_option_is_one_line(capsys, suspension_p1):
+    # On main: TypeError: fit_pem() got an unexpected keyword argument 'order'.
+    assert main(["identify", str(suspension_p1), "--method", "pem", "--option", "order=3"]) == 1
+    line = _one_error_line(capsys)
+    assert "method 'pem' has no option 'order'" in line and "na" in line
+
+
+def test_indirect_on_a_transfer_function_controller_is_one_line(capsys, suspension_p1):
+    # On main: KeyError 'A' (the suspension's controller is num/den, not A, B, C).
+    assert main(["identify", str(suspension_p1), "--method", "indirect"]) == 1
+    assert "not a state-space model" in _one_error_line(capsys)
+
+
+# -- silent wrong answers ---------------------------------------------------------------
+def test_excitation_not_applied_is_refused(tmp_path, capsys, amb_record):
+    # u logged as the feedback alone (u = u_f) while r is logged as if applied.
+    # On main: "No significant change, all checks passed", R1 = -1.3e7 ohm.
+    bad = amb_record.replace(u=amb_record.u_f)
+    rec = write_recording(bad, tmp_path / "no_r.npz")
+    assert main(["--json", "diagnose", str(rec)]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["verdict_code"] == "cannot_diagnose"
+    assert "u equals u_f: the excitation r was not applied" in out["verdict"]
+    assert main(["identify", str(rec)]) == 1
+    assert "u equals u_f" in _one_error_line(capsys)
+
+
+def test_identify_runs_the_quality_gate(tmp_path, capsys, amb_record):
+    short = write_recording(amb_record.segment(0, 500), tmp_path / "short.npz")
+    assert main(["identify", str(short)]) == 1
+    assert "too short" in _one_error_line(capsys)
+    assert main(["identify", str(short), "--force"]) == 0
+    out = capsys.readouterr().out
+    assert "warning: quality gate failed" in out and "too short" in out
+
+
+def test_falling_rotor_is_refused_by_identify(tmp_path, capsys, amb_record):
+    # The rotor drifts to the retainer bearing: |x| beyond half the gap.
+    x0 = amb_record.loop["operating_point"]["x0"]
+    y = np.array(amb_record.y)
+    y[:, 0] += np.linspace(0.0, 0.9 * x0, y.shape[0])
+    rec = write_recording(amb_record.replace(y=y), tmp_path / "fall.npz")
+    assert main(["identify", str(rec)]) == 1
+    assert "levitation was lost" in _one_error_line(capsys)
+
+
+def test_misaligned_record_is_refused_by_identify(tmp_path, capsys, amb_record):
+    # y one control period late against u (a logging misalignment): the stated
+    # controller no longer reproduces u_f. On main: R1 = -217 ohm, exit 0.
+    d = amb_record
+    y = np.roll(np.array(d.y), 1, axis=0)
+    rec = write_recording(d.replace(y=y), tmp_path / "late.npz")
+    assert main(["identify", str(rec)]) == 1
+    assert "inconsistent with the stated controller" in _one_error_line(capsys)
