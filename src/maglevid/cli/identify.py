@@ -162,9 +162,12 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     result = fit(data, **options)
     out = result.to_dict()
     out["recording"] = args.recording
+    from maglevid.identify.registry import UNSUPPORTED_POLE_NOTE
+
+    warnings += [n for n in result.notes if n.startswith(UNSUPPORTED_POLE_NOTE)]
     if warnings:
         out["warnings"] = warnings
-        out["notes"] = [*warnings, *out.get("notes", [])]
+        out["notes"] = list(dict.fromkeys([*warnings, *out.get("notes", [])]))
     return out
 
 
