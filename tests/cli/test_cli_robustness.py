@@ -282,3 +282,64 @@ def test_misaligned_record_is_refused_by_identify(tmp_path, capsys, amb_record):
     rec = write_recording(d.replace(y=y), tmp_path / "late.npz")
     assert main(["identify", str(rec)]) == 1
     assert "inconsistent with the stated controller" in _one_error_line(capsys)
+
+
+def test_gap_in_m_labelled_mm_is_refused(tmp_path, capsys, amb_record):
+    # A CSV whose side-car says the gap is in mm while the values are metres.
+    # On main: accepted, diagnosed.
+    rec = write_recording(amb_record, tmp_path / "g.csv")
+    side = tmp_path / "g.json"
+    desc = json.loads(side.read_text(encoding="utf-8"))
+    desc["signals"]["y"]["units"][0] = "mm"
+    side.write_text(json.dumps(desc), encoding="utf-8")
+    assert main(["--json", "diagnose", str(rec)]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["verdict_code"] == "cannot_diagnose"
+    assert "is in 'mm'" in out["verdict"] and "look like metres" in out["verdict"]
+    assert main(["identify", str(rec)]) == 1
+    assert "look like metres" in _one_error_line(capsys)
+
+
+def test_gap_in_mm_labelled_m_is_refused(tmp_path, capsys, amb_record):
+    y = np.array(amb_record.y)
+    y[:, 0] *= 1e3 * 300  # millimetres of a large motion, labelled m
+    rec = write_recording(amb_record.replace(y=y), tmp_path / "mm.npz")
+    assert main(["identify", str(rec)]) == 1
+    assert "probably logged in mm" in _one_error_line(capsys)
+
+
+def test_text_log_timed_in_ms_read_as_s_is_refused(tmp_path, capsys, amb_record):
+    # A user's log whose time column is in ms while the mapping says s: dt comes out
+    # 1000 times too long (0.1 s for the bearing's 0.1 ms). On main: accepted.
+    d = amb_record
+    t_ms = np.arange(d.n_samples) * d.dt * 1e3
+    cols = np.column_stack([t_ms, d.y, d.u, d.r, d.u_f])
+    log = tmp_path / "bearing.txt"
+    header = "t,x,i1,i2,u1,u2,r1,r2,uf1,uf2"
+    np.savetxt(log, cols, delimiter=",", header=header, comments="", fmt="%.17g")
+    loop = {k: d.loop[k] for k in ("nominal", "operating_point")}
+    mapping = {
+        "format": "text",
+        "text": {"delimiter": "comma", "header": True},
+        "time": {"column": "t", "unit": "s"},
+        "y": [{"column": c, "unit": u} for c, u in (("x", "m"), ("i1", "A"), ("i2", "A"))],
+        "u": [{"column": "u1", "unit": "V"}, {"column": "u2", "unit": "V"}],
+        "r": [{"column": "r1", "unit": "V"}, {"column": "r2", "unit": "V"}],
+        "u_f": [{"column": "uf1", "unit": "V"}, {"column": "uf2", "unit": "V"}],
+        "loop": json.loads(
+            json.dumps(loop, default=lambda o: o.tolist() if hasattr(o, "tolist") else dict(o))
+        ),
+    }
+    mfile = tmp_path / "map.json"
+    mfile.write_text(json.dumps(mapping), encoding="utf-8")
+    assert main(["identify", str(log), "--mapping", str(mfile)]) == 1
+    line = _one_error_line(capsys)
+    assert "dt = 0.1 s" in line and "ms read as s" in line
+    # The same log with the right unit passes the check, at the bearing's 0.1 ms.
+    from maglevid.diagnose.checks import check_sample_time
+    from maglevid.io import read_recording
+
+    mapping["time"]["unit"] = "ms"
+    mfile.write_text(json.dumps(mapping), encoding="utf-8")
+    data = read_recording(log, mapping=str(mfile))
+    assert data.dt == pytest.approx(d.dt, rel=1e-9) and check_sample_time(data).passed
