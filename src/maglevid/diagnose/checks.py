@@ -427,9 +427,8 @@ def check_sample_time(data: ClosedLoopData) -> QualityCheck:
         )  # fmt: skip
     x = pole * data.dt
     ok = x < MAX_POLE_DT
-    msg = (
-        f"dt = {data.dt:.4g} s against the nominal unstable pole {pole:.4g} rad/s (p dt = {x:.3g})"
-    )
+    msg = f"dt = {data.dt:.4g} s against the nominal unstable pole {pole:.4g} rad/s"
+    msg += f" (p dt = {x:.3g})"
     if not ok:
         msg += (
             ": no digital loop stabilises the plant sampled this slowly; the time column's "
