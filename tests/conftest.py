@@ -62,6 +62,23 @@ def shared_data() -> Path:
 
 
 @pytest.fixture
+def no_hang():
+    """Fail (instead of hanging the run) if the test blocks for 60 s, e.g. on a FIFO."""
+    import signal
+
+    def hung(signum, frame):  # type: ignore[no-untyped-def]
+        raise TimeoutError("blocked for 60 s (a read that never returns?)")
+
+    old = signal.signal(signal.SIGALRM, hung)
+    signal.alarm(60)
+    try:
+        yield
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, old)
+
+
+@pytest.fixture
 def rng() -> np.random.Generator:
     """A fixed-seed generator: tests never use unseeded randomness."""
     return np.random.default_rng(20261122)

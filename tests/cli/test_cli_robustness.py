@@ -150,7 +150,7 @@ def test_disk_full_report_is_one_line(tmp_path, capsys, amb_record, monkeypatch)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["x.npz"]
 
 
-def test_json_error_is_one_object(tmp_path, capsys):
+def test_json_error_is_one_object(no_hang, tmp_path, capsys):
     fifo = tmp_path / "x.npz"
     os.mkfifo(fifo)
     assert main(["--json", "inspect", str(fifo)]) == 1

@@ -136,3 +136,35 @@ def test_diagnose_after_fleet_stored_it_is_idempotent(tmp_path, capsys, recordin
     assert "already stored" in capsys.readouterr().out
     with open_history(store) as h:
         assert len(h.diagnoses("M")) == 1
+
+
+def test_an_overflow_in_the_fault_isolation_is_a_note(tmp_path, recording, monkeypatch):
+    # Issue 17: pure noise gave an OverflowError traceback from diagnose/isolate.py
+    # (math.exp of a runaway log-factor). The gate now refuses pure noise; any
+    # overflow left in the isolation is a note at the pipeline's boundary.
+    import maglevid.diagnose.pipeline as pipeline
+
+    def overflow(*args, **kwargs):
+        raise OverflowError("math range error")
+
+    monkeypatch.setattr(pipeline, "isolate_fault", overflow)
+    diag = pipeline.diagnose(recording)
+    assert any("fault isolation not possible: math range error" in n for n in diag.notes)
+
+
+def test_fleet_never_blocks_on_a_fifo(no_hang, tmp_path):
+    # Issue 17: a FIFO among a fleet's recordings hung the run (the reader, then
+    # the hash of the unreadable file, opened it). Now it is one outcome, with
+    # the reason, and the run goes on.
+    import os
+
+    from maglevid.fleet.jobs import collect_jobs
+    from maglevid.fleet.worker import BatchContext, diagnose_batch
+
+    folder = tmp_path / "M"
+    folder.mkdir()
+    os.mkfifo(folder / "x.npz")
+    jobs = collect_jobs([str(tmp_path)])
+    ctx = BatchContext(store=str(tmp_path / "s.sqlite"), schema=None, run_id="r")
+    _, outcomes = diagnose_batch(jobs, ctx)
+    assert len(outcomes) == 1 and "FIFO" in outcomes[0].error

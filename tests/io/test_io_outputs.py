@@ -94,7 +94,7 @@ def test_disk_full_while_writing_a_recording(tmp_path, monkeypatch):
     assert list(tmp_path.iterdir()) == []
 
 
-def test_readers_refuse_a_fifo_up_front(tmp_path: Path):
+def test_readers_refuse_a_fifo_up_front(no_hang, tmp_path: Path):
     # Opening a FIFO for reading blocks until a writer appears: had any reader
     # opened it, this test would hang instead of failing.
     for name in ("rec.npz", "rec.csv", "rec.parquet", "rec.mat"):
@@ -110,7 +110,7 @@ def test_readers_refuse_a_fifo_up_front(tmp_path: Path):
         load_mapping(mapping)
 
 
-def test_a_csv_whose_sidecar_is_a_fifo_is_refused(tmp_path: Path):
+def test_a_csv_whose_sidecar_is_a_fifo_is_refused(no_hang, tmp_path: Path):
     rec = write_recording(_data(), tmp_path / "rec.csv")
     (tmp_path / "rec.json").unlink()
     os.mkfifo(tmp_path / "rec.json")

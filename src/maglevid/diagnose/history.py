@@ -50,6 +50,7 @@ Examples
 
 from __future__ import annotations
 
+import errno
 import getpass
 import hashlib
 import json
@@ -57,6 +58,7 @@ import logging
 import math
 import os
 import socket
+import stat
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from datetime import datetime, timezone
@@ -424,7 +426,18 @@ def hash_options(options: Mapping[str, Any]) -> str:
 
 
 def hash_file(path: str | os.PathLike[str], *, chunk_size: int = 1 << 20) -> str:
-    """SHA-256 (hex) of a file's bytes: the ``recording_hash`` of a recording file."""
+    """SHA-256 (hex) of a file's bytes: the ``recording_hash`` of a recording file.
+
+    Raises
+    ------
+    OSError
+        No such file, or not a regular file: a FIFO, device or socket is
+        refused before it is opened (reading one would block, or never end).
+    """
+    if not stat.S_ISREG(os.stat(path).st_mode):
+        raise OSError(
+            errno.EINVAL, "not a regular file (a FIFO, device or socket): not read", str(path)
+        )
     h = hashlib.sha256()
     with open(path, "rb") as f:
         while block := f.read(chunk_size):

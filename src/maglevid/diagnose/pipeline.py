@@ -496,8 +496,11 @@ def diagnose(
                 hypotheses=[h for h in HYPOTHESES],
                 alpha=alpha,
             )
-        except MaglevidError as exc:
-            notes.append(f"fault isolation not possible: {exc}")
+        except (MaglevidError, ArithmeticError, np.linalg.LinAlgError) as exc:
+            # ArithmeticError: an overflow in the hypothesis fits (issue 17: pure
+            # noise gave an OverflowError traceback); the quality gate now refuses
+            # such records before, and this keeps any other one a note.
+            notes.append(f"fault isolation not possible: {exc or type(exc).__name__}")
     verdict, code, reasons = _verdict(changes, iso, tol)
 
     base_model = amb_state_space(base_params) if base_params is not None else None
