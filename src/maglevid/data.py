@@ -324,6 +324,22 @@ class ClosedLoopData:
             raise DataError("cannot form u = u_f + r: the recording lacks u_f or r")
         return self.replace(u=np.asarray(self.u_f) + np.asarray(self.r))
 
+    def input_identity_mismatch(self) -> float | None:
+        """Relative rms of ``u - (u_f + r)`` (a constant offset removed); ``None`` unless all logged.
+
+        A digital loop logs ``u = u_f + r`` exactly (a bias voltage may add a
+        constant). A large value means the excitation was not applied as
+        logged, or the channels disagree (see
+        :func:`maglevid.diagnose.checks.check_input_identity`).
+        """
+        if self.u is None or self.r is None or self.u_f is None:
+            return None
+        u = np.asarray(self.u, dtype=float)
+        e = u - np.asarray(self.u_f, dtype=float) - np.asarray(self.r, dtype=float)
+        scale = float(np.sqrt(np.mean(np.square(u - u.mean(axis=0)))))
+        err = float(np.sqrt(np.mean(np.square(e - e.mean(axis=0)))))
+        return err / max(scale, 1e-300)
+
     def to_dict(self) -> dict[str, Any]:
         """Everything but the signal arrays, JSON-safe (the metadata side-car content)."""
         return {

@@ -158,3 +158,12 @@ def test_pem_does_not_claim_an_unstable_pole_from_a_record_without_excitation():
         assert any(n.startswith(UNSUPPORTED_POLE_NOTE) for n in res.notes), res.notes
     else:  # pragma: no cover - a method that finds no unstable pole here is fine too
         assert not unstable.any() or max(fits) >= 0
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_excitation_logged_but_not_applied_is_refused(records, method):
+    # u = u_f while r is logged as applied: u != u_f + r. Every method refuses,
+    # naming the identity (issue 17: physical gave R1 = -1.3e7 ohm from such a record).
+    d = records["amb"]
+    out = _outcome(method, d.replace(u=d.u_f))
+    assert isinstance(out, DataError) and "u differs from u_f + r" in str(out)

@@ -81,12 +81,24 @@ def _under_contract(name: str, fit: Callable[..., Any]) -> Callable[..., Any]:
     return run
 
 
+#: u = u_f + r: the relative rms mismatch beyond which no method is run (0.1 %, as
+#: the quality gate's MAX_INPUT_IDENTITY_MISMATCH; logging quantisation fits under it).
+MAX_INPUT_IDENTITY_MISMATCH = 1e-3
+
+
 def _refuse_constant(name: str, data: Any) -> None:
-    """Constant outputs, or constant inputs, carry no estimate for any method."""
+    """Constant outputs or inputs, or u != u_f + r: no method can use such a record."""
     from maglevid.data import ClosedLoopData
 
     if not isinstance(data, ClosedLoopData):
         return  # the method names what it expects
+    mismatch = data.input_identity_mismatch()
+    if mismatch is not None and mismatch > MAX_INPUT_IDENTITY_MISMATCH:
+        raise DataError(
+            f"{name}: u differs from u_f + r by {100 * mismatch:.2g} % rms: the logged plant "
+            "input is not the feedback plus the excitation (was r applied? are the channels, "
+            "units, signs and time alignment of u, u_f and r the same?)"
+        )
     u = data.u if data.u is not None else data.u_f
     for label, sig in (("outputs y", data.y), ("plant inputs u", u)):
         if sig is not None and not np.any(np.ptp(np.asarray(sig), axis=0) > 0):
