@@ -325,7 +325,7 @@ class ClosedLoopData:
         return self.replace(u=np.asarray(self.u_f) + np.asarray(self.r))
 
     def input_identity_mismatch(self) -> float | None:
-        """Relative rms of ``u - (u_f + r)`` (a constant offset removed); ``None`` unless all logged.
+        """Relative rms of ``u - (u_f + r)``, constant offset removed; ``None`` unless all logged.
 
         A digital loop logs ``u = u_f + r`` exactly (a bias voltage may add a
         constant). A large value means the excitation was not applied as
