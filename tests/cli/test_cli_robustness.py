@@ -343,3 +343,13 @@ def test_text_log_timed_in_ms_read_as_s_is_refused(tmp_path, capsys, amb_record)
     mfile.write_text(json.dumps(mapping), encoding="utf-8")
     data = read_recording(log, mapping=str(mfile))
     assert data.dt == pytest.approx(d.dt, rel=1e-9) and check_sample_time(data).passed
+
+
+def test_convert_never_over_its_mapping(tmp_path, capsys, amb_record):
+    rec = write_recording(amb_record, tmp_path / "x.npz")
+    mapping = tmp_path / "map.csv"  # an odd name, but a file this command reads
+    mapping.write_text("{}", encoding="utf-8")
+    argv = ["-q", "convert", str(rec), str(mapping), "--mapping", str(mapping), "--overwrite"]
+    assert main(argv) == 1
+    assert "it is an input" in _one_error_line(capsys)
+    assert mapping.read_text(encoding="utf-8") == "{}"
