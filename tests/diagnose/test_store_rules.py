@@ -78,6 +78,16 @@ def test_refused_store_is_left_byte_identical(tmp_path, kind):
     assert _snapshot(tmp_path) == before  # same bytes, and no -wal / -shm beside it
 
 
+def test_a_fifo_store_is_refused_without_blocking(no_hang, tmp_path):
+    import os
+
+    from maglevid.diagnose._sql import HistoryError
+
+    os.mkfifo(tmp_path / "s.sqlite")
+    with pytest.raises(HistoryError, match="special file"):
+        open_history(tmp_path / "s.sqlite")
+
+
 @pytest.mark.parametrize("kind", sorted(REFUSED))
 def test_history_command_leaves_a_refused_store_byte_identical(tmp_path, capsys, kind):
     store = tmp_path / "store.sqlite"
