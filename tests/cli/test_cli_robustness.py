@@ -353,3 +353,10 @@ def test_convert_never_over_its_mapping(tmp_path, capsys, amb_record):
     assert main(argv) == 1
     assert "it is an input" in _one_error_line(capsys)
     assert mapping.read_text(encoding="utf-8") == "{}"
+
+
+def test_streamed_identify_runs_the_quality_gate(tmp_path, capsys, amb_record):
+    pytest.importorskip("pyarrow")
+    short = write_recording(amb_record.segment(0, 500), tmp_path / "short.parquet")
+    assert main(["identify", str(short), "--stream"]) == 1
+    assert "too short" in _one_error_line(capsys)

@@ -26,7 +26,8 @@ method physical. --no-stream always reads the whole file.
 
   maglevid identify hour.parquet --stream --method physical --option estimator=ls
 
-Before identifying, the recording goes through the same quality gate as
+Before identifying, the recording (a streamed one: its first chunk) goes
+through the same quality gate as
 `maglevid diagnose` (record length, u = u_f + r, outputs that respond,
 excitation, saturation, levitation, the stated controller): a failed check
 refuses with the reason; --force identifies anyway and prints the failed
@@ -125,6 +126,9 @@ def _run_streamed(args: argparse.Namespace, options: dict[str, Any]) -> dict[str
             f"method {method!r} cannot be streamed (streamed: "
             f"{', '.join(sorted(STREAMED_METHODS))}); use --no-stream to read the whole file"
         )
+    # The quality gate on the first chunk (the whole record when it fits in one).
+    first = next(iter_recording_chunks(args.recording, args.chunk_size, mapping=args.mapping))
+    warnings = quality_gate(first, force=args.force)
     passes = {"n": 0}
 
     def chunks() -> Any:
@@ -138,6 +142,9 @@ def _run_streamed(args: argparse.Namespace, options: dict[str, Any]) -> dict[str
     out = result.to_dict()
     out["recording"] = args.recording
     out["streamed"] = {"chunk_size": args.chunk_size, "passes": passes["n"]}
+    if warnings:
+        out["warnings"] = warnings
+        out["notes"] = [*warnings, *out.get("notes", [])]
     return out
 
 
