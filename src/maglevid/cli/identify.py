@@ -142,10 +142,7 @@ def _run_streamed(args: argparse.Namespace, options: dict[str, Any]) -> dict[str
     out = result.to_dict()
     out["recording"] = args.recording
     out["streamed"] = {"chunk_size": args.chunk_size, "passes": passes["n"]}
-    if warnings:
-        out["warnings"] = warnings
-        out["notes"] = [*warnings, *out.get("notes", [])]
-    return out
+    return _with_warnings(out, warnings)
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
@@ -172,6 +169,11 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     from maglevid.identify.registry import UNSUPPORTED_POLE_NOTE
 
     warnings += [n for n in result.notes if n.startswith(UNSUPPORTED_POLE_NOTE)]
+    return _with_warnings(out, warnings)
+
+
+def _with_warnings(out: dict[str, Any], warnings: list[str]) -> dict[str, Any]:
+    """The result with ``warnings`` (printed as such) also first among its notes."""
     if warnings:
         out["warnings"] = warnings
         out["notes"] = list(dict.fromkeys([*warnings, *out.get("notes", [])]))
