@@ -9,13 +9,21 @@
 # refuses root), creates one database, exports MAGLEVID_TEST_POSTGRES_URL and
 # stops the server and removes the folder when the sourcing shell exits.
 #
-# If any step fails it warns on stderr and returns 0 without exporting the URL,
-# so the postgres tests skip with a reason; set MAGLEVID_REQUIRE_POSTGRES=1 to
-# make a failure fatal instead.
+# If any step fails it says why on stderr. In CI (CI=true) or with
+# MAGLEVID_REQUIRE_POSTGRES=1 the failure is fatal: the sourcing shell exits 1,
+# so a CI run can never pass with the PostgreSQL tests skipped. Elsewhere (a
+# developer's machine without root) it returns non-zero without exporting the
+# URL and the postgres tests skip with a reason (tests/conftest.py turns those
+# skips into failures when CI=true).
+
+_maglevid_pg_required() {
+    [ "${MAGLEVID_REQUIRE_POSTGRES:-0}" = "1" ] || [ "${CI:-}" = "true" ]
+}
 
 _maglevid_pg_fail() {
     echo "postgres.sh: $*" >&2
-    if [ "${MAGLEVID_REQUIRE_POSTGRES:-0}" = "1" ]; then
+    if _maglevid_pg_required; then
+        echo "postgres.sh: PostgreSQL is required here (CI=true or MAGLEVID_REQUIRE_POSTGRES=1); stopping" >&2
         exit 1
     fi
     echo "postgres.sh: continuing without PostgreSQL; the postgres tests will skip" >&2
@@ -23,7 +31,8 @@ _maglevid_pg_fail() {
 }
 
 _maglevid_pg_bindir() {
-    { ls -d /usr/lib/postgresql/*/bin 2>/dev/null || true; } | sort -V | tail -n 1
+    # MAGLEVID_PG_ROOT: where the server packages live (tests point it elsewhere).
+    { ls -d "${MAGLEVID_PG_ROOT:-/usr/lib/postgresql}"/*/bin 2>/dev/null || true; } | sort -V | tail -n 1
 }
 
 _maglevid_pg_start() {
@@ -108,4 +117,11 @@ _maglevid_pg_stop() {
     fi
 }
 
-_maglevid_pg_start || true
+# Not `|| true`: a failure already exited above when PostgreSQL is required;
+# otherwise the status is reported and the caller's shell continues.
+if ! _maglevid_pg_start; then
+    if _maglevid_pg_required; then
+        echo "postgres.sh: PostgreSQL did not start; stopping" >&2
+        exit 1
+    fi
+fi

@@ -71,6 +71,36 @@ def _thaw(value: Any) -> Any:
     return value
 
 
+#: Sections of ``loop`` that hold physical numbers only (checked on construction).
+NUMERIC_LOOP_SECTIONS = ("operating_point", "nominal")
+
+
+def _check_loop_numbers(loop: Mapping[str, Any]) -> None:
+    """``loop["operating_point"]`` and ``loop["nominal"]`` hold finite numbers (or lists of them).
+
+    Checked when a recording is made or read, so that a malformed value
+    (``"i0": "abc"``) is one clear error naming it, not a ValueError deep in
+    an identification (issue 17).
+    """
+    if not hasattr(loop, "get"):
+        raise DataError(f"`loop` must be a mapping; got {type(loop).__name__}")
+    for section in NUMERIC_LOOP_SECTIONS:
+        entries = loop.get(section)
+        if entries is None:
+            continue
+        if not hasattr(entries, "items"):
+            raise DataError(f"loop[{section!r}] must be a mapping of numbers; got {entries!r}")
+        for key, value in entries.items():
+            try:
+                arr = np.asarray(value, dtype=float)
+            except (TypeError, ValueError):
+                arr = None
+            if isinstance(value, (bool, str)) or arr is None or not np.all(np.isfinite(arr)):
+                raise DataError(
+                    f"loop[{section!r}][{key!r}] is {value!r}; expected a finite number (SI units)"
+                )
+
+
 @dataclass(frozen=True, eq=False)
 class ClosedLoopData:
     """An immutable closed-loop recording.
@@ -168,6 +198,7 @@ class ClosedLoopData:
         object.__setattr__(self, "t0", float(self.t0))
         object.__setattr__(self, "names", MappingProxyType(names))
         object.__setattr__(self, "units", MappingProxyType(units))
+        _check_loop_numbers(self.loop)
         object.__setattr__(self, "loop", _freeze(dict(self.loop)))
         object.__setattr__(self, "metadata", _freeze(dict(self.metadata)))
 
@@ -292,6 +323,22 @@ class ClosedLoopData:
         if self.u_f is None or self.r is None:
             raise DataError("cannot form u = u_f + r: the recording lacks u_f or r")
         return self.replace(u=np.asarray(self.u_f) + np.asarray(self.r))
+
+    def input_identity_mismatch(self) -> float | None:
+        """Relative rms of ``u - (u_f + r)``, constant offset removed; ``None`` unless all logged.
+
+        A digital loop logs ``u = u_f + r`` exactly (a bias voltage may add a
+        constant). A large value means the excitation was not applied as
+        logged, or the channels disagree (see
+        :func:`maglevid.diagnose.checks.check_input_identity`).
+        """
+        if self.u is None or self.r is None or self.u_f is None:
+            return None
+        u = np.asarray(self.u, dtype=float)
+        e = u - np.asarray(self.u_f, dtype=float) - np.asarray(self.r, dtype=float)
+        scale = float(np.sqrt(np.mean(np.square(u - u.mean(axis=0)))))
+        err = float(np.sqrt(np.mean(np.square(e - e.mean(axis=0)))))
+        return err / max(scale, 1e-300)
 
     def to_dict(self) -> dict[str, Any]:
         """Everything but the signal arrays, JSON-safe (the metadata side-car content)."""

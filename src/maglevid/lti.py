@@ -200,6 +200,14 @@ class StateSpace:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> StateSpace:
+        """The model of :meth:`to_dict`; a dict without ``A``, ``B``, ``C`` is a DataError."""
+        missing = [k for k in ("A", "B", "C") if k not in d]
+        if missing:
+            kind = f" (a {d['type']!r} description)" if isinstance(d.get("type"), str) else ""
+            raise DataError(
+                f"not a state-space model{kind}: keys {sorted(map(str, d))}, missing "
+                f"{missing}; expected a dict with 'A', 'B', 'C' (and 'D', 'dt')"
+            )
         return cls(
             d["A"],
             d["B"],

@@ -27,12 +27,33 @@ def test_method_list_json(capsys):
     assert "methods" in json.loads(capsys.readouterr().out)
 
 
-def test_bad_method_option_is_one_clear_line(capsys):
-    # Unknown --method is a DataError -> exit 1 with a single message, no traceback.
-    code = main(["identify", "missing.npz", "--option", "novalue"])
+def test_unknown_method_is_one_clear_line(capsys, tmp_path):
+    # The recording exists, so the error can only come from the unknown --method:
+    # a DataError that names the method and lists the valid ones, exit 1.
+    from maglevid.data import ClosedLoopData
+    from maglevid.io import write_recording
+
+    rec = write_recording(
+        ClosedLoopData(y=[0.0, 1, 2, 3], u=[1.0, 0, 1, 0], dt=0.1), tmp_path / "r.npz"
+    )
+    code = main(["identify", str(rec), "--method", "no-such-method"])
     err = capsys.readouterr().err
     assert code == 1
-    assert "error" in err and "Traceback" not in err
+    assert err.count("\n") == 1 and "Traceback" not in err
+    assert "unknown method 'no-such-method'" in err and "physical" in err
+
+
+def test_option_without_value_is_one_clear_line(capsys, tmp_path):
+    from maglevid.data import ClosedLoopData
+    from maglevid.io import write_recording
+
+    rec = write_recording(
+        ClosedLoopData(y=[0.0, 1, 2, 3], u=[1.0, 0, 1, 0], dt=0.1), tmp_path / "r.npz"
+    )
+    code = main(["identify", str(rec), "--option", "novalue"])
+    err = capsys.readouterr().err
+    assert code == 1 and "Traceback" not in err
+    assert "--option 'novalue': expected KEY=VALUE" in err
 
 
 def _leaf_parsers(parser, path=()):

@@ -202,11 +202,19 @@ def test_other_method_or_options_is_a_new_diagnosis_of_the_same_recording(store)
     assert [x.id for x in store.diagnoses("pump-7", method="subspace")] == [b.id]
 
 
-def test_same_recording_at_another_time_is_refused(store):
-    record(store, 1)
-    with pytest.raises(HistoryError, match="different time"):
-        record(store, 1, method="subspace", recorded_at=T0 + timedelta(days=5))
-    assert len(store.diagnoses("pump-7")) == 1
+def test_same_recording_at_another_time_is_the_same_recording(store):
+    # Issue 17: the content hash is the recording's identity. The same bytes stored
+    # again with another time (a second `diagnose --store` dated "now", or after
+    # `fleet` dated the file by its mtime) must not fail: the first time is kept and
+    # the same diagnosis is "already stored" (this was a HistoryError before).
+    a = record(store, 1)
+    again = record(store, 1, recorded_at=T0 + timedelta(days=5))
+    assert (again.id, again.created) == (a.id, False)
+    other = record(store, 1, method="subspace", recorded_at=T0 + timedelta(days=5))
+    assert other.created
+    ds = store.diagnoses("pump-7")
+    assert len(ds) == 2
+    assert {d.recorded_at for d in ds} == {ds[0].recorded_at}  # one recording, one time
 
 
 # -- atomicity of a failing write -----------------------------------------------------

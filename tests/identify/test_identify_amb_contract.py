@@ -11,6 +11,7 @@ from _amb_cases import NOMINAL, make_loop, v_est, v_true
 from maglevid.cli.main import main
 from maglevid.exceptions import DataError
 from maglevid.identify.registry import available_methods, get_method
+from maglevid.io import write_recording
 
 AMB_METHODS = ("deadbeat-arx", "deadbeat-iv", "okid-era", "physical")
 
@@ -57,13 +58,18 @@ def test_contract_errors(name, data):
 
 
 def test_identify_command_end_to_end(tmp_path, capsys, data):
-    io = pytest.importorskip("maglevid.io")
     path = tmp_path / "rec.npz"
-    io.write_recording(data, path)
-    assert main(["--json", "identify", str(path), "--method", "physical"]) == 0
+    write_recording(data, path)
+    # 1200 control periods: below the quality gate's 2000 (issue 17: `identify`
+    # runs diagnose's gate), so it refuses without --force and warns with it.
+    assert main(["--json", "identify", str(path), "--method", "physical"]) == 1
+    assert "too short" in json.loads(capsys.readouterr().out)["message"]
+    assert main(["--json", "identify", str(path), "--method", "physical", "--force"]) == 0
     out = json.loads(capsys.readouterr().out)
+    assert any("too short" in w for w in out["warnings"])
     assert out["method"] == "physical"
     assert out["parameters"]["R1"] == pytest.approx(1.2 * NOMINAL.R1, rel=1e-7)
     assert out["std_errors"]["R1"] is not None
-    assert main(["identify", str(path), "--method", "deadbeat-arx"]) == 0
-    assert "v5" in capsys.readouterr().out
+    assert main(["identify", str(path), "--method", "deadbeat-arx", "--force"]) == 0
+    text = capsys.readouterr().out
+    assert "v5" in text and "warning: quality gate failed" in text

@@ -6,7 +6,6 @@ import numpy as np
 import pytest
 from _amb_cases import NOMINAL, make_loop, v_est, v_true
 
-from maglevid.exceptions import IdentificationError
 from maglevid.identify.okid import fit_okid_era
 
 
@@ -26,11 +25,11 @@ def test_order_one_is_exact(data):
 
 def test_higher_orders_are_not_exact(data):
     # The lag-2 regressors are exact functions of the lag-1 ones: the minimum-norm ARX
-    # is a different system v -> y_u, and its 5-state ERA truncation is wrong.
-    try:
-        res = fit_okid_era(data, order=2, era_rows=4, era_cols=4)
-    except IdentificationError as exc:  # e.g. no real logarithm of the wrong model
-        assert "continuous" in str(exc)
-        return
+    # is a different system v -> y_u, and its 5-state ERA truncation is wrong. What
+    # the method must do with it is deterministic (noise-free data): say so. It
+    # used to be a try/except that accepted either an error or an inaccurate result.
+    res = fit_okid_era(data, order=2, era_rows=4, era_cols=4)
+    # Wrong by more than 1 % (order 1 is exact to 1e-8 on the same data, above) ...
     assert np.max(np.abs(v_est(res) / v_true(data) - 1)) > 1e-2
+    # ... and the result says why it cannot be trusted.
     assert any("not unique" in n for n in res.notes)

@@ -180,7 +180,9 @@ def test_failed_write_leaves_the_target_and_no_temporary_file(tmp_path, rng, mon
         raise OSError("disk full")
 
     monkeypatch.setattr(_variables, "write_npz", broken)
-    with pytest.raises(OSError, match="disk full"):
+    # Since issue 17 a failed write is one FileFormatError naming the file and saying
+    # nothing was written (it was a bare OSError, a traceback at the command line).
+    with pytest.raises(FileFormatError, match=r"disk full.*nothing was written"):
         write_recording(RECORDINGS["y_only"](rng), target, overwrite=True)
     assert target.read_bytes() == b"old"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["rec.npz"]

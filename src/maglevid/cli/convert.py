@@ -48,6 +48,14 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         return {"presets": available_presets()}
     if args.input is None or args.output is None:
         raise DataError("convert needs INPUT and OUTPUT (or --presets)")
+    from pathlib import Path
+
+    from maglevid.io import check_output
+
+    # The mapping file is an input too (the recording and its side-car are
+    # protected by write_recording itself); checked before the read.
+    mapping_file = args.mapping if args.mapping and Path(args.mapping).is_file() else None
+    check_output(args.output, overwrite=args.overwrite, inputs=[args.input, mapping_file])
     from maglevid.cli._progress import stages
 
     steps = stages(("reading", "writing"), desc="convert", args=args)

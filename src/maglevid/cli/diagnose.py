@@ -61,7 +61,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="engineering tolerance, relative (0.05 = 5 %%); per parameter with NAME=; repeatable",
     )
     parser.add_argument("--mapping", default=None, help="column mapping for a rig's own log")
-    parser.add_argument("--report", default=None, help="write a self-contained HTML report here")
+    parser.add_argument(
+        "--report",
+        default=None,
+        help="write a self-contained HTML report here (never over an input or its side-car)",
+    )
+    parser.add_argument(
+        "--overwrite", action="store_true", help="replace --report if it exists (default: refuse)"
+    )
     parser.add_argument(
         "--fail-on-fault",
         action="store_true",
@@ -112,9 +119,20 @@ def _baseline(text: str) -> Any:
     return values
 
 
+def _inputs(args: argparse.Namespace) -> list[str | None]:
+    """Every file this command reads: an output must never replace one of them."""
+    extra = [args.mapping, args.baseline if args.baseline not in ("nominal", "history") else None]
+    return [args.recording, args.store, *(e for e in extra if e and Path(e).is_file())]
+
+
 def run(args: argparse.Namespace) -> dict[str, Any]:
     from maglevid.diagnose.pipeline import diagnose
 
+    if args.report:
+        # Refused before the (slow) diagnosis and before anything is stored.
+        from maglevid.io import check_output
+
+        check_output(args.report, overwrite=args.overwrite, inputs=_inputs(args))
     store = None
     if args.store is not None:
         from maglevid.diagnose.history import open_history
@@ -145,7 +163,10 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
 
             hist = history_summary(store, diag.machine, parameters=None, method=diag.method)
             trends = trends_from_history(hist, method=diag.method)
-        out["report"] = str(write_report(diag, args.report, trends=trends))
+        path = write_report(
+            diag, args.report, trends=trends, overwrite=args.overwrite, inputs=_inputs(args)
+        )
+        out["report"] = str(path)
     steps.close()
     if store is not None:
         store.close()

@@ -104,6 +104,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="write the fleet overview page (self-contained HTML) here",
     )
     parser.add_argument(
+        "--overwrite", action="store_true", help="replace --summary if it exists (default: refuse)"
+    )
+    parser.add_argument(
         "--reports",
         default=None,
         metavar="DIR",
@@ -141,6 +144,11 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     def bar(items: Any, total: int) -> Any:
         return progress(items, desc="diagnosing", total=total, args=args)
 
+    if args.summary:
+        # Refused before the run, not after an hour of diagnoses.
+        from maglevid.io import check_output
+
+        check_output(args.summary, overwrite=args.overwrite, inputs=[args.store])
     summary = run_fleet(
         args.sources,
         store=args.store,
@@ -161,7 +169,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     if args.summary:
         from maglevid.report.fleet import write_fleet_summary
 
-        out["summary_page"] = str(write_fleet_summary(out, args.summary))
+        page = write_fleet_summary(out, args.summary, overwrite=args.overwrite)
+        out["summary_page"] = str(page)
     if args.fail_on_change and (out["changed"] or out["drifting"]):
         out["exit_code"] = 3
     return out

@@ -32,6 +32,13 @@ n4sid; physical reads the file twice). Without --method such a file gets
 method physical. --no-stream always reads the whole file.
 
   maglevid identify hour.parquet --stream --method physical --option estimator=ls
+
+Before identifying, the recording (a streamed one: its first chunk) goes
+through the same quality gate as
+`maglevid diagnose` (record length, u = u_f + r, outputs that respond,
+excitation, saturation, levitation, the stated controller): a failed check
+refuses with the reason; --force identifies anyway and prints the failed
+checks as warnings (also in the result's notes).
 """
 
 #: Parquet recordings larger than this are streamed unless --no-stream (about
@@ -70,6 +77,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=[],
         metavar="KEY=VALUE",
         help="method option (VALUE parsed as JSON when possible); repeatable",
+    )
+    parser.add_argument(
+        "--force",
+        action="store_true",
+        help="identify even when the quality gate fails (its reasons become warnings)",
     )
     parser.add_argument(
         "--stream",
@@ -135,6 +147,9 @@ def _run_streamed(args: argparse.Namespace, options: dict[str, Any]) -> dict[str
             f"method {method!r} cannot be streamed (streamed: "
             f"{', '.join(sorted(STREAMED_METHODS))}); use --no-stream to read the whole file"
         )
+    # The quality gate on the first chunk (the whole record when it fits in one).
+    first = next(iter_recording_chunks(args.recording, args.chunk_size, mapping=args.mapping))
+    warnings = quality_gate(first, force=args.force)
     passes = {"n": 0}
 
     def chunks() -> Any:
@@ -148,7 +163,7 @@ def _run_streamed(args: argparse.Namespace, options: dict[str, Any]) -> dict[str
     out = result.to_dict()
     out["recording"] = args.recording
     out["streamed"] = {"chunk_size": args.chunk_size, "passes": passes["n"]}
-    return out
+    return _with_warnings(out, warnings)
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
@@ -180,8 +195,11 @@ def _run_one(path: str, args: argparse.Namespace, options: dict[str, Any]) -> di
         data, notes = _recover(data, method, options)
     if kind == "levitator" and "segments" not in options and method != "levitator":
         options["segments"] = _levitator_segments(data, method)
+    fit = get_method(method)  # an unknown method is refused before the gate
+    check_options(method, fit, options)
+    warnings = quality_gate(data, force=args.force)
     next(steps)
-    result = get_method(method)(data, **options)
+    result = fit(data, **options)
     steps.close()
     out = result.to_dict()
     if result.extras.get("B_intersample") is not None:
@@ -199,7 +217,10 @@ def _run_one(path: str, args: argparse.Namespace, options: dict[str, Any]) -> di
     out["notes"] = notes + out["notes"]
     if "consensus" in result.extras:
         _add_consensus(out, result)
-    return out
+    from maglevid.identify.registry import UNSUPPORTED_POLE_NOTE
+
+    warnings += [n for n in result.notes if n.startswith(UNSUPPORTED_POLE_NOTE)]
+    return _with_warnings(out, warnings)
 
 
 def _finite(v: Any) -> Any:
@@ -288,6 +309,68 @@ def _intersample_numerators(extras: Any) -> dict[str, Any]:
     }
 
 
+def _with_warnings(out: dict[str, Any], warnings: list[str]) -> dict[str, Any]:
+    """The result with ``warnings`` (printed as such) also first among its notes."""
+    if warnings:
+        out["warnings"] = warnings
+        out["notes"] = list(dict.fromkeys([*warnings, *out.get("notes", [])]))
+    return out
+
+
+def check_options(method: str, fit: Any, options: dict[str, Any]) -> None:
+    """Refuse an option the method does not take, naming the ones it does (one line).
+
+    The fit function's keyword parameters are its options; calling it with
+    another one would be a TypeError (a traceback at the command line).
+    """
+    import inspect
+
+    from maglevid.exceptions import DataError
+
+    params = inspect.signature(fit).parameters
+    if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
+        return
+    known = [n for n, p in params.items() if p.kind is inspect.Parameter.KEYWORD_ONLY]
+    unknown = sorted(set(options) - set(known))
+    if unknown:
+        raise DataError(
+            f"method {method!r} has no option {', '.join(map(repr, unknown))}; its options: "
+            f"{', '.join(known) or '(none)'}"
+        )
+
+
+def quality_gate(data: Any, *, force: bool) -> list[str]:
+    """The checks of ``maglevid diagnose`` before an identification; the failures as text.
+
+    A failed blocking check refuses (:class:`~maglevid.exceptions.DataError`
+    naming every reason) unless ``force``; then the reasons are returned as
+    warnings. One exception to diagnose's gate: a record without any logged
+    excitation r is not refused here, because the methods made for such
+    records (the inter-sampled suspension of Sun et al., driven by noise)
+    need none, and the methods that do need r refuse it themselves.
+    """
+    from maglevid.diagnose.checks import check_sample_time, check_units, run_checks
+    from maglevid.diagnose.levitator import is_levitator, levitator_checks
+    from maglevid.exceptions import DataError
+
+    if is_levitator(data):
+        checks = (*levitator_checks(data)[0], check_sample_time(data), check_units(data))
+    else:
+        checks = run_checks(data)
+    failed = [
+        q.message
+        for q in checks
+        if not q.passed and q.blocking and not (q.name == "excitation" and data.r is None)
+    ]
+    if failed and not force:
+        raise DataError(
+            "cannot identify from this recording: "
+            + "; ".join(failed)
+            + " (--force identifies anyway and reports these as warnings)"
+        )
+    return [f"quality gate failed (identified anyway with --force): {m}" for m in failed]
+
+
 def format_text(result: dict[str, Any]) -> str:
     if "methods" in result:
         width = max(map(len, result["methods"]))
@@ -329,7 +412,9 @@ def format_text(result: dict[str, Any]) -> str:
                 f"{c:.4g}" + (f" ± {s:.2g}" if s is not None else "") for c, s in zip(b, e)
             )
             lines.append(f"B_{j} (z^0..z^-{len(b) - 1}): {terms}")
-    lines.extend(f"note: {n}" for n in result.get("notes", []))
+    warned = set(result.get("warnings", []))
+    lines.extend(f"warning: {n}" for n in result.get("warnings", []))
+    lines.extend(f"note: {n}" for n in result.get("notes", []) if n not in warned)
     lines.extend(_consensus_lines(result))
     return "\n".join(lines)
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
 import sys
 from collections.abc import Sequence
 from typing import Any
@@ -101,8 +102,39 @@ def _default_text(result: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def _error(args: argparse.Namespace, exc: BaseException) -> int:
+    """One line (or one JSON object) for an error, exit code 1."""
+    if args.json:
+        print(json.dumps({"error": type(exc).__name__, "message": str(exc)}))
+    else:
+        print(f"maglevid {args.command}: error: {exc}", file=sys.stderr)
+    return 1
+
+
+def _print(args: argparse.Namespace, result: Any) -> None:
+    if args.json:
+        print(json.dumps(result, default=_json_default, indent=2, allow_nan=True))
+    else:
+        fmt = args._format or _default_text
+        print(fmt(result))
+    sys.stdout.flush()
+
+
+def _reader_went_away() -> int:
+    """``maglevid ... | head``: the reader closed the pipe; stop quietly, as Unix tools do.
+
+    Python's documented recipe (the ``signal`` module's notes on SIGPIPE):
+    point stdout at /dev/null so that the interpreter's final flush does not
+    raise again, and exit with 128 + SIGPIPE like a program the signal ended.
+    """
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
+    os.close(devnull)
+    return 128 + 13  # SIGPIPE
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the command line; returns the exit code (0 ok, 1 error, 2 usage)."""
+    """Run the command line; returns the exit code (0 ok, 1 error, 2 usage, 141 pipe closed)."""
     parser = build_parser()
     args = parser.parse_args(argv)
     logging.basicConfig(
@@ -114,26 +146,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     try:
         result = args._run(args)
+        if result is not None:
+            _print(args, result)
+    except BrokenPipeError:
+        return _reader_went_away()
     except MaglevidError as exc:
-        msg = {"error": type(exc).__name__, "message": str(exc)}
-        if args.json:
-            print(json.dumps(msg))
-        else:
-            print(f"maglevid {args.command}: error: {exc}", file=sys.stderr)
-        return 1
-    except (FileNotFoundError, PermissionError, IsADirectoryError) as exc:
-        if args.json:
-            print(json.dumps({"error": type(exc).__name__, "message": str(exc)}))
-        else:
-            print(f"maglevid {args.command}: error: {exc}", file=sys.stderr)
-        return 1
+        return _error(args, exc)
+    except OSError as exc:  # missing file, permission, disk full: one line, no traceback
+        return _error(args, exc)
     if result is None:
         return 0
-    if args.json:
-        print(json.dumps(result, default=_json_default, indent=2, allow_nan=True))
-    else:
-        fmt = args._format or _default_text
-        print(fmt(result))
     return int(result.get("exit_code", 0)) if isinstance(result, dict) else 0
 
 

@@ -21,6 +21,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     for mod in modules_with("maglevid.experiments", "PAPER"):
         p = sub.add_parser(mod.PAPER, help=mod.PAPER_HELP, description=mod.PAPER_HELP)
         p.add_argument("--out", default="reproduce-out", help="folder for figures (PNG)")
+        p.add_argument(
+            "--overwrite",
+            action="store_true",
+            help="replace figures already in --out (default: refuse)",
+        )
         mod.add_paper_arguments(p)
         p.set_defaults(_reproduce=mod.run_reproduction, _format=getattr(mod, "format_text", None))
 

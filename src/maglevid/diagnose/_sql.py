@@ -33,6 +33,7 @@ import random
 import re
 import sqlite3
 import time
+import urllib.parse
 from collections.abc import Callable, Iterable, Sequence
 from datetime import datetime, timezone
 from typing import Any, TypeVar
@@ -306,6 +307,13 @@ def _connect_sqlite(path: str, *, timeout: float, create: bool) -> Backend:
             raise HistoryError(
                 f"no history store at {path!r} (give --store PATH_OR_URL or set MAGLEVID_HISTORY)"
             )
+        if os.path.exists(path):
+            if not os.path.isfile(path):
+                raise HistoryError(
+                    f"history store {path!r} is a special file (FIFO, device or socket); "
+                    "expected a file"
+                )
+            _refuse_foreign_sqlite(path)
     try:
         conn = sqlite3.connect(path, timeout=timeout, isolation_level=None)
     except sqlite3.Error as exc:
@@ -341,6 +349,83 @@ def _connect_sqlite(path: str, *, timeout: float, create: bool) -> Backend:
             f"{app_id:#x}), not a maglevid history store"
         )
     return backend
+
+
+def _refuse_foreign_sqlite(path: str) -> None:
+    """Refuse a file that is not (or not yet for this version) a maglevid store, read-only.
+
+    Runs before the read-write connection, which switches the journal to WAL
+    and so rewrites the file's header: a store maglevid refuses (another
+    application's file, foreign tables, a newer schema) must be left
+    byte-identical. The file is opened ``immutable`` (no lock, no journal,
+    no -wal/-shm files created), which reads the main file only: a store of
+    ours whose latest pages are still in its -wal file looks older or
+    empty here, never foreign or newer, so it is not refused by mistake.
+    """
+    with open(path, "rb") as fh:
+        head = fh.read(16)
+    if head and head != b"SQLite format 3\x00":
+        raise SchemaVersionError(
+            f"{path!r} is not a maglevid history store (not an SQLite file); it was left unchanged"
+        )
+    latest = MIGRATIONS[-1].version if MIGRATIONS else 0
+    try:
+        app_id, tables, version = _read_only_look(path, immutable=True)
+    except sqlite3.DatabaseError:
+        # immutable=1 assumes nobody writes meanwhile; a concurrent writer of one
+        # of our stores can make that read fail. Look again with SQLite's locks.
+        try:
+            app_id, tables, version = _read_only_look(path, immutable=False)
+        except sqlite3.DatabaseError as exc:
+            raise SchemaVersionError(
+                f"{path!r} is not a maglevid history store (SQLite says: {exc}); "
+                "it was opened read-only and left unchanged"
+            ) from exc
+    if app_id not in (0, APPLICATION_ID):
+        raise SchemaVersionError(
+            f"{path!r} is an SQLite file of another application (application_id "
+            f"{app_id:#x}), not a maglevid history store; it was opened read-only and left "
+            "unchanged"
+        )
+    if tables and version is None:
+        raise SchemaVersionError(
+            f"{path!r} holds tables {sorted(tables)} but no schema_migrations table: it is "
+            "not a maglevid history store (opened read-only and left unchanged); use another "
+            "file"
+        )
+    if version is not None and int(version) > latest:
+        raise SchemaVersionError(
+            f"history store {path!r} has schema version {int(version)}, newer than this "
+            f"maglevid understands ({latest}); upgrade maglevid to open it (it was opened "
+            "read-only and left unchanged)"
+        )
+
+
+def _read_only_look(path: str, *, immutable: bool) -> tuple[int, set[str], int | None]:
+    """``(application_id, user tables, schema version)`` of an SQLite file, read-only."""
+    uri = "file:" + urllib.parse.quote(os.path.abspath(path)) + "?mode=ro"
+    if immutable:
+        uri += "&immutable=1"
+    try:
+        conn = sqlite3.connect(uri, uri=True, isolation_level=None)
+    except sqlite3.Error as exc:
+        raise HistoryError(f"cannot open history store {path!r}: {exc}") from exc
+    try:
+        app_id = int(conn.execute("PRAGMA application_id").fetchone()[0])
+        tables = {
+            r[0]
+            for r in conn.execute(
+                "SELECT name FROM sqlite_master WHERE type = 'table' AND name NOT LIKE 'sqlite_%'"
+            )
+        }
+        version = (
+            conn.execute("SELECT MAX(version) FROM schema_migrations").fetchone()[0]
+            if "schema_migrations" in tables
+            else None
+        )
+    finally:
+        conn.close()
+    return app_id, tables, None if version is None else int(version)
 
 
 def _pragma_with_retry(backend: Backend, pragma: str) -> Any:

@@ -19,9 +19,13 @@ __all__ = [
     "MIN_SAMPLES",
     "check_excitation",
     "check_feedback_consistency",
+    "check_input_identity",
     "check_length",
     "check_levitation",
+    "check_output_response",
+    "check_sample_time",
     "check_saturation",
+    "check_units",
     "run_checks",
 ]
 
@@ -222,10 +226,272 @@ def check_feedback_consistency(
     )
 
 
+#: u = u_f + r: relative rms of u - (u_f + r) (a constant offset, e.g. a bias
+#: voltage, removed) allowed. Digital loops log the identity exactly; 1e-3
+#: leaves room for logging quantisation (as MAX_FEEDBACK_MISMATCH).
+MAX_INPUT_IDENTITY_MISMATCH = 1e-3
+
+#: Outputs respond: the one-step ARX prediction of the outputs from their past
+#: and the inputs' must be significant at this level (F-test of the regression
+#: against "no relation", in the best channel). Pure noise passes it with this
+#: probability; any plant record of a few hundred samples passes with p ~ 0,
+#: even the noise-driven suspension of Sun et al., whose outputs are mostly
+#: sensor noise (about 10 % of their variance predictable).
+OUTPUT_RESPONSE_ALPHA = 1e-4
+
+
+def _rms(x: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.square(x - x.mean(axis=0)))))
+
+
+def check_input_identity(
+    data: ClosedLoopData, *, max_mismatch: float = MAX_INPUT_IDENTITY_MISMATCH
+) -> QualityCheck:
+    """The logged plant input is the feedback plus the excitation: u = u_f + r.
+
+    Checked wherever all three are logged. A record where u equals u_f was
+    taken with the excitation not applied (or logged but not added): every
+    closed-loop method would read r as a regressor or instrument that the
+    plant never saw, and return confident nonsense (issue 17: R1 = -1.3e7 ohm,
+    "no significant change"). A constant offset (bias voltage) is allowed.
+    """
+    name = "u = u_f + r"
+    if data.u is None or data.r is None or data.u_f is None:
+        return QualityCheck(
+            name=name, passed=True, value=float("nan"), threshold=max_mismatch,
+            message="u, u_f and r are not all logged: the identity is not checked",
+            blocking=False,
+        )  # fmt: skip
+    u, uf, r = (np.asarray(x, dtype=float) for x in (data.u, data.u_f, data.r))
+    scale = max(_rms(u), 1e-300)
+    mismatch = float(data.input_identity_mismatch() or 0.0)
+    ok = bool(mismatch <= max_mismatch)
+    msg = f"u differs from u_f + r by {100 * mismatch:.2g} % rms"
+    if not ok:
+        if _rms(u - uf) / scale <= max_mismatch and _rms(r) / scale > max_mismatch:
+            msg = (
+                "u equals u_f: the excitation r was not applied to the plant (or not logged as "
+                "applied), so u != u_f + r; identifying with r would be wrong"
+            )
+        elif _rms(u - r) / scale <= max_mismatch and _rms(uf) / scale > max_mismatch:
+            msg = "u equals r: the feedback u_f is not in the logged plant input, so u != u_f + r"
+        else:
+            msg += (
+                ": the logged u, u_f and r disagree (channel order, units, signs or time "
+                "alignment)"
+            )
+    return QualityCheck(name=name, passed=ok, value=mismatch, threshold=max_mismatch, message=msg)
+
+
+def check_output_response(
+    data: ClosedLoopData, *, alpha: float = OUTPUT_RESPONSE_ALPHA, lags: int = 2
+) -> QualityCheck:
+    """The outputs respond: their past and the inputs' predict them, significantly.
+
+    Each output channel (at the control rate) is regressed on ``lags`` past
+    samples of every output and input, by least squares, and the fraction of
+    its variance predicted (R^2) is F-tested against "no relation" (under
+    which R^2 ~ regressors / samples). If no channel is significant at
+    ``alpha`` the record is noise (or signals that do not belong together):
+    any model identified from it is meaningless (issue 17: pure noise gave an
+    OverflowError in the fault isolation, or "no significant change").
+    """
+    from scipy import stats
+
+    name = "outputs respond"
+    y = np.asarray(data.y_control, dtype=float)
+    u = data.u if data.u is not None else data.with_plant_input().u
+    u = np.zeros((y.shape[0], 0)) if u is None else np.asarray(u, dtype=float)
+    n = y.shape[0]
+    k = lags * (y.shape[1] + u.shape[1])
+    if n <= 4 * k + 1:
+        return QualityCheck(
+            name=name, passed=True, value=float("nan"), threshold=alpha,
+            message="too few samples to test whether the outputs respond", blocking=False,
+        )  # fmt: skip
+    cols = [np.ones(n - lags)]
+    for j in range(1, lags + 1):
+        cols.extend((y[lags - j : n - j]).T)
+        cols.extend((u[lags - j : n - j]).T)
+    phi = np.column_stack(cols)
+    target = y[lags:]
+    coef, *_ = np.linalg.lstsq(phi, target, rcond=None)
+    var = np.var(target, axis=0)
+    safe = np.where(var > 0, var, 1.0)
+    r2 = np.clip(np.where(var > 0, 1.0 - np.var(target - phi @ coef, axis=0) / safe, 0.0), 0, 1)
+    dof = n - lags - k - 1
+    f_stat = (r2 / k) / np.maximum((1.0 - r2) / dof, 1e-300)
+    p_value = float(np.min(stats.f.sf(f_stat, k, dof)))
+    best = float(np.max(r2))
+    ok = p_value < alpha
+    return QualityCheck(
+        name=name,
+        passed=ok,
+        value=p_value,
+        threshold=alpha,
+        message=(
+            f"one step of an ARX({lags}) predicts {100 * best:.3g} % of the output variance "
+            f"(p = {p_value:.2g} against no relation)"
+            + (
+                ""
+                if ok
+                else ": the outputs look like noise, not a plant responding to its inputs "
+                "(pure noise, or y and u from different records)"
+            )
+        ),
+    )
+
+
+#: Length units a position channel may come in, in metres (maglevid computes in SI).
+LENGTH_UNITS = {"m": 1.0, "mm": 1e-3, "um": 1e-6, "µm": 1e-6, "μm": 1e-6, "cm": 1e-2}
+
+#: Sample time against the plant: a digital loop stabilises an unstable pole p
+#: only when it samples faster than the pole grows, p dt < 1 (every rig of the
+#: papers: bearing 455 rad/s at 1e-4 s, 0.05; levitator 44 rad/s at 1e-2 s, 0.44;
+#: Sun's suspension ~40 rad/s at 2.4 ms, 0.1). A time column in ms read as s
+#: gives p dt ~ 50-450.
+MAX_POLE_DT = 1.0
+
+#: Relative disagreement allowed between the recording's dt and the dt the loop
+#: states for its controller (they are the same clock).
+MAX_DT_MISMATCH = 1e-3
+
+
+def _stated_dt(loop: Any) -> tuple[float | None, str]:
+    for key in ("dt_design", "T", "dt"):
+        v = loop.get(key) if hasattr(loop, "get") else None
+        if isinstance(v, (int, float)) and not isinstance(v, bool) and v > 0:
+            return float(v), f"loop[{key!r}]"
+    ctrl = loop.get("controller") if hasattr(loop, "get") else None
+    v = ctrl.get("dt") if hasattr(ctrl, "get") else None
+    if isinstance(v, (int, float)) and not isinstance(v, bool) and v > 0:
+        return float(v), "the stated controller's dt"
+    return None, ""
+
+
+def _nominal_unstable_pole(data: ClosedLoopData) -> float | None:
+    """The plant's unstable pole (rad/s) from the design values the recording carries."""
+    from maglevid.diagnose.levitator import is_levitator, levitator_baseline
+
+    if is_levitator(data):
+        from maglevid.physics.levitator import unstable_pole
+
+        try:
+            gap = float(np.median(np.asarray(data.y_control)[:, 0]))
+            return float(unstable_pole(levitator_baseline(data), gap))
+        except (TypeError, ValueError, KeyError):
+            return None
+    loop = data.loop
+    nominal = loop.get("nominal") if hasattr(loop, "get") else None
+    if not hasattr(nominal, "items"):
+        return None
+    try:
+        from maglevid.physics.amb import AMBParameters, open_loop_poles
+
+        poles = open_loop_poles(AMBParameters(**{k: float(v) for k, v in nominal.items()}))
+    except (TypeError, ValueError):
+        return None
+    real = np.real(poles)
+    return float(real.max()) if real.max() > 0 else None
+
+
+def check_sample_time(data: ClosedLoopData) -> QualityCheck:
+    """``dt`` is plausible: the loop's stated controller period, and fast enough for the plant.
+
+    A log whose time column is in ms while the mapping says s has a dt 1000
+    times too long; every continuous-time parameter is then wrong by that
+    factor, silently (issue 17). The recording's dt must equal the controller
+    period the loop states (``loop["dt_design"]``, ``loop["T"]``, the
+    controller's ``dt``), and, where the nominal plant is known, sample faster
+    than its unstable pole grows (``p dt <`` :data:`MAX_POLE_DT`).
+    """
+    name = "sample time"
+    stated, where = _stated_dt(data.loop)
+    if stated is not None:
+        ratio = data.dt / stated
+        ok = abs(ratio - 1.0) <= MAX_DT_MISMATCH
+        msg = f"dt = {data.dt:.4g} s; {where} = {stated:.4g} s"
+        if not ok:
+            msg += (
+                f": {ratio:.4g} times the controller's period; the time column's unit is "
+                "probably wrong (e.g. ms read as s) or the record was resampled"
+            )
+        return QualityCheck(name=name, passed=ok, value=ratio, threshold=MAX_DT_MISMATCH,
+                            message=msg)  # fmt: skip
+    pole = _nominal_unstable_pole(data)
+    if pole is None:
+        return QualityCheck(
+            name=name, passed=True, value=float("nan"), threshold=MAX_POLE_DT,
+            message=f"dt = {data.dt:.4g} s (no stated controller period or plant to check it "
+            "against)", blocking=False,
+        )  # fmt: skip
+    x = pole * data.dt
+    ok = x < MAX_POLE_DT
+    msg = f"dt = {data.dt:.4g} s against the nominal unstable pole {pole:.4g} rad/s"
+    msg += f" (p dt = {x:.3g})"
+    if not ok:
+        msg += (
+            ": no digital loop stabilises the plant sampled this slowly; the time column's "
+            "unit is probably wrong (e.g. ms read as s)"
+        )
+    return QualityCheck(name=name, passed=ok, value=x, threshold=MAX_POLE_DT, message=msg)
+
+
+def check_units(data: ClosedLoopData) -> QualityCheck:
+    """Position channels are in metres, and their size fits the air gap of the loop.
+
+    maglevid computes in SI: a gap channel whose unit says mm is either in
+    mm (then every parameter is off by 1000) or in m with a wrong label (issue
+    17: accepted silently). Refused, with the likely cause read from the
+    magnitudes against the nominal air gap ``x0`` (``loop["operating_point"]``).
+    """
+    name = "units"
+    units = data.channel_units("y")
+    y = np.asarray(data.y_control, dtype=float)
+    op = data.loop.get("operating_point") if hasattr(data.loop, "get") else None
+    x0 = op.get("x0") if hasattr(op, "get") else None
+    x0 = float(x0) if isinstance(x0, (int, float)) and x0 > 0 else None
+    problems = []
+    for j, unit in enumerate(units):
+        if unit not in LENGTH_UNITS:
+            continue
+        size = float(np.max(np.abs(y[:, j] - np.median(y[:, j]))))
+        label = data.channel_names("y")[j] if data.channel_names("y") else f"y{j}"
+        if unit != "m":
+            cause = ""
+            if x0 is not None:
+                as_labelled = size * LENGTH_UNITS[unit]
+                if as_labelled < 1e-4 * x0 and size < x0:
+                    cause = (
+                        f"; its values (up to {size:.3g}) look like metres: read as {unit} they "
+                        f"would be {as_labelled:.3g} m, under 1e-4 of the air gap {x0:.3g} m"
+                    )
+            problems.append(
+                f"y channel {label!r} is in {unit!r}; maglevid computes in SI (m): convert it "
+                f"(a mapping with file_unit={unit!r}, unit='m'), or correct the label{cause}"
+            )
+        elif x0 is not None and size > 100 * x0:
+            problems.append(
+                f"y channel {label!r} (m) moves by up to {size:.3g} m, {size / x0:.3g} times "
+                f"the air gap {x0:.3g} m: it is probably logged in mm (or um) while the unit "
+                "says m"
+            )
+    ok = not problems
+    return QualityCheck(
+        name=name, passed=ok, value=float(len(problems)), threshold=0.0,
+        message="position channels in metres, of a size that fits the air gap" if ok
+        else "; ".join(problems),
+    )  # fmt: skip
+
+
 def run_checks(data: ClosedLoopData, **options: Any) -> tuple[QualityCheck, ...]:
     """All checks, in the order a person would want to read them."""
     return (
         check_length(data, **{k: v for k, v in options.items() if k == "min_samples"}),
+        check_sample_time(data),
+        check_units(data),
+        check_input_identity(data),
+        check_output_response(data),
         check_excitation(data),
         check_saturation(data),
         check_levitation(data),

@@ -50,6 +50,7 @@ Examples
 
 from __future__ import annotations
 
+import errno
 import getpass
 import hashlib
 import json
@@ -57,6 +58,7 @@ import logging
 import math
 import os
 import socket
+import stat
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from datetime import datetime, timezone
@@ -424,7 +426,18 @@ def hash_options(options: Mapping[str, Any]) -> str:
 
 
 def hash_file(path: str | os.PathLike[str], *, chunk_size: int = 1 << 20) -> str:
-    """SHA-256 (hex) of a file's bytes: the ``recording_hash`` of a recording file."""
+    """SHA-256 (hex) of a file's bytes: the ``recording_hash`` of a recording file.
+
+    Raises
+    ------
+    OSError
+        No such file, or not a regular file: a FIFO, device or socket is
+        refused before it is opened (reading one would block, or never end).
+    """
+    if not stat.S_ISREG(os.stat(path).st_mode):
+        raise OSError(
+            errno.EINVAL, "not a regular file (a FIFO, device or socket): not read", str(path)
+        )
     h = hashlib.sha256()
     with open(path, "rb") as f:
         while block := f.read(chunk_size):
@@ -650,8 +663,15 @@ class HistoryStore:
         ------
         DataError
             An argument is malformed (checked before any write).
-        HistoryError
-            The same recording hash is stored with a different ``recorded_at``.
+
+        Notes
+        -----
+        The recording is identified by its content hash: when the same hash is
+        stored with another ``recorded_at`` (a second ``diagnose --store``
+        dated "now", or a ``fleet`` run that dated the file by its mtime), it
+        is the same recording, its first stored time is kept, and a diagnosis
+        with the same method and options is "already stored" (``created`` is
+        False).
         """
         machine = _text("machine", machine)
         recording_hash = _text("recording_hash", recording_hash)
@@ -696,10 +716,17 @@ class HistoryStore:
                 (machine_id, recording_hash),
             ).fetchone()
             if tx.ts_out(rec_time) != t_rec:
-                raise HistoryError(
-                    f"recording {recording_hash!r} of machine {machine!r} is stored with "
-                    f"recorded_at {tx.ts_out(rec_time).isoformat()}; got {t_rec.isoformat()} "
-                    "(same content, different time: check the hash or the clock)"
+                # The content hash is the recording's identity: the same bytes
+                # stored again (a second `diagnose --store`, or after `fleet`,
+                # which dates a file by its mtime where diagnose says "now") are
+                # the same recording, and its first stored time stays.
+                logger.info(
+                    "%s: recording %s of %s is stored with recorded_at %s; keeping it (got %s)",
+                    self.location,
+                    recording_hash,
+                    machine,
+                    tx.ts_out(rec_time).isoformat(),
+                    t_rec.isoformat(),
                 )
             cur = tx.execute(
                 "INSERT INTO diagnoses (machine_id, recording_id, method, options_hash, "

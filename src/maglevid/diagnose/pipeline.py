@@ -403,14 +403,14 @@ def diagnose(
         diag = _diagnose_levitator(
             data, baseline, common, tol, level, method_options, notes, store, machine, when
         )
-        _record(store, diag, data, when, method_options, notes)
+        diag = _record(store, diag, data, when, method_options, notes)
         return diag
 
     quality = run_checks(data)
     failed = [q for q in quality if not q.passed and q.blocking]
     if failed:
         diag = _cannot_diagnose([q.message for q in failed], quality, common)
-        _record(store, diag, data, when, method_options, notes)
+        diag = _record(store, diag, data, when, method_options, notes)
         return diag
 
     design = _baseline_from_loop(data)
@@ -458,7 +458,7 @@ def diagnose(
         result = get_method(method)(data, **dict(method_options or {}))
     except MaglevidError as exc:
         diag = _cannot_diagnose([str(exc)], quality, common, prefix="identification failed: ")
-        _record(store, diag, data, when, method_options, notes)
+        diag = _record(store, diag, data, when, method_options, notes)
         return diag
     notes.extend(result.notes)
     est = result.parameters
@@ -485,8 +485,11 @@ def diagnose(
                 hypotheses=[h for h in HYPOTHESES],
                 alpha=alpha,
             )
-        except MaglevidError as exc:
-            notes.append(f"fault isolation not possible: {exc}")
+        except (MaglevidError, ArithmeticError, np.linalg.LinAlgError) as exc:
+            # ArithmeticError: an overflow in the hypothesis fits (issue 17: pure
+            # noise gave an OverflowError traceback); the quality gate now refuses
+            # such records before, and this keeps any other one a note.
+            notes.append(f"fault isolation not possible: {exc or type(exc).__name__}")
     verdict, code, reasons = _verdict(changes, iso, tol)
 
     base_model = amb_state_space(base_params) if base_params is not None else None
@@ -510,7 +513,7 @@ def diagnose(
         notes=tuple(notes),
         **common,
     )
-    _record(store, diag, data, when, method_options, notes)
+    diag = _record(store, diag, data, when, method_options, notes)
     if store is not None and drift:
         drifts = _drifts(store, diag, tol, alpha)
         if drifts:
@@ -548,9 +551,10 @@ def _record(
     when: Any,
     method_options: Mapping[str, Any] | None,
     notes: list[str],
-) -> None:
+) -> Diagnosis:
+    """Store ``diag``; the returned Diagnosis says when it was already stored (idempotent)."""
     if store is None:
-        return
+        return diag
     if diag.machine is None:
         raise DataError(
             "storing a diagnosis needs a machine name (`machine=` or metadata['machine'])"
@@ -576,7 +580,7 @@ def _record(
     summary = diag.to_dict()
     summary.pop("identification", None)
     options = dict(method_options or {})
-    store.record_diagnosis(
+    stored = store.record_diagnosis(
         diag.machine,
         recording_hash=diag.recording_hash,
         recorded_at=when,
@@ -592,6 +596,13 @@ def _record(
         n_samples=data.n_samples,
     )
     logger.info("stored diagnosis of %s (%s)", diag.machine, diag.verdict_code)
+    if stored.created:
+        return diag
+    note = (
+        f"already stored: this recording was diagnosed with {diag.method} and these options "
+        f"before (diagnosis {stored.id} in the store); nothing was written"
+    )
+    return _replace_diagnosis(diag, notes=(*diag.notes, note))
 
 
 def _clean_json(obj: Any) -> Any:

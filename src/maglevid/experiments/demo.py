@@ -165,7 +165,12 @@ def run_demo(
         from maglevid.plotting.signals import plot_signals
 
         signals_png = out / "signals.png"
-        plot_signals(rec, path=signals_png, title=f"{rec.metadata['machine']}: last recording")
+        plot_signals(  # the demo's own output folder: a rerun replaces its figure
+            rec,
+            path=signals_png,
+            overwrite=True,
+            title=f"{rec.metadata['machine']}: last recording",
+        )
         reports = {}
         for name, diag in latest.items():
             if diag.verdict_code in ("fault", "drift", "unexplained_change"):
@@ -174,10 +179,14 @@ def run_demo(
 
                 hist = history_summary(store, name, method=diag.method)
                 trends = trends_from_history(hist, method=diag.method)
+                from maglevid.report.html import is_maglevid_page
+
+                page = out / f"{name}.html"
                 path = write_report(
                     diag,
-                    out / f"{name}.html",
+                    page,
                     trends=trends,
+                    overwrite=is_maglevid_page(page),  # its own earlier page, nothing else
                     title=f"{name}: {next(b.description for b in fleet if b.name == name)}",
                 )
                 reports[name] = str(path)

@@ -307,7 +307,13 @@ def _euler_and_tustin(res: Any, nominal: AMBParameters, dt: float) -> dict[str, 
 
 
 def _impulse_figures(
-    data: Any, fits: dict[str, Any], truth: AMBParameters, out_dir: Path, dt: float
+    data: Any,
+    fits: dict[str, Any],
+    truth: AMBParameters,
+    out_dir: Path,
+    dt: float,
+    *,
+    overwrite: bool = False,
 ) -> list[str]:
     from maglevid.plotting.gosiewski import plot_impulse_comparison
 
@@ -325,6 +331,7 @@ def _impulse_figures(
         curves,
         title="Fig. 3: open-loop impulse response (u1 = 1 V for one period)",
         path=p3,
+        overwrite=overwrite,
     )
     observer = Observer.from_dict(data.loop["observer"])
     controller = IntegralStateFeedback.from_dict(data.loop["controller"])
@@ -344,6 +351,7 @@ def _impulse_figures(
         curves,
         title="Fig. 4: closed-loop impulse response (r1 = 1 V for one period)",
         path=p4,
+        overwrite=overwrite,
     )
     return [str(p3), str(p4)]
 
@@ -519,7 +527,14 @@ def run_reproduction(args: argparse.Namespace) -> dict[str, Any]:
         out_dir = Path(args.out)
         out_dir.mkdir(parents=True, exist_ok=True)
         for _ in progress([None], desc="figures", args=args):
-            result["figures"] = _impulse_figures(fig_data, fig_fits, nominal, out_dir, dt)
+            result["figures"] = _impulse_figures(
+                fig_data,
+                fig_fits,
+                nominal,
+                out_dir,
+                dt,
+                overwrite=getattr(args, "overwrite", False),
+            )
     return result
 
 

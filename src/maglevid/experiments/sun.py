@@ -350,7 +350,11 @@ def run_reproduction(args: argparse.Namespace) -> dict[str, Any]:
         )
         fig6[str(p)] = data_matrix_singular_values(rec, L=20, M=2500).tolist()
     result["fig6"] = fig6
-    result["figures"] = [] if args.no_figures else _figures(result, Path(args.out))
+    result["figures"] = (
+        []
+        if args.no_figures
+        else _figures(result, Path(args.out), overwrite=getattr(args, "overwrite", False))
+    )
     return result
 
 
@@ -374,7 +378,7 @@ def _checks(table1: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def _figures(result: dict[str, Any], out: Path) -> list[str]:
+def _figures(result: dict[str, Any], out: Path, *, overwrite: bool = False) -> list[str]:
     try:
         from maglevid.plotting.sun import plot_pole_map, plot_singular_values
     except ImportError as exc:  # pragma: no cover - depends on the environment
@@ -383,7 +387,8 @@ def _figures(result: dict[str, Any], out: Path) -> list[str]:
     out.mkdir(parents=True, exist_ok=True)
     paths = []
     path = out / "sun_fig6_singular_values.png"
-    plot_singular_values({f"p = {p}": s for p, s in result["fig6"].items()}, path=path)
+    fig6 = {f"p = {p}": s for p, s in result["fig6"].items()}
+    plot_singular_values(fig6, path=path, overwrite=overwrite)
     paths.append(str(path))
     nominal = result["nominal_model"]["poles"]
     for p, poles in result["poles"].items():
@@ -394,6 +399,7 @@ def _figures(result: dict[str, Any], out: Path) -> list[str]:
             nominal,
             title=f"Estimated poles, p = {p}" + (f" (cf. Fig. {fig})" if fig else ""),
             path=path,
+            overwrite=overwrite,
         )
         paths.append(str(path))
     return paths

@@ -16,6 +16,7 @@ Built after a run from the outcomes of its recordings and the history store:
 
 from __future__ import annotations
 
+import logging
 import math
 from collections import Counter
 from collections.abc import Iterable, Mapping, Sequence
@@ -39,6 +40,8 @@ __all__ = [
     "report_trends",
     "summarize_fleet",
 ]
+
+logger = logging.getLogger(__name__)
 
 SUMMARY_VERSION = 1
 
@@ -245,8 +248,10 @@ def report_trends(store: Any, machine: str, *, method: str | None) -> dict[str, 
                 entry["drift"] = detect_drift(
                     tr.time[ok], tr.value[ok], tr.std_error[ok]
                 ).to_dict()
-            except MaglevidError:
-                pass
+            except MaglevidError as exc:
+                # Said, not dropped: the report's drift column shows why there is no test.
+                logger.warning("%s: drift test of %s failed: %s", machine, name, exc)
+                entry["drift"] = {"verdict": f"drift test failed: {exc}", "error": str(exc)}
         base = tr.baseline[np.isfinite(tr.baseline)]
         if base.size and base[-1] != 0:
             entry["baseline"] = float(base[-1])

@@ -395,7 +395,14 @@ def write_kept_report(
     diag = kept[2]
     path = Path(reports_dir) / report_file_name(machine)
     trends = report_trends(_store(store, schema), machine, method=diag.method)
-    return str(write_report(diag, path, trends=trends or None))
+    # A report maglevid wrote earlier for this machine is replaced; any other file is not.
+    from maglevid.report.html import is_maglevid_page
+
+    return str(
+        write_report(
+            diag, path, trends=trends or None, overwrite=is_maglevid_page(path), inputs=[recording]
+        )
+    )
 
 
 def drop_kept(run_id: str) -> int:

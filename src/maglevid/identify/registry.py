@@ -3,20 +3,49 @@
 A module of :mod:`maglevid.identify` registers methods by defining
 ``METHODS = {"name": fit_function}``; each function takes a
 :class:`~maglevid.data.ClosedLoopData` and keyword options and returns an
-:class:`~maglevid.identify.result.IdentificationResult`. Its one-line
-description (``--method list``) is ``DESCRIPTIONS[name]`` where the module
-defines it, else the first line of the function's docstring.
+:class:`~maglevid.identify.result.IdentificationResult`.
+
+:func:`get_method` returns the method under one contract, the same for every
+method (tests/identify/test_method_contract.py runs it on every registered
+method and every kind of recording): it either returns a result whose notes
+say what is doubtful, or raises one :class:`~maglevid.exceptions.DataError`
+naming the reason. A numerical breakdown inside a method (a singular matrix,
+an overflow, a model with no continuous counterpart) is such a reason: it
+means the data cannot carry the estimate. And an unstable pole is reported
+only with a validation that supports it: when the method's own multi-step
+predictor fit is worse than the record's mean, the result says so in a note
+that starts with :data:`UNSUPPORTED_POLE_NOTE` (the CLI prints it as a warning).
+
+A method's one-line description (``--method list``) is ``DESCRIPTIONS[name]``
+where its module defines it, else the first line of the function's docstring.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import functools
+import re
+from collections.abc import Callable, Mapping
+from dataclasses import replace
 from typing import Any
 
-from maglevid._plugins import modules_with
-from maglevid.exceptions import DataError
+import numpy as np
 
-__all__ = ["available_methods", "describe_methods", "get_method"]
+from maglevid._plugins import modules_with
+from maglevid.exceptions import DataError, MaglevidError
+
+__all__ = [
+    "UNSUPPORTED_POLE_NOTE",
+    "available_methods",
+    "check_unstable_poles",
+    "describe_methods",
+    "get_method",
+]
+
+#: How a note on an unstable pole that the validation does not support begins.
+UNSUPPORTED_POLE_NOTE = "unsupported unstable pole"
+
+#: Fit keys that measure a multi-step (k > 1) prediction, e.g. "5_step_fit_percent_x".
+_MULTI_STEP = re.compile(r"^(?:(\d+)_step|horizon_predictor)_fit_percent")
 
 
 def available_methods() -> dict[str, Callable[..., Any]]:
@@ -31,11 +60,34 @@ def available_methods() -> dict[str, Callable[..., Any]]:
 
 
 def get_method(name: str) -> Callable[..., Any]:
-    """The fit function registered as ``name``; a clear error lists the valid names."""
+    """The fit function registered as ``name``, under the contract of this module.
+
+    A clear error lists the valid names. The returned function has the
+    method's signature (an unknown option is still a ``TypeError``).
+    """
     methods = available_methods()
     if name not in methods:
         raise DataError(f"unknown method {name!r}; available: {', '.join(sorted(methods))}")
-    return methods[name]
+    return _under_contract(name, methods[name])
+
+
+def _under_contract(name: str, fit: Callable[..., Any]) -> Callable[..., Any]:
+    @functools.wraps(fit)
+    def run(data: Any, *args: Any, **options: Any) -> Any:
+        _refuse_constant(name, data)
+        try:
+            result = fit(data, *args, **options)
+        except DataError:
+            raise
+        except (MaglevidError, np.linalg.LinAlgError, ArithmeticError) as exc:
+            # IdentificationError, ModelError, singular or overflowing numerics:
+            # the recording cannot carry this method's estimate.
+            text = str(exc)
+            prefix = "" if text.startswith(f"{name}:") else f"{name}: "
+            raise DataError(f"{prefix}{text or type(exc).__name__}") from exc
+        return check_unstable_poles(result)
+
+    return run
 
 
 def describe_methods() -> dict[str, str]:
@@ -47,3 +99,63 @@ def describe_methods() -> dict[str, str]:
             doc = (getattr(fn, "__doc__", None) or "").strip().splitlines()
             out[name] = described.get(name) or (doc[0].replace("``", "") if doc else "")
     return dict(sorted(out.items()))
+
+
+#: u = u_f + r: the relative rms mismatch beyond which no method is run (0.1 %, as
+#: the quality gate's MAX_INPUT_IDENTITY_MISMATCH; logging quantisation fits under it).
+MAX_INPUT_IDENTITY_MISMATCH = 1e-3
+
+
+def _refuse_constant(name: str, data: Any) -> None:
+    """Constant outputs or inputs, or u != u_f + r: no method can use such a record."""
+    from maglevid.data import ClosedLoopData
+
+    if not isinstance(data, ClosedLoopData):
+        return  # the method names what it expects
+    mismatch = data.input_identity_mismatch()
+    if mismatch is not None and mismatch > MAX_INPUT_IDENTITY_MISMATCH:
+        raise DataError(
+            f"{name}: u differs from u_f + r by {100 * mismatch:.2g} % rms: the logged plant "
+            "input is not the feedback plus the excitation (was r applied? are the channels, "
+            "units, signs and time alignment of u, u_f and r the same?)"
+        )
+    u = data.u if data.u is not None else data.u_f
+    for label, sig in (("outputs y", data.y), ("plant inputs u", u)):
+        if sig is not None and not np.any(np.ptp(np.asarray(sig), axis=0) > 0):
+            raise DataError(
+                f"{name}: the {label} are constant over the whole record: there is nothing to "
+                "identify (was the loop running, and the right channels logged?)"
+            )
+
+
+def check_unstable_poles(result: Any) -> Any:
+    """``result``, with a note when its unstable poles are not supported by its validation.
+
+    An unstable pole (|z| > 1) is a strong claim: a bearing is unstable by
+    physics, and a method that returns an unstable pole from data that
+    cannot carry it (issue 17: a suspension record without excitation, pem
+    claiming z = 31.6 with a 5-step fit of -5.4e7 %) must not be read as the
+    plant's. The support is the method's multi-step predictor fit: when every
+    one it reports is below 0 % (worse than predicting the record's mean),
+    the note says so. Methods that report no multi-step fit are unchanged.
+    """
+    model = getattr(result, "model", None)
+    fits: Mapping[str, float] = getattr(result, "fit", None) or {}
+    if model is None or not getattr(model, "is_discrete", False):
+        return result
+    try:
+        mags = np.abs(np.linalg.eigvals(np.asarray(model.A, dtype=float)))
+    except (np.linalg.LinAlgError, ValueError):
+        return result
+    unstable = mags[mags > 1.0]
+    multi = {k: float(v) for k, v in fits.items() if _MULTI_STEP.match(str(k))}
+    multi = {k: v for k, v in multi.items() if np.isfinite(v) or v < 0}
+    if not unstable.size or not multi or max(multi.values()) >= 0.0:
+        return result
+    worst = ", ".join(f"{k} = {v:.3g} %" for k, v in sorted(multi.items()))
+    note = (
+        f"{UNSUPPORTED_POLE_NOTE}(s) |z| = {', '.join(f'{m:.4g}' for m in sorted(unstable))}: "
+        f"the multi-step predictor does not support the model ({worst}, worse than the "
+        "record's mean); the data cannot carry this pole, do not read it as the plant's"
+    )
+    return replace(result, notes=(*result.notes, note))

@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import logging
 import os
+import stat
 import tempfile
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
@@ -74,6 +76,46 @@ def sidecar_path(csv_path: Path) -> Path:
     return csv_path.with_suffix(".json")
 
 
+def check_input_file(path: str | os.PathLike[str], *, what: str = "recording") -> Path:
+    """Refuse, before opening it, anything but a regular file: a read must never block.
+
+    A FIFO, a character or block device or a socket would make a read wait
+    forever (or read without end); a folder is not a recording either.
+
+    Raises
+    ------
+    FileNotFoundError
+        No such file.
+    FileFormatError
+        A folder or a special file; the message says which.
+    """
+    p = Path(path)
+    try:
+        mode = os.stat(p).st_mode
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{p}: no such file") from None
+    except OSError as exc:
+        raise FileFormatError(f"cannot be read: {exc.strerror or exc}", path=str(p)) from None
+    if stat.S_ISREG(mode):
+        return p
+    if stat.S_ISDIR(mode):
+        raise FileFormatError(f"is a folder, not a {what}", path=str(p))
+    kind = (
+        "a FIFO (named pipe)"
+        if stat.S_ISFIFO(mode)
+        else "a socket"
+        if stat.S_ISSOCK(mode)
+        else "a device"
+        if stat.S_ISCHR(mode) or stat.S_ISBLK(mode)
+        else "not a regular file"
+    )
+    raise FileFormatError(
+        f"is {kind}, not a {what} file; refusing to read it (a read could block forever). "
+        "Copy the data to a regular file first",
+        path=str(p),
+    )
+
+
 def _same_file(a: Path, b: Path) -> bool:
     try:
         if a.resolve() == b.resolve():
@@ -83,34 +125,132 @@ def _same_file(a: Path, b: Path) -> bool:
         return False
 
 
-def check_targets(targets: Sequence[Path], *, overwrite: bool, metadata: Any) -> None:
-    """Refuse to write over an existing file (unless ``overwrite``) or over the data's source.
-
-    The source (``metadata["source"]``, set by every reader) is protected even
-    with ``overwrite=True``: a conversion must never destroy its input.
-    """
-    protected: list[Path] = []
-    source = metadata.get("source") if hasattr(metadata, "get") else None
-    if isinstance(source, str) and source:
+def protected_paths(sources: Sequence[str | os.PathLike[str] | None]) -> list[Path]:
+    """The files a writer must never replace: each input and, for a CSV, its JSON side-car."""
+    out: list[Path] = []
+    for source in sources:
+        if source is None or not str(source) or "://" in str(source):
+            continue  # nothing, or a database URL
         src = Path(source)
-        protected = [src, sidecar_path(src)] if src.suffix.lower() == ".csv" else [src]
-    for target in targets:
-        for src in protected:
-            if _same_file(target, src):
-                raise FileFormatError(
-                    f"refusing to write over {src}, the file this recording was read from; "
-                    "choose another output path",
-                    path=str(target),
-                )
-        if target.exists() and not overwrite:
+        out.append(src)
+        if src.suffix.lower() == ".csv":
+            out.append(sidecar_path(src))
+    return out
+
+
+def check_output(
+    target: str | os.PathLike[str],
+    *,
+    overwrite: bool = False,
+    inputs: Sequence[str | os.PathLike[str] | None] = (),
+) -> Path:
+    """Check that ``target`` may be written; the rule every writer of maglevid follows.
+
+    A target is refused when it is one of ``inputs`` or the side-car of one
+    (even with ``overwrite``: an output never destroys what it was made
+    from), when it exists and ``overwrite`` is false, when it is a folder or
+    a special file, or when its folder does not exist.
+
+    Returns
+    -------
+    Path
+        ``target`` as a :class:`~pathlib.Path`.
+
+    Raises
+    ------
+    FileFormatError
+        One of the cases above; the message names the file and the way out.
+    """
+    target = Path(target)
+    for src in protected_paths(inputs):
+        if _same_file(target, src):
             raise FileFormatError(
-                "exists; refusing to overwrite it (pass overwrite=True, or --overwrite)",
+                f"refusing to write over {src}: it is an input (the file this recording was "
+                "read from, its side-car, or another file this command reads); choose another "
+                "output path",
                 path=str(target),
             )
-        if target.exists() and target.is_dir():
-            raise FileFormatError("is a folder, not a file", path=str(target))
-        if not target.parent.is_dir():
-            raise FileFormatError(f"folder {target.parent} does not exist", path=str(target))
+    if target.exists() and not target.is_file():
+        kind = "a folder" if target.is_dir() else "a special file (FIFO, device or socket)"
+        raise FileFormatError(f"is {kind}, not a file", path=str(target))
+    if target.exists() and not overwrite:
+        raise FileFormatError(
+            "exists; refusing to overwrite it (pass overwrite=True, or --overwrite)",
+            path=str(target),
+        )
+    if not target.parent.is_dir():
+        raise FileFormatError(f"folder {target.parent} does not exist", path=str(target))
+    return target
+
+
+def check_targets(targets: Sequence[Path], *, overwrite: bool, metadata: Any) -> None:
+    """:func:`check_output` for each target, the data's source (``metadata["source"]``) protected.
+
+    The source, set by every reader, is protected even with ``overwrite=True``:
+    a conversion must never destroy its input.
+    """
+    source = metadata.get("source") if hasattr(metadata, "get") else None
+    inputs = [source] if isinstance(source, str) and source else []
+    for target in targets:
+        check_output(target, overwrite=overwrite, inputs=inputs)
+
+
+def write_output(
+    target: str | os.PathLike[str],
+    content: str | bytes | Callable[[Path], None],
+    *,
+    overwrite: bool = False,
+    inputs: Sequence[str | os.PathLike[str] | None] = (),
+) -> Path:
+    """Write ``content`` to ``target`` by the recording writers' rules.
+
+    :func:`check_output` first, then an atomic write (:func:`atomic_path`): a
+    reader never sees half a file, and a failed write (disk full, file too
+    large) leaves ``target`` as it was and no temporary file behind.
+    ``content`` is text (UTF-8), bytes, or a function that writes the file
+    at the path it is given.
+
+    Returns
+    -------
+    Path
+        The path written.
+
+    Examples
+    --------
+    >>> import pathlib, tempfile
+    >>> out = write_output(pathlib.Path(tempfile.mkdtemp()) / "a.txt", "hello")
+    >>> try:
+    ...     write_output(out, "again")
+    ... except FileFormatError as exc:
+    ...     print(str(exc).split(": ", 1)[1])
+    exists; refusing to overwrite it (pass overwrite=True, or --overwrite)
+    """
+    target = check_output(target, overwrite=overwrite, inputs=inputs)
+    with atomic_path(target, overwrite=overwrite) as tmp:
+        if isinstance(content, str):
+            tmp.write_text(content, encoding="utf-8")
+        elif isinstance(content, bytes):
+            tmp.write_bytes(content)
+        else:
+            content(tmp)
+    log.info("wrote %s", target)
+    return target
+
+
+#: errno values of a write that ran out of room: the message says so.
+_NO_ROOM = {errno.ENOSPC: "no space left on the device", errno.EFBIG: "file too large"}
+if hasattr(errno, "EDQUOT"):
+    _NO_ROOM[errno.EDQUOT] = "disk quota exceeded"
+
+
+def _write_error(target: Path, exc: OSError) -> FileFormatError:
+    """One clear line for a failed write; nothing was written to ``target``."""
+    why = _NO_ROOM.get(exc.errno or -1, exc.strerror or str(exc))
+    return FileFormatError(
+        f"could not be written ({why}); nothing was written and the file, if it existed, "
+        "is unchanged",
+        path=str(target),
+    )
 
 
 def _umask() -> int:
@@ -129,11 +269,19 @@ def atomic_path(target: Path, *, overwrite: bool) -> Iterator[Path]:
     ``os.link`` + unlink, which fails instead of replacing a file created
     meanwhile.
     """
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+    try:
+        fd, tmp_name = tempfile.mkstemp(
+            prefix=f".{target.name}.", suffix=".tmp", dir=target.parent
+        )
+    except OSError as exc:
+        raise _write_error(target, exc) from None
     os.close(fd)
     tmp = Path(tmp_name)
     try:
-        yield tmp
+        try:
+            yield tmp
+        except OSError as exc:
+            raise _write_error(target, exc) from None
         # mkstemp makes the file private (0600); give it the mode a plain open() would.
         os.chmod(tmp, 0o666 & ~_umask())
         if overwrite:

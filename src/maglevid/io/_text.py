@@ -19,7 +19,7 @@ from maglevid.data import ClosedLoopData
 from maglevid.exceptions import FileFormatError
 from maglevid.io import _native
 from maglevid.io._engine import Key, Table, assemble
-from maglevid.io._files import dumps_json, sidecar_path
+from maglevid.io._files import check_input_file, dumps_json, sidecar_path
 from maglevid.io.mapping import ColumnMapping, TextOptions
 
 log = logging.getLogger(__name__)
@@ -299,6 +299,7 @@ def resolve_text_options(
 
 
 def _read_sidecar(path: Path) -> dict[str, Any]:
+    check_input_file(path, what="metadata side-car")
     try:
         text = path.read_text(encoding="utf-8")
     except OSError as exc:

@@ -72,7 +72,15 @@ def _text(path: Path, name: str, value: Any) -> str:
     if a.dtype.kind == "U":
         return "".join(a.reshape(-1).tolist())
     if a.dtype.kind == "S":
-        return b"".join(a.reshape(-1).tolist()).decode("utf-8")
+        try:
+            return b"".join(a.reshape(-1).tolist()).decode("utf-8")
+        except UnicodeDecodeError as exc:
+            raise FileFormatError(
+                f"is not UTF-8 text (byte {exc.start}: {exc.reason}); maglevid metadata is "
+                "UTF-8 JSON",
+                path=str(path),
+                column=name,
+            ) from None
     raise FileFormatError(
         f"must be a JSON text string; got {a.dtype} of shape {a.shape}",
         path=str(path),

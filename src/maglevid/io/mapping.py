@@ -25,6 +25,7 @@ from typing import Any
 
 from maglevid.data import SIGNALS
 from maglevid.exceptions import FileFormatError
+from maglevid.io._files import check_input_file
 
 __all__ = [
     "ChannelSpec",
@@ -256,6 +257,7 @@ def _read_preset(name: str) -> tuple[dict[str, Any], str]:
 
 
 def _read_mapping_file(path: Path) -> dict[str, Any]:
+    check_input_file(path, what="mapping")
     try:
         raw_bytes = path.read_bytes()
     except OSError as exc:

@@ -37,6 +37,7 @@ from maglevid.io import _native
 from maglevid.io._files import (
     READ_FORMATS,
     WRITE_FORMATS,
+    check_input_file,
     check_input_units,
     format_from_path,
     sidecar_path,
@@ -93,10 +94,7 @@ def _prepare(
     if format is None and m is not None and m.format is not None:
         format = m.format
     fmt = format_from_path(p, format, writing=False)
-    if not p.exists():
-        raise FileNotFoundError(f"{p}: no such file")
-    if p.is_dir():
-        raise FileFormatError("is a folder, not a recording", path=str(p))
+    check_input_file(p)
     if m is not None and m.alternatives:
         m = _choose(p, fmt, m)
     return p, fmt, m

@@ -23,6 +23,7 @@ def plot_impulse_comparison(
     ylabel: str = "displacement x [um]",
     scale: float = 1e6,
     path: str | os.PathLike[str] | None = None,
+    overwrite: bool = False,
 ) -> Any:
     """Overlay impulse responses (the paper's Figs. 3 and 4).
 
@@ -71,5 +72,7 @@ def plot_impulse_comparison(
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8)
     if path is not None:
-        fig.savefig(path, dpi=120)
+        from maglevid.plotting.signals import save_figure
+
+        save_figure(fig, path, dpi=120, overwrite=overwrite)
     return fig

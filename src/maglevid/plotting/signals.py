@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -20,6 +21,7 @@ def plot_signals(
     data: ClosedLoopData,
     *,
     path: str | os.PathLike[str] | None = None,
+    overwrite: bool = False,
     max_samples: int = 2000,
     title: str | None = None,
 ) -> Any:
@@ -76,5 +78,23 @@ def plot_signals(
     if title:
         fig.suptitle(title)
     if path is not None:
-        fig.savefig(os.fspath(path), dpi=110)
+        save_figure(fig, path, dpi=110, overwrite=overwrite)
     return fig
+
+
+def save_figure(
+    fig: Any, path: str | os.PathLike[str], *, dpi: int = 120, overwrite: bool = False
+) -> Path:
+    """Save ``fig`` to ``path`` by the rules of every maglevid output.
+
+    Through :func:`maglevid.io.write_output`: atomically, never over an
+    existing file unless ``overwrite``, never over a folder or special file;
+    the format comes from the extension.
+    """
+    from maglevid.io import write_output
+
+    path = Path(path)
+    fmt = path.suffix.lstrip(".").lower() or "png"
+    return write_output(
+        path, lambda tmp: fig.savefig(os.fspath(tmp), dpi=dpi, format=fmt), overwrite=overwrite
+    )

@@ -28,6 +28,7 @@ def plot_singular_values(
     *,
     title: str = "Singular values of Phi (L = 20, M = 2500, j = p - 1)",
     path: str | os.PathLike[str] | None = None,
+    overwrite: bool = False,
 ) -> Any:
     """Fig. 6: singular values ``sigma_i`` of the data matrix, one curve per ``p``.
 
@@ -67,7 +68,9 @@ def plot_singular_values(
     ax.grid(True, which="both", alpha=0.3)
     ax.legend()
     if path is not None:
-        fig.savefig(path, dpi=120)
+        from maglevid.plotting.signals import save_figure
+
+        save_figure(fig, path, dpi=120, overwrite=overwrite)
     return fig
 
 
@@ -78,6 +81,7 @@ def plot_pole_map(
     title: str,
     zoom: tuple[float, float, float, float] | None = (0.7, 1.3, -0.3, 0.3),
     path: str | os.PathLike[str] | None = None,
+    overwrite: bool = False,
 ) -> Any:
     """Figs. 7-9: estimated poles of every run (``*``) and the nominal ones (``o``).
 
@@ -118,5 +122,7 @@ def plot_pole_map(
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8, loc="upper left")
     if path is not None:
-        fig.savefig(path, dpi=120)
+        from maglevid.plotting.signals import save_figure
+
+        save_figure(fig, path, dpi=120, overwrite=overwrite)
     return fig

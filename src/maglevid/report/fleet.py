@@ -349,18 +349,29 @@ def write_fleet_summary(
     *,
     title: str | None = None,
     generated_at: datetime | None = None,
+    overwrite: bool = False,
 ) -> Path:
     """Write :func:`render_fleet_summary` to ``path`` (UTF-8); report links relative to it.
+
+    Written by the rules of every maglevid output
+    (:func:`maglevid.io.write_output`): atomically, never over a recording of
+    the fleet (or its side-car) or the store, never over an existing file
+    unless ``overwrite``.
 
     Raises
     ------
     DataError
-        The folder of ``path`` does not exist, or ``summary`` is not a fleet summary.
+        The folder of ``path`` does not exist, ``path`` exists (without
+        ``overwrite``) or is one of the fleet's inputs, or ``summary`` is not
+        a fleet summary.
     """
-    path = Path(path)
-    if not path.parent.is_dir():
-        raise DataError(f"`path` {str(path)!r}: the directory {str(path.parent)!r} does not exist")
+    from maglevid.io import check_output, write_output
+
+    recordings = summary.get("recordings", ()) if isinstance(summary, Mapping) else ()
+    inputs = [r.get("recording") for r in recordings if isinstance(r, Mapping)]
+    inputs.append(summary.get("store") if isinstance(summary, Mapping) else None)
+    path = check_output(path, overwrite=overwrite, inputs=inputs)
     text = render_fleet_summary(summary, title=title, base=path.parent, generated_at=generated_at)
-    path.write_text(text, encoding="utf-8")
+    path = write_output(path, text, overwrite=overwrite, inputs=inputs)
     logger.info("wrote fleet summary %s (%d bytes)", path, len(text.encode("utf-8")))
     return path

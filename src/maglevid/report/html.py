@@ -32,6 +32,7 @@ import html
 import json
 import logging
 import math
+import os
 from collections.abc import Callable, Mapping, Sequence
 from datetime import datetime, timezone
 from pathlib import Path
@@ -50,7 +51,7 @@ from maglevid.lti import StateSpace, discretize
 from maglevid.physics.amb import amb_matrices
 from maglevid.physics.units import PARAMETER_INFO, UNIT_WORDS
 
-__all__ = ["VERDICT_STYLE", "render_report", "write_report"]
+__all__ = ["VERDICT_STYLE", "is_maglevid_page", "render_report", "write_report"]
 
 logger = logging.getLogger(__name__)
 
@@ -1175,16 +1176,27 @@ def write_report(
     title: str | None = None,
     controller: Any = None,
     generated_at: datetime | None = None,
+    overwrite: bool = False,
+    inputs: Sequence[str | os.PathLike[str] | None] | None = None,
 ) -> Path:
     """Write the self-contained HTML report of ``diagnosis`` to ``path``.
 
-    See :func:`render_report` for the parameters. The file is written in UTF-8;
-    the parent directory must exist.
+    See :func:`render_report` for the parameters. The file is written in UTF-8,
+    atomically, by the rules of every maglevid output
+    (:func:`maglevid.io.write_output`): never over one of ``inputs`` (default:
+    the recording the diagnosis was made from) or its side-car, never over an
+    existing file unless ``overwrite``; the parent directory must exist.
 
     Returns
     -------
     Path
         The path written.
+
+    Raises
+    ------
+    FileFormatError
+        ``path`` is an input or its side-car, exists (without ``overwrite``),
+        is a folder, its folder does not exist, or the write failed (disk full).
 
     Examples
     --------
@@ -1195,12 +1207,30 @@ def write_report(
     >>> "Cannot diagnose: no excitation" in out.read_text(encoding="utf-8")
     True
     """
-    path = Path(path)
-    if not path.parent.is_dir():
-        raise DataError(f"`path` {str(path)!r}: the directory {str(path.parent)!r} does not exist")
+    from maglevid.io import write_output
+
     text = render_report(
         diagnosis, trends=trends, title=title, controller=controller, generated_at=generated_at
     )
-    path.write_text(text, encoding="utf-8")
+    if inputs is None:
+        inputs = [diagnosis.recording]
+    path = write_output(path, text, overwrite=overwrite, inputs=inputs)
     logger.info("wrote diagnosis report %s (%d bytes)", path, len(text.encode("utf-8")))
     return path
+
+
+def is_maglevid_page(path: str | os.PathLike[str]) -> bool:
+    """True when ``path`` is a regular file written by maglevid's HTML writers.
+
+    A writer that repeats (a fleet's per-machine reports) may replace its own
+    earlier page, never another file: this looks for the ``generator`` meta
+    tag in the file's first kilobytes.
+    """
+    p = Path(path)
+    if not p.is_file():
+        return False
+    with open(p, "rb") as fh:
+        head = fh.read(4096)
+    return (
+        head.startswith(b"<!DOCTYPE html>") and b'<meta name="generator" content="maglevid' in head
+    )
