@@ -67,7 +67,7 @@ simulations give the bound at every excitation level and record length
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -93,10 +93,16 @@ __all__ = [
     "NoiseModel",
     "PredictorStatistics",
     "amb_linear_gaussian_model",
+    "bound_from_fisher",
     "cramer_rao_bound",
     "derived_parameters",
+    "eliminate_nuisance",
+    "fit_nuisance",
+    "invert_information",
+    "predictor_derivatives",
     "predictor_statistics",
     "steady_state_predictor",
+    "without_derivatives",
 ]
 
 #: Samples per chunk of the sensitivity recursion (bounds the memory: N x n x p floats).
@@ -312,7 +318,7 @@ def steady_state_predictor(
     return K, P, S
 
 
-def _predictor_derivatives(
+def predictor_derivatives(
     model: LinearGaussianModel, K: np.ndarray, P: np.ndarray, S: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """``dK, dS`` of eq. (4) for every parameter."""
@@ -388,7 +394,7 @@ def predictor_statistics(
     A, B, C = model.A, model.B, model.C
     n, ny = A.shape[0], C.shape[0]
     K, P, S = steady_state_predictor(A, C, model.Q, model.R)
-    dK, dS = _predictor_derivatives(model, K, P, S)
+    dK, dS = predictor_derivatives(model, K, P, S)
     F = A - K @ C
     p = model.n_params
     q = p + (ny + n if nuisance else 0)
@@ -421,14 +427,15 @@ def predictor_statistics(
         )
         if nuisance:
             W[:, :, p : p + ny] = force_c
-        Sig, sig = linear_recursion(F, W, sig)
-        psi = -np.einsum("ij,kjq->kiq", C, Sig)
-        if nuisance:
-            psi[:, :, p : p + ny] -= np.eye(ny)
-        psi_w = np.einsum("ij,kjq->kiq", Li, psi).reshape(-1, q)
-        eps_w = (eps @ Li.T).reshape(-1)
-        info += psi_w.T @ psi_w
-        grad_lin += psi_w.T @ eps_w
+        if q:
+            Sig, sig = linear_recursion(F, W, sig)
+            psi = -np.einsum("ij,kjq->kiq", C, Sig)
+            if nuisance:
+                psi[:, :, p : p + ny] -= np.eye(ny)
+            psi_w = np.einsum("ij,kjq->kiq", Li, psi).reshape(-1, q)
+            eps_w = (eps @ Li.T).reshape(-1)
+            info += psi_w.T @ psi_w
+            grad_lin += psi_w.T @ eps_w
         sum_ee += eps.T @ eps
         if eps_all is not None:
             eps_all[s0:s1] = eps
@@ -445,8 +452,8 @@ def predictor_statistics(
     nll = 0.5 * float(np.trace(Si @ sum_ee)) + 0.5 * N * logdet
     names = model.names
     if nuisance:
-        names = names + tuple(f"offset_y{j}" for j in range(ny)) + tuple(
-            f"xh0_{j}" for j in range(n)
+        names = (
+            names + tuple(f"offset_y{j}" for j in range(ny)) + tuple(f"xh0_{j}" for j in range(n))
         )
     return PredictorStatistics(
         neg_log_likelihood=nll,
@@ -512,7 +519,9 @@ class CramerRaoBound:
     def relative_std(self) -> dict[str, float]:
         """``std / |value|`` for each parameter."""
         s = self.std()
-        return {k: s[k] / abs(v) if v != 0 else float("inf") for k, v in zip(self.names, self.values)}
+        return {
+            k: s[k] / abs(v) if v != 0 else float("inf") for k, v in zip(self.names, self.values)
+        }
 
     def for_samples(self, n_samples: int) -> CramerRaoBound:
         """The same bound for a record of ``n_samples`` samples (information ∝ N)."""
@@ -551,7 +560,7 @@ def bound_from_fisher(
 ) -> CramerRaoBound:
     """:class:`CramerRaoBound` from the (nuisance-free) information about ``v``."""
     v = np.asarray(v, dtype=float)
-    cov_v = _inverse_psd(fisher_v)
+    cov_v = invert_information(fisher_v)
     dnames, _ = derived_parameters(v, m=m, i0=i0)
 
     def chain(vv: np.ndarray) -> np.ndarray:
@@ -571,7 +580,7 @@ def bound_from_fisher(
     )
 
 
-def _inverse_psd(M: np.ndarray) -> np.ndarray:
+def invert_information(M: np.ndarray) -> np.ndarray:
     """Inverse of a symmetric positive-definite matrix, scaled for conditioning."""
     d = np.sqrt(np.clip(np.diag(M), 1e-300, None))
     Ms = M / np.outer(d, d)
@@ -583,6 +592,13 @@ def _inverse_psd(M: np.ndarray) -> np.ndarray:
     return 0.5 * (inv + inv.T)
 
 
+def without_derivatives(model: LinearGaussianModel) -> LinearGaussianModel:
+    """The same model with no parameters (innovations and nuisance sensitivities only)."""
+    return replace(
+        model, dA=model.dA[:0], dB=model.dB[:0], dQ=model.dQ[:0], dR=model.dR[:0], names=()
+    )
+
+
 def fit_nuisance(
     model: LinearGaussianModel, y: np.ndarray, u: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -591,18 +607,16 @@ def fit_nuisance(
     The innovations are affine in ``(c, x0)``, so one Gauss-Newton step from
     zero is the exact least-squares solution.
     """
-    st = predictor_statistics(model, y, u)
-    p = model.n_params
-    Inn = st.fisher[p:, p:]
-    step = -_inverse_psd(Inn) @ st.gradient[p:]
+    st = predictor_statistics(without_derivatives(model), y, u)
+    step = -invert_information(st.fisher) @ st.gradient
     ny = model.C.shape[0]
     return step[:ny], step[ny:]
 
 
 def eliminate_nuisance(fisher: np.ndarray, k: int) -> np.ndarray:
     """Information about the first ``k`` parameters with the others unknown (Schur complement)."""
-    cov = _inverse_psd(fisher)
-    return _inverse_psd(cov[:k, :k])
+    cov = invert_information(fisher)
+    return invert_information(cov[:k, :k])
 
 
 def cramer_rao_bound(
@@ -698,7 +712,9 @@ def _evaluation_point(data: ClosedLoopData, v: Any) -> np.ndarray:
     raise DataError("pass `v` (e.g. an estimate): the recording carries no true parameters")
 
 
-def nominal_plant_from_v(v: np.ndarray, *, m: float, i0: float, like: AMBParameters) -> AMBParameters:
+def nominal_plant_from_v(
+    v: np.ndarray, *, m: float, i0: float, like: AMBParameters
+) -> AMBParameters:
     """:class:`AMBParameters` whose linearisation has ``v`` (given ``m``, ``i0``)."""
     p = parameters_from_v(v, m=m, i0=i0)
     if p["Ls1"] <= 0 or p["Ls2"] <= 0 or p["x0"] <= 0:
