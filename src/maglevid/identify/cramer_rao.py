@@ -269,7 +269,7 @@ def amb_linear_gaussian_model(
         for j in range(3):
             dRn[j, j, j] = 2.0 * s2[j]  # d s^2 / d log s
         dR = np.concatenate([dR, dRn])
-        names = names + ("log_sx", "log_si1", "log_si2")
+        names = (*names, "log_sx", "log_si1", "log_si2")
     return LinearGaussianModel(Ad, Bd, C_AMB.copy(), Q, R, dAd, dBd, dQ, dR, names)
 
 
@@ -290,7 +290,7 @@ def steady_state_predictor(
     IdentificationError
         No stabilising solution (a mode that is neither observed nor stable).
     """
-    n, ny = A.shape[0], C.shape[0]
+    n, _ny = A.shape[0], C.shape[0]
     w = np.sqrt(np.diag(R))
     # State scale: each state scaled like the output that sees it most, else 1.
     d = np.ones(n)
@@ -307,7 +307,9 @@ def steady_state_predictor(
     try:
         Ps = sla.solve_discrete_are(As.T, Cs.T, Qs, Rs)
     except (np.linalg.LinAlgError, ValueError) as exc:
-        raise IdentificationError(f"the Kalman predictor has no stabilising solution: {exc}")
+        raise IdentificationError(
+            f"the Kalman predictor has no stabilising solution: {exc}"
+        ) from exc
     Ps = 0.5 * (Ps + Ps.T)
     P = Ps * np.outer(d, d)
     S = C @ P @ C.T + R
@@ -325,8 +327,8 @@ def predictor_derivatives(
     A, C = model.A, model.C
     F = A - K @ C
     p = model.n_params
-    dK = np.empty((p,) + K.shape)
-    dS = np.empty((p,) + S.shape)
+    dK = np.empty((p, *K.shape))
+    dS = np.empty((p, *S.shape))
     for i in range(p):
         Ai = model.dA[i]
         rhs = Ai @ P @ F.T

@@ -401,7 +401,8 @@ def _optimise(
     lam = 1e-3
     converged = False
     it = 0
-    for it in range(1, max_iter + 1):
+    while it < max_iter:
+        it += 1
         info_red = eliminate_nuisance(st["fisher"], p)
         g = st["gradient"][:p]
         d = np.sqrt(np.clip(np.diag(info_red), 1e-300, None))
@@ -463,7 +464,8 @@ def _result(
         )
     # Innovations (with the final offsets and initial state) for the residuals.
     model = _model(theta, noise, est, data.dt, m)
-    c, x0 = fit_nuisance(model, np.asarray(data.y, float), np.asarray(data.u, float))
+    y, u = np.asarray(data.y, float), np.asarray(data.u, float)
+    c, x0 = fit_nuisance(model, y, u)
     fin = predictor_statistics(
         without_derivatives(model),
         np.asarray(data.y, float),
@@ -474,7 +476,7 @@ def _result(
         keep_residuals=True,
     )
     eps = fin.residuals
-    Yc = np.asarray(data.y, float) - np.asarray(data.y, float).mean(axis=0)
+    Yc = y - y.mean(axis=0)
     osf = one_step_fit_percent(np.einsum("ij,ij->j", eps, eps), np.einsum("ij,ij->j", Yc, Yc))
     fitd = {f"one_step_fit_percent_{n}": float(f) for n, f in zip(data.channel_names("y"), osf)}
     fitd["one_step_fit_percent_min"] = float(np.nanmin(osf))
@@ -520,7 +522,7 @@ def _result(
             "converged": converged,
             "v_start": v_start,
             "fisher": info,
-            "fisher_names": model.names + ("tau0", "tau1", "tau2", "tau3"),
+            "fisher_names": (*model.names, "tau0", "tau1", "tau2", "tau3"),
         },
     )
 
