@@ -66,6 +66,7 @@ simulations give the bound at every excitation level and record length
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -305,8 +306,11 @@ def steady_state_predictor(
     Qs = Q / np.outer(d, d)
     Rs = R / np.outer(w, w)
     try:
-        Ps = sla.solve_discrete_are(As.T, Cs.T, Qs, Rs)
-    except (np.linalg.LinAlgError, ValueError) as exc:
+        with warnings.catch_warnings():
+            # An ill-conditioned DARE (a parameter far from any bearing) is a failure here.
+            warnings.simplefilter("error", sla.LinAlgWarning)
+            Ps = sla.solve_discrete_are(As.T, Cs.T, Qs, Rs)
+    except (np.linalg.LinAlgError, ValueError, sla.LinAlgWarning) as exc:
         raise IdentificationError(
             f"the Kalman predictor has no stabilising solution: {exc}"
         ) from exc

@@ -398,22 +398,38 @@ def _optimise(
         st = evaluate(theta, True)
     except IdentificationError as exc:
         raise IdentificationError(f"ml: no stable Kalman predictor at the start ({exc})") from exc
-    lam = 1e-3
+    it = 0
     converged = False
+    # Stage 1 holds the noise levels at their start (the IV fit's estimate): the
+    # dynamics converge from a poor start without the noise levels absorbing
+    # the misfit; stage 2 frees everything.
+    stages = [np.arange(9), np.arange(p)] if est else [np.arange(p)]
+    for free in stages:
+        theta, st, n_it, converged = _scoring(evaluate, theta, st, free, max_iter - it)
+        it += n_it
+    return theta, st["fisher"], it, converged
+
+
+def _scoring(
+    evaluate: Any, theta: np.ndarray, st: dict[str, Any], free: np.ndarray, max_iter: int
+) -> tuple[np.ndarray, dict[str, Any], int, bool]:
+    """Levenberg-Marquardt-damped Fisher scoring on the ``free`` parameters."""
+    p = theta.size
+    k = free.size
+    lam = 1e-3
     it = 0
     while it < max_iter:
         it += 1
-        info_red = eliminate_nuisance(st["fisher"], p)
-        g = st["gradient"][:p]
+        info_red = eliminate_nuisance(st["fisher"], p)[np.ix_(free, free)]
+        g = st["gradient"][free]
         d = np.sqrt(np.clip(np.diag(info_red), 1e-300, None))
         decrease = float(g @ invert_information(info_red) @ g)
-        if decrease < _TOL * p:
-            converged = True
-            break
-        accepted = False
-        for _ in range(12):
-            Ms = info_red / np.outer(d, d) + lam * np.eye(p)
-            trial = theta - np.linalg.solve(Ms, g / d) / d
+        if decrease < _TOL * k:
+            return theta, st, it, True
+        for _ in range(14):
+            Ms = info_red / np.outer(d, d) + lam * np.eye(k)
+            trial = theta.copy()
+            trial[free] -= np.linalg.solve(Ms, g / d) / d
             try:
                 st_t = evaluate(trial, False)
             except (IdentificationError, DataError, np.linalg.LinAlgError):
@@ -422,14 +438,12 @@ def _optimise(
             if st_t["nll"] < st["nll"]:
                 theta, st = trial, evaluate(trial, True)
                 lam = max(lam / 10.0, 1e-9)
-                accepted = True
                 break
             lam *= 10.0
-        if not accepted:
+        else:
             # No descent at any damping: at the optimum to rounding (or stuck).
-            converged = decrease < 1e-4 * p
-            break
-    return theta, st["fisher"], it, converged
+            return theta, st, it, decrease < 1e-4 * k
+    return theta, st, it, False
 
 
 def _result(
