@@ -98,8 +98,10 @@ __all__ = [
     "cramer_rao_bound",
     "derived_parameters",
     "eliminate_nuisance",
+    "evaluation_point",
     "fit_nuisance",
     "invert_information",
+    "plant_from_v",
     "predictor_derivatives",
     "predictor_statistics",
     "steady_state_predictor",
@@ -675,7 +677,7 @@ def cramer_rao_bound(
     True
     """
     y, u = _amb_signals(data)
-    v = _evaluation_point(data, v)
+    v = evaluation_point(data, v)
     noise = NoiseModel.from_data(data) if noise is None else noise
     if noise is None:
         raise DataError(
@@ -703,7 +705,7 @@ def _amb_signals(data: ClosedLoopData) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(data.y, dtype=float), np.asarray(data.u, dtype=float)
 
 
-def _evaluation_point(data: ClosedLoopData, v: Any) -> np.ndarray:
+def evaluation_point(data: ClosedLoopData, v: Any) -> np.ndarray:
     if v is not None:
         v = np.asarray(v, dtype=float).reshape(-1)
         if v.size != 9 or not np.all(np.isfinite(v)):
@@ -718,9 +720,7 @@ def _evaluation_point(data: ClosedLoopData, v: Any) -> np.ndarray:
     raise DataError("pass `v` (e.g. an estimate): the recording carries no true parameters")
 
 
-def nominal_plant_from_v(
-    v: np.ndarray, *, m: float, i0: float, like: AMBParameters
-) -> AMBParameters:
+def plant_from_v(v: np.ndarray, *, m: float, i0: float) -> AMBParameters:
     """:class:`AMBParameters` whose linearisation has ``v`` (given ``m``, ``i0``)."""
     p = parameters_from_v(v, m=m, i0=i0)
     if p["Ls1"] <= 0 or p["Ls2"] <= 0 or p["x0"] <= 0:
