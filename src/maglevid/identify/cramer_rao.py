@@ -101,6 +101,7 @@ __all__ = [
     "evaluation_point",
     "fit_nuisance",
     "invert_information",
+    "pinv_information",
     "plant_from_v",
     "predictor_derivatives",
     "predictor_statistics",
@@ -589,15 +590,29 @@ def bound_from_fisher(
 
 
 def invert_information(M: np.ndarray) -> np.ndarray:
-    """Inverse of a symmetric positive-definite matrix, scaled for conditioning."""
+    """Inverse of a symmetric positive-definite information matrix, scaled for conditioning.
+
+    Raises
+    ------
+    IdentificationError
+        The (scaled) matrix is singular to working precision: some combination
+        of the parameters is not identifiable from this record.
+    """
     d = np.sqrt(np.clip(np.diag(M), 1e-300, None))
     Ms = M / np.outer(d, d)
-    try:
-        inv = sla.inv(Ms, check_finite=True)
-    except np.linalg.LinAlgError as exc:
-        raise IdentificationError(f"the Fisher information is singular: {exc}") from exc
-    inv = inv / np.outer(d, d)
+    if not np.all(np.isfinite(Ms)) or np.linalg.cond(Ms) > 1e14:
+        raise IdentificationError(
+            "the Fisher information is singular: some combination of the parameters is not "
+            "identifiable from this record"
+        )
+    inv = np.linalg.inv(Ms) / np.outer(d, d)
     return 0.5 * (inv + inv.T)
+
+
+def pinv_information(M: np.ndarray) -> np.ndarray:
+    """Pseudo-inverse of a nuisance block (directions without information carry none)."""
+    d = np.sqrt(np.clip(np.diag(M), 1e-300, None))
+    return np.linalg.pinv(M / np.outer(d, d), rcond=1e-12, hermitian=True) / np.outer(d, d)
 
 
 def without_derivatives(model: LinearGaussianModel) -> LinearGaussianModel:
@@ -616,15 +631,20 @@ def fit_nuisance(
     zero is the exact least-squares solution.
     """
     st = predictor_statistics(without_derivatives(model), y, u)
-    step = -invert_information(st.fisher) @ st.gradient
+    step = -pinv_information(st.fisher) @ st.gradient
     ny = model.C.shape[0]
     return step[:ny], step[ny:]
 
 
 def eliminate_nuisance(fisher: np.ndarray, k: int) -> np.ndarray:
-    """Information about the first ``k`` parameters with the others unknown (Schur complement)."""
-    cov = invert_information(fisher)
-    return invert_information(cov[:k, :k])
+    """Information about the first ``k`` parameters with the others unknown (Schur complement).
+
+    ``I_kk - I_kn I_nn^+ I_nk``: a nuisance direction without information (a
+    start-up transient the record never shows) is dropped, not inverted.
+    """
+    A, B, D = fisher[:k, :k], fisher[:k, k:], fisher[k:, k:]
+    red = A - B @ pinv_information(D) @ B.T
+    return 0.5 * (red + red.T)
 
 
 def cramer_rao_bound(

@@ -48,6 +48,7 @@ from maglevid.identify.cramer_rao import (
     eliminate_nuisance,
     fit_nuisance,
     invert_information,
+    pinv_information,
     predictor_derivatives,
     predictor_statistics,
     steady_state_predictor,
@@ -63,6 +64,7 @@ from maglevid.physics.amb import (
     OUTPUT_NAMES,
     STATE_NAMES,
     V_NAMES,
+    AMBParameters,
     amb_matrices,
     amb_state_space,
 )
@@ -131,9 +133,22 @@ def fit_ml(
     i0 = op_i0 if i0 is None else i0
     v0, noise0, start_kind, notes = _start(data, start, m=m, i0=i0)
     noise, estimate_noise = _noise(data, noise_std, force_std, amplifier_std, noise0)
-    theta, info, it, converged = _optimise(
+    theta, info, it, converged, nll = _optimise(
         y, u, v0, noise, estimate_noise, dt=data.dt, m=m, max_iter=max_iter
     )
+    v_nom = _nominal_v(data)
+    if start_kind == "physical" and not converged and v_nom is not None:
+        # A poor IV start (short or very noisy record) can leave the scoring far
+        # from the optimum; the nominal bearing the loop was designed on is the
+        # other natural start. Keep whichever reaches the higher likelihood.
+        alt = _optimise(y, u, v_nom, noise, estimate_noise, dt=data.dt, m=m, max_iter=max_iter)
+        notes.append(
+            "the scoring from the IV estimate did not converge; restarted from the nominal "
+            f"bearing ({'converged' if alt[3] else 'did not converge either'})"
+        )
+        if alt[3] or alt[4] < nll:
+            theta, info, it, converged, nll = alt
+            v0 = v_nom
     if not converged:
         notes.append(f"Fisher scoring stopped after {it} iterations without converging")
     return _result(
@@ -163,6 +178,17 @@ def fit_ml(
 # ---------------------------------------------------------------------------
 # Steps
 # ---------------------------------------------------------------------------
+def _nominal_v(data: ClosedLoopData) -> np.ndarray | None:
+    """v1..v9 of the bearing the loop was designed on (``loop["nominal"]``), if recorded."""
+    nom = data.loop.get("nominal") if isinstance(data.loop, Mapping) else None
+    if not isinstance(nom, Mapping):
+        return None
+    try:
+        return AMBParameters(**nom).v()
+    except (TypeError, DataError):
+        return None
+
+
 def _signals(data: ClosedLoopData) -> tuple[np.ndarray, np.ndarray]:
     if not isinstance(data, ClosedLoopData):
         raise DataError(f"`data` must be a ClosedLoopData; got {type(data).__name__}")
@@ -378,14 +404,14 @@ def _optimise(
     dt: float,
     m: float | None,
     max_iter: int,
-) -> tuple[np.ndarray, np.ndarray, int, bool]:
+) -> tuple[np.ndarray, np.ndarray, int, bool, float]:
     """Fisher scoring with Levenberg-Marquardt damping on eq. (1).
 
     The parameters are ``[v, log s (if estimated)]``; the transient ``tau``
     is profiled out exactly at every point (it enters affinely), so the
     reduced gradient and information (Schur complement) drive the step.
     Returns the estimate, the full information (with ``tau``), the
-    iterations and whether it converged.
+    iterations, whether it converged and the final value of eq. (1).
     """
     sp = _Spectra(y, u)
     theta = np.concatenate([v0, np.log(noise.sensor_std)]) if est else v0.copy()
@@ -407,7 +433,7 @@ def _optimise(
     for free in stages:
         theta, st, n_it, converged = _scoring(evaluate, theta, st, free, max_iter - it)
         it += n_it
-    return theta, st["fisher"], it, converged
+    return theta, st["fisher"], it, converged, float(st["nll"])
 
 
 def _scoring(
@@ -423,7 +449,7 @@ def _scoring(
         info_red = eliminate_nuisance(st["fisher"], p)[np.ix_(free, free)]
         g = st["gradient"][free]
         d = np.sqrt(np.clip(np.diag(info_red), 1e-300, None))
-        decrease = float(g @ invert_information(info_red) @ g)
+        decrease = float(g @ pinv_information(info_red) @ g)
         if decrease < _TOL * k:
             return theta, st, it, True
         for _ in range(14):
@@ -432,7 +458,7 @@ def _scoring(
             trial[free] -= np.linalg.solve(Ms, g / d) / d
             try:
                 st_t = evaluate(trial, False)
-            except (IdentificationError, DataError, np.linalg.LinAlgError):
+            except (IdentificationError, ValueError, FloatingPointError, np.linalg.LinAlgError):
                 lam *= 10.0
                 continue
             if st_t["nll"] < st["nll"]:
@@ -463,8 +489,7 @@ def _result(
 ) -> IdentificationResult:
     """Model, parameters with covariance (inverse Fisher, delta method) and diagnostics."""
     v = theta[:9]
-    cov_all = invert_information(info)
-    cov_v = cov_all[:9, :9]
+    cov_v = invert_information(eliminate_nuisance(info, 9))
     dnames, _ = derived_parameters(v, m=m, i0=i0)
 
     def chain(vv: np.ndarray) -> np.ndarray:
