@@ -57,15 +57,10 @@ from maglevid.identify.cramer_rao import (
 from maglevid.identify.physical import fit_physical
 from maglevid.identify.result import IdentificationResult, propagate_covariance
 from maglevid.identify.uncertainty import one_step_fit_percent, operating_point
-from maglevid.lti import StateSpace
 from maglevid.physics.amb import (
     C_AMB,
-    INPUT_NAMES,
-    OUTPUT_NAMES,
-    STATE_NAMES,
     V_NAMES,
     AMBParameters,
-    amb_matrices,
     amb_state_space,
 )
 
@@ -522,27 +517,10 @@ def _result(
     fitd["neg_log_likelihood"] = float(fin.neg_log_likelihood)
     fitd["structure_residual"] = 0.0  # the model is parameterised in eq. (4) itself
     sensor = np.exp(theta[9:12]) if est else np.asarray(noise.sensor_std)
-    Ac, Bc = amb_matrices(v)
-    disc = amb_state_space(v, data.dt)
     return IdentificationResult(
         method="ml",
-        model=StateSpace(
-            disc.A,
-            disc.B,
-            C_AMB,
-            dt=data.dt,
-            state_names=STATE_NAMES,
-            input_names=INPUT_NAMES,
-            output_names=OUTPUT_NAMES,
-        ),
-        continuous_model=StateSpace(
-            Ac,
-            Bc,
-            C_AMB,
-            state_names=STATE_NAMES,
-            input_names=INPUT_NAMES,
-            output_names=OUTPUT_NAMES,
-        ),
+        model=amb_state_space(v, data.dt),  # eq. (7): the ZOH model in physical coordinates
+        continuous_model=amb_state_space(v),
         parameters=dict(zip(list(V_NAMES) + list(dnames), values.tolist())),
         covariance=0.5 * (cov + cov.T),
         n_samples=int(data.n_samples),
