@@ -79,3 +79,14 @@ def test_plan_command(capsys):
     assert out["seconds"] == pytest.approx(2.0)
     assert main(["plan", "--parameters", "nope"]) == 1
     assert "unknown parameters" in capsys.readouterr().err
+
+
+def test_plan_from_an_iv_result_cites_seconds_and_volts():
+    """The resolver for an inconclusive verdict, from the default method's result."""
+    from maglevid.identify.physical import fit_physical
+    from maglevid.identify.planning import plan_from_result
+
+    d = simulate_amb_loop(FAULTY, nominal=NOMINAL, n_samples=3000, rng=4)
+    plan = plan_from_result(d, fit_physical(d), parameters=("R1", "kw1"), tolerance=0.01)
+    text = plan.sentence()
+    assert "needs" in text and "V rms" in text and "R1" in text

@@ -62,6 +62,7 @@ __all__ = [
     "design_information",
     "plan_experiment",
     "plan_for_recording",
+    "plan_from_result",
 ]
 
 #: Fraction of the tolerance the 95 % half-width must reach.
@@ -423,3 +424,33 @@ def plan_for_recording(
     design = design_information(plant, nominal=nominal, dt=data.dt, noise=noise)
     exc = float(np.mean(np.std(np.asarray(data.r), axis=0)))
     return plan_experiment(design, n_samples=data.n_samples, excitation_std=exc, **options)
+
+
+def plan_from_result(data: ClosedLoopData, result: Any, **options: Any) -> ExperimentPlan:
+    """:func:`plan_for_recording` at an identification result's estimate.
+
+    The resolver an ``inconclusive`` verdict can cite: the bearing is the
+    result's v1..v9, the sensor noise the ``ml`` fit's estimate
+    (``extras["sensor_noise_std"]``), else the IV fit's white-noise covariance
+    (``extras["noise_covariance"]``), else the recording's metadata.
+    ``plan_from_result(data, fit, parameters=("R1",), tolerance=0.05).sentence()``
+    gives e.g. "to resolve R1 to 0.5 of the tolerance, the record needs 9 s at
+    this excitation (1 V rms), or 560 ms at 4 V rms".
+
+    Raises
+    ------
+    DataError
+        The result has no v1..v9, or no noise level can be found.
+    """
+    try:
+        v = [float(result.parameters[f"v{i}"]) for i in range(1, 10)]
+    except (KeyError, AttributeError):
+        raise DataError("planning needs an AMB identification result with v1..v9") from None
+    extras = getattr(result, "extras", {}) or {}
+    s = extras.get("sensor_noise_std")
+    if s is None and extras.get("noise_covariance") is not None:
+        s = np.sqrt(np.clip(np.diag(np.asarray(extras["noise_covariance"], float)), 0, None))
+    noise = None
+    if s is not None and np.all(np.asarray(s, float) > 0):
+        noise = NoiseModel(tuple(np.asarray(s, float).tolist()))  # type: ignore[arg-type]
+    return plan_for_recording(data, v=v, noise=noise, **options)
