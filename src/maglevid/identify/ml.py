@@ -46,13 +46,10 @@ from maglevid.identify.cramer_rao import (
     amb_linear_gaussian_model,
     derived_parameters,
     eliminate_nuisance,
-    fit_nuisance,
     invert_information,
     pinv_information,
     predictor_derivatives,
-    predictor_statistics,
     steady_state_predictor,
-    without_derivatives,
 )
 from maglevid.identify.physical import fit_physical
 from maglevid.identify.result import IdentificationResult, propagate_covariance
@@ -72,6 +69,10 @@ logger = logging.getLogger(__name__)
 #: (g^T I^-1 g, the remaining step's length in standard errors, squared: 1e-6
 #: per parameter is a thousandth of a standard error).
 _TOL = 1e-6
+
+#: Frequencies the information of a scoring step is computed from (every
+#: k-th; the gradient always uses all of them, so the optimum is exact).
+_FISHER_FREQUENCIES = 4096
 
 
 def fit_ml(
@@ -128,7 +129,7 @@ def fit_ml(
     i0 = op_i0 if i0 is None else i0
     v0, noise0, start_kind, notes = _start(data, start, m=m, i0=i0)
     noise, estimate_noise = _noise(data, noise_std, force_std, amplifier_std, noise0)
-    theta, info, it, converged, nll = _optimise(
+    theta, final, it, converged, nll = _optimise(
         y, u, v0, noise, estimate_noise, dt=data.dt, m=m, max_iter=max_iter
     )
     v_nom = _nominal_v(data)
@@ -142,14 +143,14 @@ def fit_ml(
             f"bearing ({'converged' if alt[3] else 'did not converge either'})"
         )
         if alt[3] or alt[4] < nll:
-            theta, info, it, converged, nll = alt
+            theta, final, it, converged, nll = alt
             v0 = v_nom
     if not converged:
         notes.append(f"Fisher scoring stopped after {it} iterations without converging")
     return _result(
         data,
         theta,
-        info,
+        final,
         noise,
         estimate_noise,
         m=m,
@@ -324,6 +325,22 @@ class _Resolvent:
             return (Z.reshape(-1, n) @ (left @ self.V).T).reshape(M, c, -1)
         return np.einsum("fcj,fij,kj->fck", X, self.G, left, optimize=True)
 
+    def select(self, idx: np.ndarray) -> _Resolvent:
+        """The same resolvent at the frequencies ``idx`` only."""
+        sub = object.__new__(_Resolvent)
+        sub.eig = self.eig
+        if self.eig:
+            sub.V, sub.Vi, sub.T = self.V, self.Vi, self.T[idx]
+        else:
+            sub.G = self.G[idx]
+        return sub
+
+    def rows_times(self, Q: np.ndarray) -> np.ndarray:
+        """``q_f (zI - F)^-1`` for every row ``q_f`` of ``Q`` (M, n)."""
+        if self.eig:
+            return ((Q @ self.V) * self.T) @ self.Vi
+        return np.einsum("fi,fij->fj", Q, self.G)
+
     def matrix(self, left: np.ndarray) -> np.ndarray:
         """``left (zI - F)^-1`` per frequency, (M, k, n)."""
         if self.eig:
@@ -339,8 +356,35 @@ def _gram(X: np.ndarray) -> np.ndarray:
     return R.T @ R
 
 
-def _evaluate(model: Any, sp: _Spectra, *, derivatives: bool) -> dict[str, Any]:
-    """Eq. (1) with ``tau`` profiled; with ``derivatives``, gradient and eq. (2)."""
+def _profile_transient(
+    res: _Resolvent, LC: np.ndarray, zw: np.ndarray, e0w: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares ``tau`` of ``e0w - Phi tau`` with ``Phi_f = zw_f LC (z_f I - F)^-1``.
+
+    Returns ``tau`` and ``Phi tau``. In the eigenbasis ``Phi_f = zw_f LC V D_f V^-1``
+    and the normal equations are n x n sums over the frequencies (one product
+    each, never the (M, ny, n) array): ``Re V^-H (H o sum_f conj(d_f) d_f^T) V^-1``
+    with ``H = (LC V)^H (LC V)``, ``d_f = zw_f diag(D_f)``.
+    """
+    if not res.eig:
+        Phi = res.matrix(LC) * zw[:, None, None]
+        P = _gram(Phi.transpose(0, 2, 1))
+        b = np.real(np.einsum("fik,fi->k", Phi.conj(), e0w))
+        tau = np.linalg.lstsq(P, b, rcond=None)[0]
+        return tau, Phi @ tau
+    LV = LC @ res.V
+    d = res.T * zw[:, None]
+    Hm = LV.conj().T @ LV
+    P = np.real(res.Vi.conj().T @ (Hm * (d.conj().T @ d)) @ res.Vi)
+    q = e0w @ LV.conj()  # rows (LC V)^H e0w_f
+    b = np.real(res.Vi.conj().T @ np.einsum("fk,fk->k", d.conj(), q))
+    tau = np.linalg.lstsq(P, b, rcond=None)[0]
+    return tau, ((res.Vi @ tau)[None, :] * d) @ LV.T
+
+
+def _evaluate(model: Any, sp: _Spectra, *, derivatives: bool, stride: int = 1) -> dict[str, Any]:
+    """Eq. (1) with ``tau`` profiled; with ``derivatives``, gradient and eq. (2)
+    (the latter from every ``stride``-th frequency)."""
     A, B, C = model.A, model.B, model.C
     n = A.shape[0]
     K, P, S = steady_state_predictor(A, C, model.Q, model.R)
@@ -352,12 +396,9 @@ def _evaluate(model: Any, sp: _Spectra, *, derivatives: bool) -> dict[str, Any]:
     # Whitened innovations Li eps = Li Y - Li C (zI-F)^-1 (B U + K Y) - Li Phi tau
     drive = (sp.U @ B.T + sp.Y @ K.T)[:, None, :]
     e0w = ((sp.Y @ Li.T)[:, None, :] - res.apply(drive, LC))[:, 0, :] * sw[:, None]
-    Phw = res.matrix(LC) * (z * sw)[:, None, None]  # Li C (zI-F)^-1 z, (M, ny, n)
-    Ptt = _gram(Phw.transpose(0, 2, 1))
-    btt = np.real(np.einsum("fik,fi->k", Phw.conj(), e0w))
-    tau = np.linalg.lstsq(Ptt, btt, rcond=None)[0]
-    ew = e0w - Phw @ tau  # whitened, weighted innovations
-    sum_ww = _gram(ew[:, None, :])[0, 0] / N  # sum_k eps^T S^-1 eps (Parseval)
+    tau, Phi_tau = _profile_transient(res, LC, z * sw, e0w)
+    ew = e0w - Phi_tau  # whitened, weighted innovations
+    sum_ww = np.vdot(ew, ew).real / N  # sum_k eps^T S^-1 eps (Parseval)
     _, logdet = np.linalg.slogdet(S)
     out: dict[str, Any] = {"nll": 0.5 * sum_ww + 0.5 * N * logdet, "S": S, "K": K}
     if not derivatives:
@@ -367,17 +408,33 @@ def _evaluate(model: Any, sp: _Spectra, *, derivatives: bool) -> dict[str, Any]:
     # Xh = (zI-F)^-1 (B U + K Y + z tau), eps = Y - C Xh (unweighted DFTs)
     Xh = res.apply(drive + (z[:, None] * tau[None, :])[:, None, :], np.eye(n))[:, 0, :]
     eps = sp.Y - Xh @ C.T
-    sum_ee = _gram((eps * sw[:, None])[:, None, :].transpose(0, 2, 1).conj()) / N
-    # eq. (3): Sigma_i = (zI-F)^-1 (A_i Xh + B_i U + K_i eps), rows i (layout (M, p, n))
+    ews = eps * sw[:, None]
+    sum_ee = np.real(ews.T @ ews.conj()) / N  # sum_k eps eps^T (Parseval)
+    # Gradient of eq. (1) by the adjoint of eq. (3): with psi_i = -Li C (zI-F)^-1 W_i,
+    # W_i = A_i Xh + B_i U + K_i E, sum_f psi_i^H ew = sum_f W_i^H mu with
+    # mu = -(Li C (zI-F)^-1)^H ew: three n x (n, nu, ny) sums for all parameters at
+    # once, instead of one recursion per parameter (tau is at its optimum: no term).
+    mu = -np.conj(res.rows_times(ew.conj() @ LC)) * sw[:, None]
+    grad = np.zeros(p + n)
+    grad[:p] = (
+        np.einsum("pjk,jk->p", model.dA, np.real(mu.T @ Xh.conj()))
+        + np.einsum("pjk,jk->p", model.dB, np.real(mu.T @ sp.U.conj()))
+        + np.einsum("pjk,jk->p", dK, np.real(mu.T @ eps.conj()))
+    ) / N
+    # eq. (2) from the sensitivities at every `stride`-th frequency (weights scaled):
+    # the scoring step needs the information only approximately; the covariance
+    # is computed with stride 1.
+    idx = np.arange(1, len(z), stride)
     W = (
-        (Xh @ model.dA.transpose(2, 0, 1).reshape(n, -1))
-        + (sp.U @ model.dB.transpose(2, 0, 1).reshape(model.dB.shape[2], -1))
-        + (eps @ dK.transpose(2, 0, 1).reshape(dK.shape[2], -1))
+        (Xh[idx] @ model.dA.transpose(2, 0, 1).reshape(n, -1))
+        + (sp.U[idx] @ model.dB.transpose(2, 0, 1).reshape(model.dB.shape[2], -1))
+        + (eps[idx] @ dK.transpose(2, 0, 1).reshape(dK.shape[2], -1))
     ).reshape(-1, p, n)
-    Psw = -res.apply(W, LC) * sw[:, None, None]  # whitened sensitivities (M, p, ny)
-    Psw = np.concatenate([Psw, -Phw.transpose(0, 2, 1)], axis=1)  # tau last
+    scale = np.sqrt(stride) * sw[idx]
+    Psw = -res.select(idx).apply(W, LC) * scale[:, None, None]  # whitened sensitivities
+    Phw = res.select(idx).matrix(LC) * (z[idx] * scale)[:, None, None]  # d(ew)/d(-tau)
+    Psw = np.concatenate([Psw, -Phw.transpose(0, 2, 1)], axis=1)
     info = _gram(Psw) / N
-    grad = np.real(np.einsum("fpi,fi->p", Psw.conj(), ew)) / N
     Si = np.linalg.inv(S)
     SidS = np.einsum("ij,pjk->pik", Si, dS)
     info[:p, :p] += 0.5 * N * np.einsum("pij,qji->pq", SidS, SidS)  # eq. (2)
@@ -386,6 +443,8 @@ def _evaluate(model: Any, sp: _Spectra, *, derivatives: bool) -> dict[str, Any]:
     )
     out["fisher"] = 0.5 * (info + info.T)
     out["gradient"] = grad
+    out["eps"] = eps
+    out["tau"] = tau
     return out
 
 
@@ -399,21 +458,25 @@ def _optimise(
     dt: float,
     m: float | None,
     max_iter: int,
-) -> tuple[np.ndarray, np.ndarray, int, bool, float]:
+) -> tuple[np.ndarray, dict[str, Any], int, bool, float]:
     """Fisher scoring with Levenberg-Marquardt damping on eq. (1).
 
     The parameters are ``[v, log s (if estimated)]``; the transient ``tau``
     is profiled out exactly at every point (it enters affinely), so the
     reduced gradient and information (Schur complement) drive the step.
-    Returns the estimate, the full information (with ``tau``), the
+    Returns the estimate, the final evaluation (information with ``tau``
+    from every frequency, innovations' spectrum, ``K``, ``S``), the
     iterations, whether it converged and the final value of eq. (1).
     """
     sp = _Spectra(y, u)
     theta = np.concatenate([v0, np.log(noise.sensor_std)]) if est else v0.copy()
     p = theta.size
 
-    def evaluate(th: np.ndarray, derivatives: bool) -> dict[str, Any]:
-        return _evaluate(_model(th, noise, est, dt, m), sp, derivatives=derivatives)
+    stride = max(1, len(sp.z) // _FISHER_FREQUENCIES)
+
+    def evaluate(th: np.ndarray, derivatives: bool, full: bool = False) -> dict[str, Any]:
+        model = _model(th, noise, est, dt, m)
+        return _evaluate(model, sp, derivatives=derivatives, stride=1 if full else stride)
 
     try:
         st = evaluate(theta, True)
@@ -428,7 +491,8 @@ def _optimise(
     for free in stages:
         theta, st, n_it, converged = _scoring(evaluate, theta, st, free, max_iter - it)
         it += n_it
-    return theta, st["fisher"], it, converged, float(st["nll"])
+    st = evaluate(theta, True, full=True)  # the covariance from every frequency
+    return theta, st, it, converged, float(st["nll"])
 
 
 def _scoring(
@@ -463,14 +527,15 @@ def _scoring(
             lam *= 10.0
         else:
             # No descent at any damping: at the optimum to rounding (or stuck).
-            return theta, st, it, decrease < 1e-4 * k
+            # (the remaining step under a tenth of a standard error: rounding, converged)
+            return theta, st, it, decrease < 1e-2 * k
     return theta, st, it, False
 
 
 def _result(
     data: ClosedLoopData,
     theta: np.ndarray,
-    info: np.ndarray,
+    final: dict[str, Any],
     noise: NoiseModel,
     est: bool,
     *,
@@ -484,6 +549,7 @@ def _result(
 ) -> IdentificationResult:
     """Model, parameters with covariance (inverse Fisher, delta method) and diagnostics."""
     v = theta[:9]
+    info = final["fisher"]
     cov_v = invert_information(eliminate_nuisance(info, 9))
     dnames, _ = derived_parameters(v, m=m, i0=i0)
 
@@ -496,25 +562,24 @@ def _result(
             "mass m or bias current i0 unknown (loop['operating_point']): physical "
             "parameters need them; reporting v1..v9 and scale-free ratios only"
         )
-    # Innovations (with the final offsets and initial state) for the residuals.
+    # Innovations: the inverse DFT of the final spectrum (zero-frequency bin, the
+    # offsets, removed) -- the time-domain innovations of the predictor started
+    # from the state that the profiled transient tau implies.
+    y = np.asarray(data.y, float)
+    E = np.array(final["eps"])
+    # Output offsets: the zero-frequency bin, E(1) = N (I - C (I - F)^-1 K) c.
     model = _model(theta, noise, est, data.dt, m)
-    y, u = np.asarray(data.y, float), np.asarray(data.u, float)
-    c, x0 = fit_nuisance(model, y, u)
-    fin = predictor_statistics(
-        without_derivatives(model),
-        np.asarray(data.y, float),
-        np.asarray(data.u, float),
-        offset=c,
-        x0=x0,
-        nuisance=False,
-        keep_residuals=True,
-    )
-    eps = fin.residuals
+    K = final["K"]
+    Fm = model.A - K @ model.C
+    Hc = np.eye(3) - model.C @ np.linalg.solve(np.eye(4) - Fm, K)
+    c = np.linalg.solve(Hc, np.real(E[0]) / y.shape[0])
+    E[0] = 0.0
+    eps = np.fft.irfft(E, n=y.shape[0], axis=0)
     Yc = y - y.mean(axis=0)
     osf = one_step_fit_percent(np.einsum("ij,ij->j", eps, eps), np.einsum("ij,ij->j", Yc, Yc))
     fitd = {f"one_step_fit_percent_{n}": float(f) for n, f in zip(data.channel_names("y"), osf)}
     fitd["one_step_fit_percent_min"] = float(np.nanmin(osf))
-    fitd["neg_log_likelihood"] = float(fin.neg_log_likelihood)
+    fitd["neg_log_likelihood"] = float(final["nll"])
     fitd["structure_residual"] = 0.0  # the model is parameterised in eq. (4) itself
     sensor = np.exp(theta[9:12]) if est else np.asarray(noise.sensor_std)
     return IdentificationResult(
@@ -532,9 +597,9 @@ def _result(
             "sensor_noise_std": sensor,
             "sensor_noise_estimated": est,
             "output_offsets": c,
-            "initial_state": x0,
-            "kalman_gain": fin.K,
-            "innovation_covariance": fin.innovation_covariance,
+            "transient": final["tau"],
+            "kalman_gain": final["K"],
+            "innovation_covariance": final["S"],
             "iterations": iterations,
             "converged": converged,
             "v_start": v_start,
