@@ -72,7 +72,7 @@ _TOL = 1e-6
 
 #: Frequencies the information of a scoring step is computed from (every
 #: k-th; the gradient always uses all of them, so the optimum is exact).
-_FISHER_FREQUENCIES = 4096
+_FISHER_FREQUENCIES = 16384
 
 
 def fit_ml(
