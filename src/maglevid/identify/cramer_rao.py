@@ -529,7 +529,8 @@ class CramerRaoBound:
         """``std / |value|`` for each parameter."""
         s = self.std()
         return {
-            k: s[k] / abs(v) if v != 0 else float("inf") for k, v in zip(self.names, self.values)
+            k: float(s[k] / abs(v)) if v != 0 else float("inf")
+            for k, v in zip(self.names, self.values.tolist())
         }
 
     def for_samples(self, n_samples: int) -> CramerRaoBound:
