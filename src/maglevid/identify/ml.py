@@ -129,22 +129,39 @@ def fit_ml(
     i0 = op_i0 if i0 is None else i0
     v0, noise0, start_kind, notes = _start(data, start, m=m, i0=i0)
     noise, estimate_noise = _noise(data, noise_std, force_std, amplifier_std, noise0)
-    theta, final, it, converged, nll = _optimise(
-        y, u, v0, noise, estimate_noise, dt=data.dt, m=m, max_iter=max_iter
-    )
+    # A poor IV start (short or very noisy record) can leave the scoring in a
+    # wrong basin; the nominal bearing the loop was designed on is the other
+    # natural start. The one with the higher likelihood goes first; the other
+    # is tried when the first does not converge, and the better end is kept.
+    starts = [(v0, start_kind)]
     v_nom = _nominal_v(data)
-    if start_kind == "physical" and not converged and v_nom is not None:
-        # A poor IV start (short or very noisy record) can leave the scoring far
-        # from the optimum; the nominal bearing the loop was designed on is the
-        # other natural start. Keep whichever reaches the higher likelihood.
-        alt = _optimise(y, u, v_nom, noise, estimate_noise, dt=data.dt, m=m, max_iter=max_iter)
-        notes.append(
-            "the scoring from the IV estimate did not converge; restarted from the nominal "
-            f"bearing ({'converged' if alt[3] else 'did not converge either'})"
+    if start_kind == "physical" and v_nom is not None:
+        nom_first = _start_likelihood(y, u, v_nom, noise, estimate_noise, data.dt, m) < (
+            _start_likelihood(y, u, v0, noise, estimate_noise, data.dt, m)
         )
-        if alt[3] or alt[4] < nll:
-            theta, final, it, converged, nll = alt
-            v0 = v_nom
+        starts = [(v_nom, "nominal"), starts[0]] if nom_first else [starts[0], (v_nom, "nominal")]
+    best = None
+    for k, (vs, kind) in enumerate(starts):
+        run = _optimise(y, u, vs, noise, estimate_noise, dt=data.dt, m=m, max_iter=max_iter)
+        if (
+            best is None
+            or (run[3] and not best[0][3])
+            or (run[3] == best[0][3] and run[4] < best[0][4])
+        ):
+            best = (run, vs, kind)
+        if k == 0 and kind == "nominal":
+            notes.append(
+                "started from the nominal bearing (higher likelihood than the IV estimate)"
+            )
+        if k > 0:
+            notes.append(
+                f"the first start did not converge; restarted from the {kind} "
+                f"({'converged' if run[3] else 'did not converge either'})"
+            )
+        if run[3]:
+            break
+    assert best is not None
+    (theta, final, it, converged, _), v0, _ = best
     if not converged:
         notes.append(f"Fisher scoring stopped after {it} iterations without converging")
     return _result(
@@ -174,6 +191,25 @@ def fit_ml(
 # ---------------------------------------------------------------------------
 # Steps
 # ---------------------------------------------------------------------------
+def _start_likelihood(
+    y: np.ndarray,
+    u: np.ndarray,
+    v: np.ndarray,
+    noise: NoiseModel,
+    est: bool,
+    dt: float,
+    m: float | None,
+) -> float:
+    """Eq. (1) at a starting point (inf where the predictor does not exist)."""
+    theta = np.concatenate([v, np.log(noise.sensor_std)]) if est else v
+    try:
+        return float(
+            _evaluate(_model(theta, noise, est, dt, m), _Spectra(y, u), derivatives=False)["nll"]
+        )
+    except (IdentificationError, ValueError, FloatingPointError, np.linalg.LinAlgError):
+        return float("inf")
+
+
 def _nominal_v(data: ClosedLoopData) -> np.ndarray | None:
     """v1..v9 of the bearing the loop was designed on (``loop["nominal"]``), if recorded."""
     nom = data.loop.get("nominal") if isinstance(data.loop, Mapping) else None
