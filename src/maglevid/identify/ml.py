@@ -551,13 +551,17 @@ def _scoring(
             Ms = info_red / np.outer(d, d) + lam * np.eye(k)
             trial = theta.copy()
             trial[free] -= np.linalg.solve(Ms, g / d) / d
+            # A lightly damped step is usually accepted: evaluate it with the
+            # derivatives at once (one pass instead of two); a heavily damped one
+            # is checked cheaply first.
+            likely = lam < 1e-2
             try:
-                st_t = evaluate(trial, False)
+                st_t = evaluate(trial, likely)
             except (IdentificationError, ValueError, FloatingPointError, np.linalg.LinAlgError):
                 lam *= 10.0
                 continue
             if st_t["nll"] < st["nll"]:
-                theta, st = trial, evaluate(trial, True)
+                theta, st = trial, (st_t if likely else evaluate(trial, True))
                 lam = max(lam / 10.0, 1e-9)
                 break
             lam *= 10.0
