@@ -1,0 +1,653 @@
+"""Maximum likelihood (prediction error) in the AMB's physical parameterisation.
+
+Why: instrumental variables (:mod:`maglevid.identify.physical`) are consistent
+but not efficient. Their instruments come from the excitation ``r`` alone and
+their equation error is a moving average of the sensor noise, weighted as if
+all channels were alike; on the default bearing the position noise (0.1 um) is
+large against the ~1 um motion the 1 V excitation causes, and IV's scatter is
+30-40 % of R1 and kw1 on a 2 s record while the Cramér-Rao bound is ~0.3 %
+(``docs/gosiewski.md``, "Maximum likelihood").
+
+What: the exact (stationary) Gaussian likelihood of the logged ``y`` given
+``u`` -- eq. (1) of :mod:`maglevid.identify.cramer_rao` -- maximised over
+
+* ``v1..v9`` (eq. (4)), through the ZOH model (eq. (7));
+* the three sensor noise levels (``log s``), unless given;
+* output offsets ``c`` (a constant offset of ``u`` is the same as one of
+  ``y`` for this plant, which has no pole at ``z = 1``: both are absorbed);
+* the initial predictor state (the plant is unstable; the steady-state
+  Kalman predictor ``A - K C`` is stable, and ``x0`` removes its start-up).
+
+Valid under feedback: ``u`` is logged, and the likelihood of ``y`` given its
+past and ``u`` is the product of the innovation densities whatever the
+controller (Ljung 1999, sec. 13.4).
+
+How: Fisher scoring (Gauss-Newton on eq. (1) with the expected Hessian, eq.
+(2)) with Levenberg-Marquardt damping, from the ``physical`` IV estimate.
+Sensitivities come from the linear recursions (3)-(4) of the predictor,
+evaluated by the block recursion of :mod:`maglevid.identify._recursion` in
+chunks; every iteration costs a few passes over the record. The covariance
+is the inverse Fisher matrix at the optimum (all nuisance parameters
+included), propagated to R, L, ki, kw, x0, ... by the delta method.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from maglevid.data import ClosedLoopData
+from maglevid.exceptions import DataError, IdentificationError
+from maglevid.identify.cramer_rao import (
+    NoiseModel,
+    amb_linear_gaussian_model,
+    derived_parameters,
+    eliminate_nuisance,
+    invert_information,
+    pinv_information,
+    predictor_derivatives,
+    steady_state_predictor,
+)
+from maglevid.identify.physical import fit_physical
+from maglevid.identify.result import IdentificationResult, propagate_covariance
+from maglevid.identify.uncertainty import one_step_fit_percent, operating_point
+from maglevid.physics.amb import (
+    C_AMB,
+    V_NAMES,
+    AMBParameters,
+    amb_state_space,
+)
+
+__all__ = ["METHODS", "fit_ml"]
+
+logger = logging.getLogger(__name__)
+
+#: Converged when the Fisher-scoring step would lower eq. (1) by less than this
+#: (g^T I^-1 g, the remaining step's length in standard errors, squared: 1e-6
+#: per parameter is a thousandth of a standard error).
+_TOL = 1e-6
+
+#: Frequencies the information of a scoring step is computed from (every
+#: k-th; the gradient always uses all of them, so the optimum is exact).
+_FISHER_FREQUENCIES = 16384
+
+
+def fit_ml(
+    data: ClosedLoopData,
+    *,
+    start: Any = "physical",
+    noise_std: Any = "estimate",
+    force_std: float = 0.0,
+    amplifier_std: Any = (0.0, 0.0),
+    max_iter: int = 60,
+    m: float | None = None,
+    i0: float | None = None,
+) -> IdentificationResult:
+    """Maximum-likelihood v1..v9 and physical parameters of the two-coil AMB (module notes).
+
+    Parameters
+    ----------
+    data : ClosedLoopData
+        ``y = [x, i1, i2]`` at the control rate and the logged ``u`` (or
+        ``u_f`` and ``r``).
+    start : "physical" or (9,) array_like
+        Starting point: the ``physical`` IV estimate (default) or given v1..v9.
+    noise_std : "estimate", "metadata" or (3,) sequence
+        Sensor noise standard deviations of ``[x, i1, i2]``: estimated with the
+        parameters (default), taken from ``metadata["noise_std"]`` of a
+        simulated record, or given [m, A, A].
+    force_std : float
+        Force disturbance on the rotor [N per sample, held], assumed known (0:
+        none, as the simulator).
+    amplifier_std : (2,) sequence
+        Amplifier input noise [V per sample, held], assumed known.
+    max_iter : int
+        Fisher-scoring iterations at most.
+    m, i0 : float, optional
+        Mass and bias current; default ``data.loop["operating_point"]``.
+
+    Returns
+    -------
+    IdentificationResult
+        ``method="ml"``; v1..v9 then the physical parameters (or ratios) with
+        their covariance; innovations as residuals; noise levels, offsets,
+        Kalman gain and iterations in ``extras``.
+
+    Raises
+    ------
+    DataError
+        Wrong signals or options.
+    IdentificationError
+        The predictor does not exist at the start, or no descent is found.
+    """
+    y, u = _signals(data)
+    op_m, op_i0 = operating_point(data.loop)
+    m = op_m if m is None else m
+    i0 = op_i0 if i0 is None else i0
+    v0, noise0, start_kind, notes = _start(data, start, m=m, i0=i0)
+    noise, estimate_noise = _noise(data, noise_std, force_std, amplifier_std, noise0)
+    # A poor IV start (short or very noisy record) can leave the scoring in a
+    # wrong basin; the nominal bearing the loop was designed on is the other
+    # natural start. The one with the higher likelihood goes first; the other
+    # is tried when the first does not converge, and the better end is kept.
+    starts = [(v0, start_kind)]
+    v_nom = _nominal_v(data)
+    if start_kind == "physical" and v_nom is not None:
+        nom_first = _start_likelihood(y, u, v_nom, noise, estimate_noise, data.dt, m) < (
+            _start_likelihood(y, u, v0, noise, estimate_noise, data.dt, m)
+        )
+        starts = [(v_nom, "nominal"), starts[0]] if nom_first else [starts[0], (v_nom, "nominal")]
+    best = None
+    for k, (vs, kind) in enumerate(starts):
+        run = _optimise(y, u, vs, noise, estimate_noise, dt=data.dt, m=m, max_iter=max_iter)
+        if (
+            best is None
+            or (run[3] and not best[0][3])
+            or (run[3] == best[0][3] and run[4] < best[0][4])
+        ):
+            best = (run, vs, kind)
+        if k == 0 and kind == "nominal":
+            notes.append(
+                "started from the nominal bearing (higher likelihood than the IV estimate)"
+            )
+        if k > 0:
+            notes.append(
+                f"the first start did not converge; restarted from the {kind} "
+                f"({'converged' if run[3] else 'did not converge either'})"
+            )
+        if run[3]:
+            break
+    assert best is not None
+    (theta, final, it, converged, _), v0, _ = best
+    if not converged:
+        notes.append(f"Fisher scoring stopped after {it} iterations without converging")
+    return _result(
+        data,
+        theta,
+        final,
+        noise,
+        estimate_noise,
+        m=m,
+        i0=i0,
+        iterations=it,
+        options={
+            "start": start_kind,
+            "noise_std": noise_std if isinstance(noise_std, str) else list(noise.sensor_std),
+            "force_std": float(force_std),
+            "amplifier_std": list(noise.amplifier_std),
+            "max_iter": int(max_iter),
+            "m": m,
+            "i0": i0,
+        },
+        notes=notes,
+        converged=converged,
+        v_start=v0,
+    )
+
+
+# ---------------------------------------------------------------------------
+# Steps
+# ---------------------------------------------------------------------------
+def _start_likelihood(
+    y: np.ndarray,
+    u: np.ndarray,
+    v: np.ndarray,
+    noise: NoiseModel,
+    est: bool,
+    dt: float,
+    m: float | None,
+) -> float:
+    """Eq. (1) at a starting point (inf where the predictor does not exist)."""
+    theta = np.concatenate([v, np.log(noise.sensor_std)]) if est else v
+    try:
+        return float(
+            _evaluate(_model(theta, noise, est, dt, m), _Spectra(y, u), derivatives=False)["nll"]
+        )
+    except (IdentificationError, ValueError, FloatingPointError, np.linalg.LinAlgError):
+        return float("inf")
+
+
+def _nominal_v(data: ClosedLoopData) -> np.ndarray | None:
+    """v1..v9 of the bearing the loop was designed on (``loop["nominal"]``), if recorded."""
+    nom = data.loop.get("nominal") if isinstance(data.loop, Mapping) else None
+    if not isinstance(nom, Mapping):
+        return None
+    try:
+        return AMBParameters(**nom).v()
+    except (TypeError, DataError):
+        return None
+
+
+def _signals(data: ClosedLoopData) -> tuple[np.ndarray, np.ndarray]:
+    if not isinstance(data, ClosedLoopData):
+        raise DataError(f"`data` must be a ClosedLoopData; got {type(data).__name__}")
+    if data.p != 1:
+        raise DataError(
+            f"the ml method needs one output sample per control period; got p={data.p}"
+        )
+    if data.u is None and data.u_f is not None and data.r is not None:
+        data = data.with_plant_input()
+    if data.u is None or data.ny != 3 or data.nu != 2:
+        raise DataError(
+            "the ml method needs a two-coil AMB recording: y = [x, i1, i2] and the logged "
+            f"u = [u1, u2]; got {data.ny} outputs and {0 if data.u is None else data.nu} inputs"
+        )
+    C = data.loop.get("C") if isinstance(data.loop, Mapping) else None
+    if C is not None and not np.allclose(np.asarray(C, dtype=float), C_AMB):
+        raise DataError("the ml method expects y = [x, i1, i2] (C of eq. (3))")
+    if data.n_samples < 200:
+        raise DataError(f"the recording has {data.n_samples} samples; the ml method needs >= 200")
+    return np.asarray(data.y, dtype=float), np.asarray(data.u, dtype=float)
+
+
+def _start(
+    data: ClosedLoopData, start: Any, *, m: float | None, i0: float | None
+) -> tuple[np.ndarray, np.ndarray | None, str, list[str]]:
+    """v1..v9 to start from, sensor noise levels if known, and how they were obtained."""
+    if isinstance(start, str):
+        if start != "physical":
+            raise DataError(f"`start` must be 'physical' or 9 numbers; got {start!r}")
+        iv = fit_physical(data, m=m, i0=i0)
+        v0 = np.array([iv.parameters[k] for k in V_NAMES])
+        cov_w = iv.extras.get("noise_covariance")
+        s0 = None if cov_w is None else np.sqrt(np.clip(np.diag(np.asarray(cov_w)), 0, None))
+        note = f"started from the physical ({iv.options['estimator']}) estimate"
+        return v0, s0, "physical", [note]
+    v0 = np.asarray(start, dtype=float).reshape(-1)
+    if v0.size != 9 or not np.all(np.isfinite(v0)):
+        raise DataError(f"`start` must be 'physical' or 9 finite numbers; got {start!r}")
+    return v0, None, "given", ["started from the given v1..v9"]
+
+
+def _noise(
+    data: ClosedLoopData,
+    noise_std: Any,
+    force_std: float,
+    amplifier_std: Any,
+    s0: np.ndarray | None,
+) -> tuple[NoiseModel, bool]:
+    """The noise model to start from and whether its sensor levels are estimated."""
+    if isinstance(noise_std, str):
+        if noise_std == "metadata":
+            nm = NoiseModel.from_data(data)
+            if nm is None:
+                raise DataError("noise_std='metadata': the recording has no positive noise_std")
+            s, est = nm.sensor_std, False
+        elif noise_std == "estimate":
+            # Start: the IV fit's white-noise estimate, else the sample-to-sample
+            # variation of each channel (the log of each level is a parameter).
+            dy = np.diff(np.asarray(data.y, dtype=float), axis=0)
+            fallback = np.maximum(np.std(dy, axis=0) / np.sqrt(2.0), 1e-300)
+            ok = s0 is not None and np.all(np.isfinite(s0)) and np.all(s0 > 0)
+            s = tuple((s0 if ok else fallback).tolist())  # type: ignore[union-attr]
+            est = True
+        else:
+            raise DataError(
+                f"`noise_std` must be 'estimate', 'metadata' or 3 numbers; got {noise_std!r}"
+            )
+    else:
+        s, est = tuple(np.asarray(noise_std, dtype=float).reshape(-1).tolist()), False
+    return NoiseModel(s, force_std=force_std, amplifier_std=amplifier_std), est  # type: ignore[arg-type]
+
+
+def _model(theta: np.ndarray, noise: NoiseModel, est: bool, dt: float, m: float | None) -> Any:
+    if est:
+        noise = NoiseModel(
+            tuple(np.exp(theta[9:12]).tolist()),  # type: ignore[arg-type]
+            force_std=noise.force_std,
+            amplifier_std=noise.amplifier_std,
+        )
+    return amb_linear_gaussian_model(theta[:9], dt, noise, m=m, estimate_noise=est)
+
+
+# ---------------------------------------------------------------------------
+# Eq. (1) in the frequency domain
+# ---------------------------------------------------------------------------
+# The predictor is a linear filter from (y, u) to eps. For a record of N
+# samples the DFT turns its recursion xh(k+1) = F xh(k) + B u(k) + K y(k) into,
+# at z = exp(2 pi j f / N), exactly (z^N = 1)
+#
+#     Xh(z) = (z I - F)^-1 (B U(z) + K Y(z) + z tau),  tau = xh(0) - xh(N),
+#
+# and Parseval gives sum_k eps_k^T S^-1 eps_k = (1/N) sum_f E(f)^H S^-1 E(f).
+# With tau a free nuisance parameter and the f = 0 bin left out (a constant
+# offset of y or u only moves that bin) eq. (1) is the time-domain criterion
+# with free offsets and a free start-up transient -- 7 of the N degrees of
+# freedom -- and costs one batched 4 x 4 inverse per frequency instead of a
+# recursion over the samples per parameter.
+
+
+class _Spectra:
+    """Real FFT of the record, the frequencies ``z`` and the Parseval weights."""
+
+    def __init__(self, y: np.ndarray, u: np.ndarray) -> None:
+        N = y.shape[0]
+        self.N = N
+        self.Y = np.fft.rfft(y, axis=0)
+        self.U = np.fft.rfft(u, axis=0)
+        M = self.Y.shape[0]
+        self.z = np.exp(2j * np.pi * np.arange(M) / N)
+        w = np.full(M, 2.0)
+        w[0] = 0.0  # the offsets' bin
+        if N % 2 == 0:
+            w[-1] = 1.0  # Nyquist
+        self.w = w
+
+
+class _Resolvent:
+    """``(z I - F)^-1`` at every frequency, applied to rows (layout ``(M, c, n)``).
+
+    By the eigendecomposition ``F = V diag(lam) V^-1`` (one BLAS product per
+    application instead of a 4 x 4 solve per frequency); a batched inverse
+    when ``V`` is ill-conditioned (``F`` close to defective).
+    """
+
+    def __init__(self, F: np.ndarray, z: np.ndarray) -> None:
+        lam, V = np.linalg.eig(F)
+        self.eig = bool(np.linalg.cond(V) < 1e6)
+        if self.eig:
+            self.V, self.Vi, self.T = V, np.linalg.inv(V), 1.0 / (z[:, None] - lam[None, :])
+        else:
+            self.G = np.linalg.inv(z[:, None, None] * np.eye(F.shape[0]) - F)
+
+    def apply(self, X: np.ndarray, left: np.ndarray) -> np.ndarray:
+        """``left (zI - F)^-1 x`` for every row ``x`` of ``X`` (M, c, n) -> (M, c, k)."""
+        if self.eig:
+            M, c, n = X.shape
+            Z = (X.reshape(-1, n) @ self.Vi.T).reshape(M, c, n) * self.T[:, None, :]
+            return (Z.reshape(-1, n) @ (left @ self.V).T).reshape(M, c, -1)
+        return np.einsum("fcj,fij,kj->fck", X, self.G, left, optimize=True)
+
+    def select(self, idx: np.ndarray) -> _Resolvent:
+        """The same resolvent at the frequencies ``idx`` only."""
+        sub = object.__new__(_Resolvent)
+        sub.eig = self.eig
+        if self.eig:
+            sub.V, sub.Vi, sub.T = self.V, self.Vi, self.T[idx]
+        else:
+            sub.G = self.G[idx]
+        return sub
+
+    def rows_times(self, Q: np.ndarray) -> np.ndarray:
+        """``q_f (zI - F)^-1`` for every row ``q_f`` of ``Q`` (M, n)."""
+        if self.eig:
+            return ((Q @ self.V) * self.T) @ self.Vi
+        return np.einsum("fi,fij->fj", Q, self.G)
+
+    def matrix(self, left: np.ndarray) -> np.ndarray:
+        """``left (zI - F)^-1`` per frequency, (M, k, n)."""
+        if self.eig:
+            Z = (left @ self.V)[None, :, :] * self.T[:, None, :]
+            return (Z.reshape(-1, Z.shape[2]) @ self.Vi).reshape(Z.shape)
+        return left @ self.G
+
+
+def _gram(X: np.ndarray) -> np.ndarray:
+    """``Re sum_f X_f^H X_f`` for ``X`` (M, c, k) as one real product, (c, c)."""
+    Xt = X.transpose(0, 2, 1).reshape(-1, X.shape[1])
+    R = np.concatenate([Xt.real, Xt.imag])
+    return R.T @ R
+
+
+def _profile_transient(
+    res: _Resolvent, LC: np.ndarray, zw: np.ndarray, e0w: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares ``tau`` of ``e0w - Phi tau`` with ``Phi_f = zw_f LC (z_f I - F)^-1``.
+
+    Returns ``tau`` and ``Phi tau``. In the eigenbasis ``Phi_f = zw_f LC V D_f V^-1``
+    and the normal equations are n x n sums over the frequencies (one product
+    each, never the (M, ny, n) array): ``Re V^-H (H o sum_f conj(d_f) d_f^T) V^-1``
+    with ``H = (LC V)^H (LC V)``, ``d_f = zw_f diag(D_f)``.
+    """
+    if not res.eig:
+        Phi = res.matrix(LC) * zw[:, None, None]
+        P = _gram(Phi.transpose(0, 2, 1))
+        b = np.real(np.einsum("fik,fi->k", Phi.conj(), e0w))
+        tau = np.linalg.lstsq(P, b, rcond=None)[0]
+        return tau, Phi @ tau
+    LV = LC @ res.V
+    d = res.T * zw[:, None]
+    Hm = LV.conj().T @ LV
+    P = np.real(res.Vi.conj().T @ (Hm * (d.conj().T @ d)) @ res.Vi)
+    q = e0w @ LV.conj()  # rows (LC V)^H e0w_f
+    b = np.real(res.Vi.conj().T @ np.einsum("fk,fk->k", d.conj(), q))
+    tau = np.linalg.lstsq(P, b, rcond=None)[0]
+    return tau, ((res.Vi @ tau)[None, :] * d) @ LV.T
+
+
+def _evaluate(model: Any, sp: _Spectra, *, derivatives: bool, stride: int = 1) -> dict[str, Any]:
+    """Eq. (1) with ``tau`` profiled; with ``derivatives``, gradient and eq. (2)
+    (the latter from every ``stride``-th frequency)."""
+    A, B, C = model.A, model.B, model.C
+    n = A.shape[0]
+    K, P, S = steady_state_predictor(A, C, model.Q, model.R)
+    F = A - K @ C
+    N, z, sw = sp.N, sp.z, np.sqrt(sp.w)
+    res = _Resolvent(F, z)
+    Li = np.linalg.inv(np.linalg.cholesky(S))
+    LC = Li @ C
+    # Whitened innovations Li eps = Li Y - Li C (zI-F)^-1 (B U + K Y) - Li Phi tau
+    drive = (sp.U @ B.T + sp.Y @ K.T)[:, None, :]
+    e0w = ((sp.Y @ Li.T)[:, None, :] - res.apply(drive, LC))[:, 0, :] * sw[:, None]
+    tau, Phi_tau = _profile_transient(res, LC, z * sw, e0w)
+    ew = e0w - Phi_tau  # whitened, weighted innovations
+    sum_ww = np.vdot(ew, ew).real / N  # sum_k eps^T S^-1 eps (Parseval)
+    _, logdet = np.linalg.slogdet(S)
+    out: dict[str, Any] = {"nll": 0.5 * sum_ww + 0.5 * N * logdet, "S": S, "K": K}
+    if not derivatives:
+        return out
+    dK, dS = predictor_derivatives(model, K, P, S)
+    p = model.n_params
+    # Xh = (zI-F)^-1 (B U + K Y + z tau), eps = Y - C Xh (unweighted DFTs)
+    Xh = res.apply(drive + (z[:, None] * tau[None, :])[:, None, :], np.eye(n))[:, 0, :]
+    eps = sp.Y - Xh @ C.T
+    ews = eps * sw[:, None]
+    sum_ee = np.real(ews.T @ ews.conj()) / N  # sum_k eps eps^T (Parseval)
+    # Gradient of eq. (1) by the adjoint of eq. (3): with psi_i = -Li C (zI-F)^-1 W_i,
+    # W_i = A_i Xh + B_i U + K_i E, sum_f psi_i^H ew = sum_f W_i^H mu with
+    # mu = -(Li C (zI-F)^-1)^H ew: three n x (n, nu, ny) sums for all parameters at
+    # once, instead of one recursion per parameter (tau is at its optimum: no term).
+    mu = -np.conj(res.rows_times(ew.conj() @ LC)) * sw[:, None]
+    grad = np.zeros(p + n)
+    grad[:p] = (
+        np.einsum("pjk,jk->p", model.dA, np.real(mu.T @ Xh.conj()))
+        + np.einsum("pjk,jk->p", model.dB, np.real(mu.T @ sp.U.conj()))
+        + np.einsum("pjk,jk->p", dK, np.real(mu.T @ eps.conj()))
+    ) / N
+    # eq. (2) from the sensitivities at every `stride`-th frequency (weights scaled):
+    # the scoring step needs the information only approximately; the covariance
+    # is computed with stride 1.
+    idx = np.arange(1, len(z), stride)
+    W = (
+        (Xh[idx] @ model.dA.transpose(2, 0, 1).reshape(n, -1))
+        + (sp.U[idx] @ model.dB.transpose(2, 0, 1).reshape(model.dB.shape[2], -1))
+        + (eps[idx] @ dK.transpose(2, 0, 1).reshape(dK.shape[2], -1))
+    ).reshape(-1, p, n)
+    scale = np.sqrt(stride) * sw[idx]
+    Psw = -res.select(idx).apply(W, LC) * scale[:, None, None]  # whitened sensitivities
+    Phw = res.select(idx).matrix(LC) * (z[idx] * scale)[:, None, None]  # d(ew)/d(-tau)
+    Psw = np.concatenate([Psw, -Phw.transpose(0, 2, 1)], axis=1)
+    info = _gram(Psw) / N
+    Si = np.linalg.inv(S)
+    SidS = np.einsum("ij,pjk->pik", Si, dS)
+    info[:p, :p] += 0.5 * N * np.einsum("pij,qji->pq", SidS, SidS)  # eq. (2)
+    grad[:p] += 0.5 * N * np.trace(SidS, axis1=1, axis2=2) - 0.5 * np.einsum(
+        "pij,ji->p", SidS @ Si, sum_ee
+    )
+    out["fisher"] = 0.5 * (info + info.T)
+    out["gradient"] = grad
+    out["eps"] = eps
+    out["tau"] = tau
+    return out
+
+
+def _optimise(
+    y: np.ndarray,
+    u: np.ndarray,
+    v0: np.ndarray,
+    noise: NoiseModel,
+    est: bool,
+    *,
+    dt: float,
+    m: float | None,
+    max_iter: int,
+) -> tuple[np.ndarray, dict[str, Any], int, bool, float]:
+    """Fisher scoring with Levenberg-Marquardt damping on eq. (1).
+
+    The parameters are ``[v, log s (if estimated)]``; the transient ``tau``
+    is profiled out exactly at every point (it enters affinely), so the
+    reduced gradient and information (Schur complement) drive the step.
+    Returns the estimate, the final evaluation (information with ``tau``
+    from every frequency, innovations' spectrum, ``K``, ``S``), the
+    iterations, whether it converged and the final value of eq. (1).
+    """
+    sp = _Spectra(y, u)
+    theta = np.concatenate([v0, np.log(noise.sensor_std)]) if est else v0.copy()
+    p = theta.size
+
+    stride = max(1, len(sp.z) // _FISHER_FREQUENCIES)
+
+    def evaluate(th: np.ndarray, derivatives: bool, full: bool = False) -> dict[str, Any]:
+        model = _model(th, noise, est, dt, m)
+        return _evaluate(model, sp, derivatives=derivatives, stride=1 if full else stride)
+
+    try:
+        st = evaluate(theta, True)
+    except IdentificationError as exc:
+        raise IdentificationError(f"ml: no stable Kalman predictor at the start ({exc})") from exc
+    it = 0
+    converged = False
+    # Stage 1 holds the noise levels at their start (the IV fit's estimate): the
+    # dynamics converge from a poor start without the noise levels absorbing
+    # the misfit; stage 2 frees everything.
+    stages = [np.arange(9), np.arange(p)] if est else [np.arange(p)]
+    for free in stages:
+        theta, st, n_it, converged = _scoring(evaluate, theta, st, free, max_iter - it)
+        it += n_it
+    st = evaluate(theta, True, full=True)  # the covariance from every frequency
+    return theta, st, it, converged, float(st["nll"])
+
+
+def _scoring(
+    evaluate: Any, theta: np.ndarray, st: dict[str, Any], free: np.ndarray, max_iter: int
+) -> tuple[np.ndarray, dict[str, Any], int, bool]:
+    """Levenberg-Marquardt-damped Fisher scoring on the ``free`` parameters."""
+    p = theta.size
+    k = free.size
+    lam = 1e-3
+    it = 0
+    while it < max_iter:
+        it += 1
+        info_red = eliminate_nuisance(st["fisher"], p)[np.ix_(free, free)]
+        g = st["gradient"][free]
+        d = np.sqrt(np.clip(np.diag(info_red), 1e-300, None))
+        decrease = float(g @ pinv_information(info_red) @ g)
+        if decrease < _TOL * k:
+            return theta, st, it, True
+        for _ in range(14):
+            Ms = info_red / np.outer(d, d) + lam * np.eye(k)
+            trial = theta.copy()
+            trial[free] -= np.linalg.solve(Ms, g / d) / d
+            # A lightly damped step is usually accepted: evaluate it with the
+            # derivatives at once (one pass instead of two); a heavily damped one
+            # is checked cheaply first.
+            likely = lam < 1e-2
+            try:
+                st_t = evaluate(trial, likely)
+            except (IdentificationError, ValueError, FloatingPointError, np.linalg.LinAlgError):
+                lam *= 10.0
+                continue
+            if st_t["nll"] < st["nll"]:
+                theta, st = trial, (st_t if likely else evaluate(trial, True))
+                lam = max(lam / 10.0, 1e-9)
+                break
+            lam *= 10.0
+        else:
+            # No descent at any damping: at the optimum to rounding (or stuck).
+            # (the remaining step under a tenth of a standard error: rounding, converged)
+            return theta, st, it, decrease < 1e-2 * k
+    return theta, st, it, False
+
+
+def _result(
+    data: ClosedLoopData,
+    theta: np.ndarray,
+    final: dict[str, Any],
+    noise: NoiseModel,
+    est: bool,
+    *,
+    m: float | None,
+    i0: float | None,
+    iterations: int,
+    options: dict[str, Any],
+    notes: list[str],
+    converged: bool,
+    v_start: np.ndarray,
+) -> IdentificationResult:
+    """Model, parameters with covariance (inverse Fisher, delta method) and diagnostics."""
+    v = theta[:9]
+    info = final["fisher"]
+    cov_v = invert_information(eliminate_nuisance(info, 9))
+    dnames, _ = derived_parameters(v, m=m, i0=i0)
+
+    def chain(vv: np.ndarray) -> np.ndarray:
+        return np.concatenate([vv, derived_parameters(vv, m=m, i0=i0)[1]])
+
+    values, cov = propagate_covariance(chain, v, cov_v)
+    if m is None or i0 is None:
+        notes.append(
+            "mass m or bias current i0 unknown (loop['operating_point']): physical "
+            "parameters need them; reporting v1..v9 and scale-free ratios only"
+        )
+    # Innovations: the inverse DFT of the final spectrum (zero-frequency bin, the
+    # offsets, removed) -- the time-domain innovations of the predictor started
+    # from the state that the profiled transient tau implies.
+    y = np.asarray(data.y, float)
+    E = np.array(final["eps"])
+    # Output offsets: the zero-frequency bin, E(1) = N (I - C (I - F)^-1 K) c.
+    model = _model(theta, noise, est, data.dt, m)
+    K = final["K"]
+    Fm = model.A - K @ model.C
+    Hc = np.eye(3) - model.C @ np.linalg.solve(np.eye(4) - Fm, K)
+    c = np.linalg.solve(Hc, np.real(E[0]) / y.shape[0])
+    E[0] = 0.0
+    eps = np.fft.irfft(E, n=y.shape[0], axis=0)
+    Yc = y - y.mean(axis=0)
+    osf = one_step_fit_percent(np.einsum("ij,ij->j", eps, eps), np.einsum("ij,ij->j", Yc, Yc))
+    fitd = {f"one_step_fit_percent_{n}": float(f) for n, f in zip(data.channel_names("y"), osf)}
+    fitd["one_step_fit_percent_min"] = float(np.nanmin(osf))
+    fitd["neg_log_likelihood"] = float(final["nll"])
+    fitd["structure_residual"] = 0.0  # the model is parameterised in eq. (4) itself
+    sensor = np.exp(theta[9:12]) if est else np.asarray(noise.sensor_std)
+    return IdentificationResult(
+        method="ml",
+        model=amb_state_space(v, data.dt),  # eq. (7): the ZOH model in physical coordinates
+        continuous_model=amb_state_space(v),
+        parameters=dict(zip(list(V_NAMES) + list(dnames), values.tolist())),
+        covariance=0.5 * (cov + cov.T),
+        n_samples=int(data.n_samples),
+        options=options,
+        residuals=eps,
+        fit=fitd,
+        notes=tuple(notes),
+        extras={
+            "sensor_noise_std": sensor,
+            "sensor_noise_estimated": est,
+            "output_offsets": c,
+            "transient": final["tau"],
+            "kalman_gain": final["K"],
+            "innovation_covariance": final["S"],
+            "iterations": iterations,
+            "converged": converged,
+            "v_start": v_start,
+            "fisher": info,
+            "fisher_names": (*model.names, "tau0", "tau1", "tau2", "tau3"),
+        },
+    )
+
+
+#: Registered with ``maglevid identify --method``.
+METHODS: Mapping[str, Any] = {"ml": fit_ml}
