@@ -95,9 +95,12 @@ def test_method_list_has_one_described_line_per_method(capsys):
         assert name in available_methods() and len(description.strip()) > 20, line
 
 
-def test_stages_are_shown_unless_quiet(tmp_path, capsys):
+def test_stages_are_shown_unless_quiet(tmp_path, capsys, monkeypatch):
     # Issue 18: long single steps (simulate, read, identify, diagnose, write) were
-    # silent; a bar names the stage in progress.
+    # silent; a bar names the stage in progress (on a terminal: stderr is made one).
+    import sys
+
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: True, raising=False)
     out = tmp_path / "a.npz"
     assert main(["simulate", "amb", "--n-samples", "2000", "--out", str(out)]) == 0
     err = capsys.readouterr().err

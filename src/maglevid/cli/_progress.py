@@ -9,14 +9,21 @@ from typing import Any, TypeVar
 T = TypeVar("T")
 
 
+def _quiet(args: Any) -> bool:
+    """No bar under --quiet or --json, nor when stderr is not a terminal (logs, pipes, CI):
+    a bar's carriage returns would only clutter a log, and an error line printed after
+    it must stay one line."""
+    if args is not None and (getattr(args, "quiet", False) or getattr(args, "json", False)):
+        return True
+    isatty = getattr(sys.stderr, "isatty", None)
+    return not (callable(isatty) and isatty())
+
+
 def progress(
     iterable: Iterable[T], *, desc: str, total: int | None = None, args: Any = None
 ) -> Iterator[T]:
     """Wrap ``iterable`` in a progress bar unless the user asked for quiet output."""
-    quiet = bool(
-        args is not None and (getattr(args, "quiet", False) or getattr(args, "json", False))
-    )
-    if quiet:
+    if _quiet(args):
         yield from iterable
         return
     from tqdm import tqdm
@@ -32,11 +39,8 @@ def stages(names: Iterable[str], *, desc: str, args: Any = None) -> Iterator[str
     For commands whose work is a few long steps (read, identify, report): the
     bar appears once a step takes longer than a moment, with its name.
     """
-    quiet = bool(
-        args is not None and (getattr(args, "quiet", False) or getattr(args, "json", False))
-    )
     names = list(names)
-    if quiet:
+    if _quiet(args):
         yield from names
         return
     from tqdm import tqdm
