@@ -88,6 +88,22 @@ def recover_excitation(
         raise DataError("recovering the excitation needs a same-rate record with one command u")
     if data.r is not None:
         raise DataError("the record already has an excitation r")
+    if data.u_f is not None:
+        # The feedback is logged: r = u - u_f exactly, nothing to recover (or fit).
+        r_logged = data.u[:, 0] - data.u_f[:, 0]
+        if not np.any(np.abs(r_logged) > 1e-9 * max(float(np.max(np.abs(data.u))), 1e-300)):
+            raise DataError(
+                "no excitation in this record: the logged command u equals the logged "
+                "feedback u_f, so the loop is driven by noise alone and a method that needs "
+                "an excitation (two-stage, indirect) cannot separate the plant from the "
+                "controller; add a dither r, or sample the output faster than the control "
+                "period (Sun et al.: p > 1, method intersample)"
+            )
+        loop = {**dict(data.loop), "excitation": "u - u_f (both logged)"}
+        names = {**{k: tuple(v) for k, v in data.names.items()}, "r": ("dither",)}
+        units = {**{k: tuple(v) for k, v in data.units.items()}, "r": data.units.get("u", ("",))}
+        out = data.replace(r=r_logged[:, None], names=names, units=units, loop=loop)
+        return out, {"source": "u - u_f (both logged)", "r_rms": float(np.std(r_logged))}
     inputs = list(controller_inputs or [f"y:{j}" for j in range(data.ny)])
     W = np.column_stack([resolve_channel(data, c).values for c in inputs])
     u = data.u[:, 0]
