@@ -387,7 +387,13 @@ def _ac_from_gamma(Gam: np.ndarray, ny: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _moesp_core(
-    st: _Stats, i: int, weighting: str, order: int | None, rank_tol: float, rcond: float
+    st: _Stats,
+    i: int,
+    weighting: str,
+    order: int | None,
+    rank_tol: float,
+    rcond: float,
+    noise_model: bool = True,
 ) -> _Core:
     # LQ of [U_f; W_p; Y_f]: Y_f Pi_{U_f}^perp projected on the row space of the
     # instruments W_p Pi_{U_f}^perp is L32 Q2^T; its column space is that of
@@ -413,7 +419,7 @@ def _moesp_core(
     # [Qu, Qw] spans [U_f; U_p; Y_p], the instruments of the noise statistics.
     Z = (
         _z_projections(st, i, rcond, np.concatenate([Qu, Qw], axis=1))
-        if weighting == "po"
+        if weighting == "po" and noise_model
         else None
     )
     return _Core(A=A, C=C, B=None, D=None, s=s, n=n, gap=gap, order_auto=auto, Z=Z)
@@ -874,6 +880,7 @@ class _Options:
     rank_tol: float | None
     factorization: str
     bd_method: str
+    noise_model: bool = True
 
 
 def _options(algorithm: str, **kw: Any) -> _Options:
@@ -896,6 +903,7 @@ def _options(algorithm: str, **kw: Any) -> _Options:
         rank_tol=_check_rank_tol(kw["rank_tol"]),
         factorization=_check_choice(kw["factorization"], "factorization", _FACTORIZATIONS),
         bd_method=_check_choice(kw["bd_method"], "bd_method", _BD_METHODS),
+        noise_model=bool(kw.get("noise_model", True)),
     )
 
 
@@ -962,7 +970,7 @@ def _fit(
 
     # ---- subspace step: A, C (and B, D for simple N4SID)
     if opt.algorithm == "moesp":
-        core = _moesp_core(st, i, opt.weighting, opt.order, rank_tol, rcond)
+        core = _moesp_core(st, i, opt.weighting, opt.order, rank_tol, rcond, opt.noise_model)
     else:
         core = _n4sid_core(
             st,
@@ -1022,42 +1030,15 @@ def _fit(
     model = StateSpace(A, B, C, D, opt.dt)
 
     # ---- noise model and fit (one-step-ahead; never an open-loop simulation)
-    cov, rho_v = _innovation_stats(st, i, A, Bs, Cs, Ds, rcond, core.Z)
-    y_rows = st.y_rows(i, i + 1)
-    y2 = np.einsum("ij,ij->i", st.F[y_rows], st.F[y_rows])  # second moment, scaled
-    var_y = np.maximum(y2 - st.mean[nu:] ** 2 / s_y**2, 0.0)
-    mse = np.einsum("ij,ij->i", rho_v, rho_v)
     fit: dict[str, float] = {}
-    with np.errstate(divide="ignore", invalid="ignore"):
-        hfit = 100.0 * (1.0 - np.sqrt(mse / var_y))
-    fit["horizon_predictor_fit_percent"] = float(np.mean(hfit))
-    K_s, Re_s, why = _kalman_gain(A, Cs, cov)
-    sy_m = np.diag(s_y)
-    extras["noise_covariance"] = {
-        "Q": cov[:n, :n],
-        "S": cov[:n, n:] @ sy_m,
-        "R": sy_m @ cov[n:, n:] @ sy_m,
-    }
     residuals = None
-    if K_s is None:
-        notes.append(f"no steady-state Kalman predictor: {why}; one-step fit not computed")
+    if opt.noise_model:
+        residuals = _noise_model(st, i, model, core, (Bs, Ds), data, fit, extras, notes, rcond)
     else:
-        assert Re_s is not None
-        K = K_s / s_y[None, :]
-        extras["kalman_gain"] = K
-        extras["innovation_covariance"] = sy_m @ Re_s @ sy_m
-        if data is not None:
-            y, u = data
-            residuals = _predictor_residuals(model, K, y, u)
-            yc = y - y.mean(axis=0)
-            num = np.sqrt(np.einsum("ij,ij->j", residuals, residuals))
-            den = np.sqrt(np.einsum("ij,ij->j", yc, yc))
-            with np.errstate(divide="ignore", invalid="ignore"):
-                f = 100.0 * (1.0 - num / den)
-            fit["one_step_fit_percent"] = float(np.mean(f))
-            if ny > 1:
-                for c in range(ny):
-                    fit[f"one_step_fit_percent_y{c + 1}"] = float(f[c])
+        notes.append(
+            "noise model not computed (noise_model=False): no noise covariances, Kalman "
+            "gain, residuals or fit percentages"
+        )
     if not model.is_stable():
         notes.append(
             "the model is unstable (poles outside the unit circle); it is reported as found"
@@ -1091,6 +1072,7 @@ def _fit(
         "rank_tol": rank_tol,
         "factorization": st.factorization,
         "bd_method": opt.bd_method,
+        "noise_model": opt.noise_model,
         "scale_channels": True,
     }
     if opt.variant is not None:
@@ -1110,6 +1092,65 @@ def _fit(
         continuous_model=continuous,
         extras=extras,
     )
+
+
+def _noise_model(
+    st: _Stats,
+    i: int,
+    model: StateSpace,
+    core: _Core,
+    BD_scaled: tuple[np.ndarray, np.ndarray],
+    data: tuple[np.ndarray, np.ndarray] | None,
+    fit: dict[str, float],
+    extras: dict[str, Any],
+    notes: list[str],
+    rcond: float,
+) -> np.ndarray | None:
+    """Noise covariances, Kalman gain and one-step residuals (into ``fit``, ``extras``, ``notes``).
+
+    Returns the residuals over the record (``None`` without the record or without a
+    stable steady-state predictor).
+    """
+    A, Cs, n = model.A, core.C, core.n
+    Bs, Ds = BD_scaled
+    nu, ny = st.nu, st.ny
+    s_y = st.scale[nu:]
+    cov, rho_v = _innovation_stats(st, i, A, Bs, Cs, Ds, rcond, core.Z)
+    y_rows = st.y_rows(i, i + 1)
+    y2 = np.einsum("ij,ij->i", st.F[y_rows], st.F[y_rows])  # second moment, scaled
+    var_y = np.maximum(y2 - st.mean[nu:] ** 2 / s_y**2, 0.0)
+    mse = np.einsum("ij,ij->i", rho_v, rho_v)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        hfit = 100.0 * (1.0 - np.sqrt(mse / var_y))
+    fit["horizon_predictor_fit_percent"] = float(np.mean(hfit))
+    K_s, Re_s, why = _kalman_gain(A, Cs, cov)
+    sy_m = np.diag(s_y)
+    extras["noise_covariance"] = {
+        "Q": cov[:n, :n],
+        "S": cov[:n, n:] @ sy_m,
+        "R": sy_m @ cov[n:, n:] @ sy_m,
+    }
+    residuals = None
+    if K_s is None:
+        notes.append(f"no steady-state Kalman predictor: {why}; one-step fit not computed")
+    else:
+        assert Re_s is not None
+        K = K_s / s_y[None, :]
+        extras["kalman_gain"] = K
+        extras["innovation_covariance"] = sy_m @ Re_s @ sy_m
+        if data is not None:
+            y, u = data
+            residuals = _predictor_residuals(model, K, y, u)
+            yc = y - y.mean(axis=0)
+            num = np.sqrt(np.einsum("ij,ij->j", residuals, residuals))
+            den = np.sqrt(np.einsum("ij,ij->j", yc, yc))
+            with np.errstate(divide="ignore", invalid="ignore"):
+                f = 100.0 * (1.0 - num / den)
+            fit["one_step_fit_percent"] = float(np.mean(f))
+            if ny > 1:
+                for c in range(ny):
+                    fit[f"one_step_fit_percent_y{c + 1}"] = float(f[c])
+    return residuals
 
 
 def _plan_in_memory(N: int, m: int, ny: int, opt: _Options) -> int:
@@ -1157,6 +1198,7 @@ def fit_moesp(
     factorization: str = "gram",
     bd_method: str = "subspace",
     max_horizon: int | None = None,
+    noise_model: bool = True,
     rng: np.random.Generator | None = None,
 ) -> IdentificationResult:
     """MIMO state-space model by MOESP (PO-MOESP by default).
@@ -1203,6 +1245,12 @@ def fit_moesp(
         grows by more than 1e12 over the record.
     max_horizon : int, optional
         Upper limit of the automatic horizon (default 40).
+    noise_model : bool
+        Compute the noise model (noise covariances, steady-state Kalman gain,
+        one-step residuals and fit percentages; default). ``False`` returns the
+        deterministic model ``A, B, C, D`` alone, as SLICOT's IB01AD/BD do: for
+        batch fits where only the model matters (the noise model is much of the
+        fixed cost on short records and ~30 % of the time on long ones).
     rng : numpy.random.Generator, optional
         Unused: the method is deterministic. Accepted for a uniform ``fit_*`` API.
 
@@ -1282,6 +1330,7 @@ def fit_moesp(
             factorization=factorization,
             bd_method=bd_method,
             max_horizon=max_horizon,
+            noise_model=noise_model,
         ),
     )
 
@@ -1300,6 +1349,7 @@ def fit_n4sid(
     factorization: str = "gram",
     bd_method: str = "subspace",
     max_horizon: int | None = None,
+    noise_model: bool = True,
     rng: np.random.Generator | None = None,
 ) -> IdentificationResult:
     """MIMO state-space model by N4SID (oblique projection).
@@ -1313,7 +1363,9 @@ def fit_n4sid(
 
     Parameters
     ----------
-    y, u, order, horizon, dt, feedthrough, rank_tol, factorization, bd_method, max_horizon, rng
+    y, u, order, horizon, dt, feedthrough, rank_tol, factorization, bd_method, max_horizon
+        As in :func:`fit_moesp`.
+    noise_model, rng
         As in :func:`fit_moesp`.
     weighting : {"n4sid", "moesp", "cva"}
         ``W1 = I, W2 = I`` (N4SID, default); ``W1 = I, W2 = Pi_{U_f}^perp``
@@ -1371,6 +1423,7 @@ def fit_n4sid(
             factorization=factorization,
             bd_method=bd_method,
             max_horizon=max_horizon,
+            noise_model=noise_model,
         ),
     )
 
@@ -1461,13 +1514,14 @@ class SubspaceAccumulator:
         weighting: str | None = None,
         variant: str = "robust",
         rank_tol: float | None = None,
+        noise_model: bool = True,
     ) -> IdentificationResult:
         """Identify from the data seen so far.
 
         Parameters
         ----------
         algorithm : {"moesp", "n4sid"}
-        order, dt, feedthrough, rank_tol
+        order, dt, feedthrough, rank_tol, noise_model
             As in :func:`fit_moesp`.
         weighting : str, optional
             Default ``"po"`` for MOESP, ``"n4sid"`` for N4SID.
@@ -1489,6 +1543,7 @@ class SubspaceAccumulator:
             factorization=self.factorization,
             bd_method="subspace",
             max_horizon=self.max_horizon,
+            noise_model=noise_model,
         )
         assert self.ny is not None and self.nu is not None
         m = self.ny + self.nu
