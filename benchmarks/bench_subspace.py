@@ -151,7 +151,8 @@ def versus_ctrlsys(sizes, order=4, horizon=10, noise=0.1, repeat=5, stages=True)
     For each ``N`` of ``sizes``: the four fits (maglevid MOESP, ctrlsys IB01AD/BD
     MOESP with Cholesky, maglevid N4SID, ctrlsys N4SID with Cholesky) run in turn,
     ``repeat`` rounds, and the median of each is reported with the ratios
-    maglevid / ctrlsys: on a shared machine a core's speed drifts within seconds,
+    maglevid / ctrlsys (``lean``: maglevid with ``noise_model=False``, the model
+    alone, as SLICOT computes it): on a shared machine a core's speed drifts within seconds,
     so only interleaved ratios compare. ``stages`` adds ``stage_profile``. The load
     average before and after is recorded (ratios stay meaningful, times do not).
     Raises ``ImportError`` when ctrlsys is missing.
@@ -181,6 +182,8 @@ def versus_ctrlsys(sizes, order=4, horizon=10, noise=0.1, repeat=5, stages=True)
         row.update({k: statistics.median(v) for k, v in times.items()})
         row["MOESP ratio"] = row["maglevid MOESP"] / row["ctrlsys MOESP"]
         row["N4SID ratio"] = row["maglevid N4SID"] / row["ctrlsys N4SID"]
+        row["MOESP lean ratio"] = row["maglevid MOESP lean"] / row["ctrlsys MOESP"]
+        row["N4SID lean ratio"] = row["maglevid N4SID lean"] / row["ctrlsys N4SID"]
         if stages:
             row["stages"] = stage_profile(y, u, order, horizon, repeat=repeat)
         row["load"] = (load0, os.getloadavg()[0])
@@ -195,6 +198,13 @@ def _contenders(y, u, order, horizon, slicot):
         "ctrlsys MOESP": lambda: slicot(y, u, order, horizon),
         "maglevid N4SID": lambda: fit_n4sid(y, u, order=order, horizon=horizon),
         "ctrlsys N4SID": lambda: slicot(y, u, order, horizon, "N4SID Cholesky"),
+        # The same product as SLICOT's IB01AD/BD (A, B, C, D; no noise model):
+        "maglevid MOESP lean": lambda: fit_moesp(
+            y, u, order=order, horizon=horizon, noise_model=False
+        ),
+        "maglevid N4SID lean": lambda: fit_n4sid(
+            y, u, order=order, horizon=horizon, noise_model=False
+        ),
     }
 
 
@@ -202,7 +212,7 @@ def print_versus(rows) -> None:
     """The table of ``versus_ctrlsys`` (milliseconds)."""
     print(
         f"{'N':>9} {'MOESP':>9} {'ctrlsys':>9} {'ratio':>6} {'N4SID':>9} {'ctrlsys':>9} "
-        f"{'ratio':>6} {'pass':>8} {'model':>7} {'resid':>7}  load"
+        f"{'ratio':>6} {'lean M':>7} {'lean N':>7} {'pass':>8} {'model':>7} {'resid':>7}  load"
     )
     for r in rows:
         st = r.get("stages", {})
@@ -211,7 +221,8 @@ def print_versus(rows) -> None:
         sp = [1e3 * st.get(k, float("nan")) for k in ("data pass", "model", "residuals")]
         print(
             f"{r['n_samples']:>9.0e} {ms[0]:>9.2f} {ms[1]:>9.2f} {r['MOESP ratio']:>6.2f} "
-            f"{mn[0]:>9.2f} {mn[1]:>9.2f} {r['N4SID ratio']:>6.2f} {sp[0]:>8.2f} {sp[1]:>7.2f} "
+            f"{mn[0]:>9.2f} {mn[1]:>9.2f} {r['N4SID ratio']:>6.2f} {r['MOESP lean ratio']:>7.2f} "
+            f"{r['N4SID lean ratio']:>7.2f} {sp[0]:>8.2f} {sp[1]:>7.2f} "
             f"{sp[2]:>7.2f}  {r['load'][0]:.1f}-{r['load'][1]:.1f}"
         )
         sys.stdout.flush()
