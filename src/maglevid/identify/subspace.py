@@ -1141,9 +1141,8 @@ def _noise_model(
         if data is not None:
             y, u = data
             residuals = _predictor_residuals(model, K, y, u)
-            yc = y - y.mean(axis=0)
             num = np.sqrt(np.einsum("ij,ij->j", residuals, residuals))
-            den = np.sqrt(np.einsum("ij,ij->j", yc, yc))
+            den = np.sqrt(_centred_sumsq(y))
             with np.errstate(divide="ignore", invalid="ignore"):
                 f = 100.0 * (1.0 - num / den)
             fit["one_step_fit_percent"] = float(np.mean(f))
@@ -1151,6 +1150,16 @@ def _noise_model(
                 for c in range(ny):
                     fit[f"one_step_fit_percent_y{c + 1}"] = float(f[c])
     return residuals
+
+
+def _centred_sumsq(y: np.ndarray) -> np.ndarray:
+    """``sum_t (y(t) - mean)^2`` per channel, chunk by chunk (no record-sized temporary)."""
+    mean = y.mean(axis=0)
+    out = np.zeros(y.shape[1])
+    for t0 in range(0, y.shape[0], _CHUNK):
+        yc = y[t0 : t0 + _CHUNK] - mean
+        out += np.einsum("ij,ij->j", yc, yc)
+    return out
 
 
 def _plan_in_memory(N: int, m: int, ny: int, opt: _Options) -> int:
