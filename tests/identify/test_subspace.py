@@ -454,6 +454,7 @@ def test_rejects_wrong_shapes_and_short_records(fit, data):
         ("bd_method", "ml"),
         ("rank_tol", 2.0),
         ("dt", -1.0),
+        ("noise_model", "no"),  # a CLI string must not pass as True
     ],
 )
 def test_rejects_bad_options(option, value, data):

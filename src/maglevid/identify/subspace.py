@@ -867,6 +867,12 @@ def _check_int(value: Any, name: str, low: int, allow_none: bool = True) -> int 
     return int(value)
 
 
+def _check_bool(value: Any, name: str) -> bool:
+    if not isinstance(value, (bool, np.bool_)):
+        raise DataError(f"`{name}` must be True or False; got {value!r}")
+    return bool(value)
+
+
 def _check_rank_tol(value: Any) -> float | None:
     if value is None:
         return None
@@ -915,7 +921,7 @@ def _options(algorithm: str, **kw: Any) -> _Options:
         rank_tol=_check_rank_tol(kw["rank_tol"]),
         factorization=_check_choice(kw["factorization"], "factorization", _FACTORIZATIONS),
         bd_method=_check_choice(kw["bd_method"], "bd_method", _BD_METHODS),
-        noise_model=bool(kw.get("noise_model", True)),
+        noise_model=_check_bool(kw.get("noise_model", True), "noise_model"),
     )
 
 
