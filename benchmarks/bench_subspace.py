@@ -4,6 +4,8 @@ Run from the repository root::
 
     python -m benchmarks.bench_subspace                       # N = 1e4, 1e5, 1e6
     python -m benchmarks.bench_subspace --sizes 1e4 1e5 --noise 0.1 --json out.json
+    python -m benchmarks.bench_subspace --versus-ctrlsys --sizes 1e3 1e4 1e5 1e6 \
+        --noise 0.1 --repeat 5                                # against SLICOT, interleaved
 
 Data: a fixed random 4th-order system with 2 inputs and 3 outputs (poles
 0.9 e^{+-0.3j}, 0.5, -0.3; basis scrambled), white-noise inputs, optional white
@@ -143,6 +145,89 @@ def stage_profile(y, u, order, horizon, repeat=3):
     return out
 
 
+def versus_ctrlsys(sizes, order=4, horizon=10, noise=0.1, repeat=5, stages=True):
+    """maglevid MOESP / N4SID against SLICOT (``ctrlsys``) in this process, interleaved.
+
+    For each ``N`` of ``sizes``: the four fits (maglevid MOESP, ctrlsys IB01AD/BD
+    MOESP with Cholesky, maglevid N4SID, ctrlsys N4SID with Cholesky) run in turn,
+    ``repeat`` rounds, and the median of each is reported with the ratios
+    maglevid / ctrlsys (``lean``: maglevid with ``noise_model=False``, the model
+    alone, as SLICOT computes it): on a shared machine a core's speed drifts within seconds,
+    so only interleaved ratios compare. ``stages`` adds ``stage_profile``. The load
+    average before and after is recorded (ratios stay meaningful, times do not).
+    Raises ``ImportError`` when ctrlsys is missing.
+    """
+    import os
+    import statistics
+
+    from benchmarks.peers import ctrlsys_slicot
+
+    ok, why = ctrlsys_slicot.available()
+    if not ok:
+        raise ImportError(why)
+    rows = []
+    for size in sizes:
+        N = int(size)
+        y, u, _ = make_data(N, noise)
+        load0 = os.getloadavg()[0]
+        fns = _contenders(y, u, order, horizon, ctrlsys_slicot.identify)
+        times: dict[str, list[float]] = {k: [] for k in fns}
+        for _ in range(repeat):
+            for k, fn in fns.items():
+                gc.collect()
+                t0 = time.perf_counter()
+                fn()
+                times[k].append(time.perf_counter() - t0)
+        row = {"n_samples": N, "repeat": repeat}
+        row.update({k: statistics.median(v) for k, v in times.items()})
+        row["MOESP ratio"] = row["maglevid MOESP"] / row["ctrlsys MOESP"]
+        row["N4SID ratio"] = row["maglevid N4SID"] / row["ctrlsys N4SID"]
+        row["MOESP lean ratio"] = row["maglevid MOESP lean"] / row["ctrlsys MOESP"]
+        row["N4SID lean ratio"] = row["maglevid N4SID lean"] / row["ctrlsys N4SID"]
+        if stages:
+            row["stages"] = stage_profile(y, u, order, horizon, repeat=repeat)
+        row["load"] = (load0, os.getloadavg()[0])
+        rows.append(row)
+    return rows
+
+
+def _contenders(y, u, order, horizon, slicot):
+    """The four timed calls of ``versus_ctrlsys`` on one record."""
+    return {
+        "maglevid MOESP": lambda: fit_moesp(y, u, order=order, horizon=horizon),
+        "ctrlsys MOESP": lambda: slicot(y, u, order, horizon),
+        "maglevid N4SID": lambda: fit_n4sid(y, u, order=order, horizon=horizon),
+        "ctrlsys N4SID": lambda: slicot(y, u, order, horizon, "N4SID Cholesky"),
+        # The same product as SLICOT's IB01AD/BD (A, B, C, D; no noise model):
+        "maglevid MOESP lean": lambda: fit_moesp(
+            y, u, order=order, horizon=horizon, noise_model=False
+        ),
+        "maglevid N4SID lean": lambda: fit_n4sid(
+            y, u, order=order, horizon=horizon, noise_model=False
+        ),
+    }
+
+
+def print_versus(rows) -> None:
+    """The table of ``versus_ctrlsys`` (milliseconds)."""
+    print(
+        f"{'N':>9} {'MOESP':>9} {'ctrlsys':>9} {'ratio':>6} {'N4SID':>9} {'ctrlsys':>9} "
+        f"{'ratio':>6} {'lean M':>7} {'lean N':>7} {'pass':>8} {'model':>7} {'resid':>7}  load"
+    )
+    for r in rows:
+        st = r.get("stages", {})
+        ms = [1e3 * r[k] for k in ("maglevid MOESP", "ctrlsys MOESP")]
+        mn = [1e3 * r[k] for k in ("maglevid N4SID", "ctrlsys N4SID")]
+        sp = [1e3 * st.get(k, float("nan")) for k in ("data pass", "model", "residuals")]
+        print(
+            f"{r['n_samples']:>9.0e} {ms[0]:>9.2f} {ms[1]:>9.2f} {r['MOESP ratio']:>6.2f} "
+            f"{mn[0]:>9.2f} {mn[1]:>9.2f} {r['N4SID ratio']:>6.2f} {r['MOESP lean ratio']:>7.2f} "
+            f"{r['N4SID lean ratio']:>7.2f} {sp[0]:>8.2f} {sp[1]:>7.2f} "
+            f"{sp[2]:>7.2f}  {r['load'][0]:.1f}-{r['load'][1]:.1f}"
+        )
+        sys.stdout.flush()
+
+
 # --------------------------------------------------- the bare numpy baseline
 def numpy_gram_cholesky(y, u, order, horizon):
     """Textbook PO-MOESP with numpy alone: Gram of the block-Hankel rows + Cholesky.
@@ -279,7 +364,20 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--peers", nargs="+", default=None, help=f"subset of {sorted(PEERS)}")
     ap.add_argument("--no-memory", action="store_true", help="skip the tracemalloc run")
     ap.add_argument("--json", default=None, help="also write the results to this file")
+    ap.add_argument(
+        "--versus-ctrlsys",
+        action="store_true",
+        help="only maglevid MOESP/N4SID against ctrlsys, interleaved medians (--repeat rounds)",
+    )
     args = ap.parse_args(argv)
+    if args.versus_ctrlsys:
+        rows = versus_ctrlsys(args.sizes, args.order, args.horizon, args.noise, args.repeat)
+        print(f"# maglevid vs ctrlsys [ms], medians of {args.repeat} interleaved rounds")
+        print_versus(rows)
+        if args.json:
+            with open(args.json, "w") as fh:
+                json.dump({"args": vars(args), "versus_ctrlsys": rows}, fh, indent=2)
+        return 0
     names = args.peers or list(PEERS)
     unknown = set(names) - set(PEERS)
     if unknown:

@@ -264,6 +264,32 @@ def test_noisy_kalman_predictor_fit_and_noise_covariance():
     assert abs(res.fit["one_step_fit_percent"] - res.fit["horizon_predictor_fit_percent"]) < 2
 
 
+@pytest.mark.parametrize("fit", [fit_moesp, fit_n4sid])
+@pytest.mark.parametrize("weighting", [None, "pi"])
+def test_noise_model_false_gives_the_same_model_without_the_noise_products(fit, weighting):
+    """``noise_model=False`` skips the noise model and nothing else.
+
+    Reference: the default fit on the same record; A, B, C, D do not depend on the
+    noise model, so they agree bit for bit; the noise products are absent and a note
+    says why (no silent omission).
+    """
+    sys = make_system(STABLE, seed=17)
+    y, u = _innovations_data(sys, _gain(sys), 3000, 19, 0.3)
+    kw = {} if weighting is None or fit is fit_n4sid else {"weighting": weighting}
+    full = fit(y, u, order=4, horizon=8, **kw)
+    lean = fit(y, u, order=4, horizon=8, noise_model=False, **kw)
+    for name in "ABCD":
+        np.testing.assert_array_equal(getattr(lean.model, name), getattr(full.model, name))
+    np.testing.assert_array_equal(lean.singular_values, full.singular_values)
+    assert lean.residuals is None and dict(lean.fit) == {}
+    assert not {"kalman_gain", "noise_covariance", "innovation_covariance"} & set(lean.extras)
+    assert lean.options["noise_model"] is False and full.options["noise_model"] is True
+    assert any("noise_model=False" in n for n in lean.notes)
+    acc = SubspaceAccumulator(ny=3, nu=u.shape[1], horizon=8).update(y, u)
+    streamed = acc.fit(algorithm=fit.__name__[4:], order=4, noise_model=False, **kw)
+    np.testing.assert_allclose(streamed.model.A, lean.model.A, rtol=1e-9, atol=1e-12)
+
+
 def test_cva_needs_noise():
     sys = make_system(STABLE, seed=20)
     y, u = simulate(sys, 1000, seed=21)
@@ -428,6 +454,7 @@ def test_rejects_wrong_shapes_and_short_records(fit, data):
         ("bd_method", "ml"),
         ("rank_tol", 2.0),
         ("dt", -1.0),
+        ("noise_model", "no"),  # a CLI string must not pass as True
     ],
 )
 def test_rejects_bad_options(option, value, data):

@@ -169,23 +169,26 @@ class _LagGram:
         if N < self.min_samples():
             raise DataError(f"{N} samples are too few for lags up to {L}")
         head, tail = self.head, self.pending  # first L and last L samples
+        # Edge sums for every block (a, a + tau) at once. Head: sum_{s<a} z(s) z(s+tau)^T,
+        # the cumulative sum over s of Dh[s, tau] = z(s) z(s+tau)^T (s + tau <= w - 2 is
+        # all that enters; larger indices are clipped and never summed).
+        s_h = np.arange(w - 1)[:, None]
+        tau_g = np.arange(w)[None, :]
+        Dh = np.einsum("si,stj->stij", head[: w - 1], head[np.minimum(s_h + tau_g, L - 1)])
+        Hc = np.zeros((w, w, m, m))
+        np.cumsum(Dh, axis=0, out=Hc[1:])
+        # Tail: sum_{q=0}^{a+L-w} tail(q) tail(q+tau)^T, tail(q) = z(N-L+q).
+        q_t = np.arange(L)[:, None]
+        Dt = np.einsum("qi,qtj->qtij", tail, tail[np.minimum(q_t + tau_g, L - 1)])
+        Tc = np.zeros((L + 1, w, m, m))
+        np.cumsum(Dt, axis=0, out=Tc[1:])
+        a, b = np.triu_indices(w)
+        tau = b - a
+        blk = self.S[tau] - Hc[a, tau] + Tc[L - w + 1 + a, tau]
         G = np.empty((w * m, w * m))
         G4 = G.reshape(w, m, w, m)  # view: G4[a, :, b, :] is block (a, b)
-        for tau in range(w):
-            na = w - tau  # blocks (a, a + tau), a = 0..w-1-tau
-            # Head: sum_{s<a} z(s) z(s+tau)^T, cumulative over a.
-            hp = np.einsum("si,sj->sij", head[: na - 1], head[tau : tau + na - 1])
-            hcum = np.concatenate([np.zeros((1, m, m)), np.cumsum(hp, axis=0)])
-            # Tail: sum_{q=0}^{a+L-w} tail(q) tail(q+tau)^T, tail(q) = z(N-L+q).
-            nq = L - tau  # products with q + tau <= L - 1
-            tp = np.einsum("si,sj->sij", tail[:nq], tail[tau : tau + nq])
-            tcum = np.concatenate([np.zeros((1, m, m)), np.cumsum(tp, axis=0)])
-            # All blocks (a, a + tau), a = 0..na-1, at once.
-            blk = self.S[tau] - hcum[:na] + tcum[L - w + 1 : L - w + 1 + na]
-            a = np.arange(na)
-            G4[a, :, a + tau, :] = blk
-            if tau:
-                G4[a + tau, :, a, :] = blk.transpose(0, 2, 1)
+        G4[b, :, a, :] = blk.transpose(0, 2, 1)
+        G4[a, :, b, :] = blk  # after the transposes: the diagonal blocks as computed
         return G
 
 
