@@ -388,7 +388,7 @@ def _fit(
         except ModelError as exc:
             notes.append(f"no continuous-time model: {exc}")
     params.update({f"a{k + 1}": float(v) for k, v in enumerate(_char_poly(model.A))})
-    rho = float(np.max(np.abs(np.linalg.eigvals(A - K @ C)))) if n else 0.0
+    rho = float(np.max(np.abs(np.linalg.eigvals(model.A - K @ model.C)))) if n else 0.0
     if not rho < 1.0:
         notes.append(f"the identified predictor A - K C is not stable (spectral radius {rho:.4g})")
     if not model.is_stable():
@@ -413,9 +413,7 @@ def _fit(
         fit["one_step_fit_percent"] = float(np.mean(pct))
     Fy = st.F[st.y_rows(p, p + 1)]
     var_y = np.maximum(np.einsum("ij,ij->i", Fy, Fy), 1e-300)
-    fit["varx_state_fit_percent"] = float(
-        np.mean(100.0 * (1.0 - np.sqrt(np.diag(Re) / var_y)))
-    )
+    fit["varx_state_fit_percent"] = float(np.mean(100.0 * (1.0 - np.sqrt(np.diag(Re) / var_y))))
     extras.update(
         kalman_gain=K,
         innovation_covariance=Re_phys,

@@ -6,9 +6,10 @@ methods here read such a record chunk by chunk and keep only statistics whose
 size does not depend on its length, so the peak memory is that of one chunk
 (plus small fixed arrays) whatever the record length.
 
-Subspace (``moesp``, ``n4sid``): one pass
+Subspace (``moesp``, ``n4sid``, ``pbsid``, ``ssarx``): one pass
     The block-Hankel statistics of
-    :class:`~maglevid.identify.subspace.SubspaceAccumulator` (lagged products
+    :class:`~maglevid.identify.subspace.SubspaceAccumulator` or
+    :class:`~maglevid.identify.pbsid.PredictorAccumulator` (lagged products
     of ``z = [u, y]`` and the first and last samples; ``docs/subspace.md``).
 
 The physical AMB method (``physical``, least squares or IV): two passes
@@ -57,6 +58,7 @@ from maglevid.data import ClosedLoopData
 from maglevid.exceptions import DataError
 from maglevid.identify.arx import RegressionAccumulator
 from maglevid.identify.iv import loop_instrument_system
+from maglevid.identify.pbsid import PredictorAccumulator
 from maglevid.identify.physical import (
     _plant_signals,
     physical_labels,
@@ -76,6 +78,7 @@ __all__ = [
     "DEFAULT_CHUNK",
     "STREAMED_METHODS",
     "fit_physical_streamed",
+    "fit_predictor_streamed",
     "fit_subspace_streamed",
     "identify_streamed",
 ]
@@ -452,6 +455,59 @@ def fit_subspace_streamed(
     return replace(res, notes=(*res.notes, note))
 
 
+def fit_predictor_streamed(
+    source: ChunkSource,
+    *,
+    algorithm: str = "pbsid",
+    chunk_size: int = DEFAULT_CHUNK,
+    past: int | None = None,
+    future: int | None = None,
+    max_past: int = DEFAULT_MAX_HORIZON,
+    remove_mean: bool = True,
+    progress: Progress | None = None,
+    **fit_options: Any,
+) -> IdentificationResult:
+    """PBSID-opt or SSARX of a record streamed in chunks (one pass).
+
+    The lagged products of :class:`~maglevid.identify.pbsid.PredictorAccumulator`;
+    equals :func:`~maglevid.identify.pbsid.fit_pbsid` / ``fit_ssarx`` on the whole
+    record to rounding, without ``residuals``. ``fit_options`` (order,
+    feedthrough, weighting, rank_tol, coordinates) go to its ``fit``.
+    """
+    opener = _opener(source, chunk_size)
+    acc: PredictorAccumulator | None = None
+    dt = 0.0
+    n_chunks = 0
+    for chunk in _chunks(opener, progress):
+        data = chunk.with_plant_input() if chunk.u is None else chunk
+        if data.u is None:
+            raise DataError(
+                f"method {algorithm!r} needs the plant input `u` (or `u_f` and `r`); chunk "
+                f"{n_chunks} has neither"
+            )
+        if acc is None:
+            dt = data.dt
+            acc = PredictorAccumulator(
+                ny=data.ny,
+                nu=data.nu,
+                algorithm=algorithm,
+                past=past,
+                future=future,
+                max_past=max_past,
+                remove_mean=remove_mean,
+            )
+        elif abs(data.dt - dt) > 1e-12 * dt:
+            raise DataError(f"chunk {n_chunks} has dt={data.dt:g} s; the first had {dt:g} s")
+        acc.update(data.y_control, data.u)
+        n_chunks += 1
+    if acc is None:
+        raise DataError("the source gave no chunks")
+    fit_options.setdefault("dt", dt)
+    res = acc.fit(**fit_options)
+    note = f"streamed: {acc.n_samples} samples in {n_chunks} chunk(s), one pass"
+    return replace(res, notes=(*res.notes, note))
+
+
 def _moesp(source: ChunkSource, **options: Any) -> IdentificationResult:
     return fit_subspace_streamed(source, algorithm="moesp", **options)
 
@@ -465,11 +521,13 @@ STREAMED_METHODS: Mapping[str, Callable[..., IdentificationResult]] = {
     "physical": fit_physical_streamed,
     "moesp": _moesp,
     "n4sid": _n4sid,
+    "pbsid": lambda source, **o: fit_predictor_streamed(source, algorithm="pbsid", **o),
+    "ssarx": lambda source, **o: fit_predictor_streamed(source, algorithm="ssarx", **o),
 }
 
 
 def identify_streamed(source: ChunkSource, method: str, **options: Any) -> IdentificationResult:
-    """Run the streamed form of a registered method (``physical``, ``moesp``, ``n4sid``).
+    """Run the streamed form of a registered method (``physical``, ``moesp``, ``n4sid``, ...).
 
     Raises
     ------
