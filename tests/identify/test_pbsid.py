@@ -158,13 +158,14 @@ def test_offsets_change_nothing(fit):
     # Constant offsets of 1e3 x the signal rms (an operating point): the centred
     # Gram makes the fit offset invariant (rounding after the reference shift).
     y, u = generic_loop(20_000, 0.3, seed=7)
+    cy, cu = np.array([300.0, -500.0]), np.array([1e3, 2.0])
     ref = fit(y, u, order=3, past=10)
-    got = fit(y + [300.0, -500.0], u + [1e3, 2.0], order=3, past=10)
+    got = fit(y + cy, u + cu, order=3, past=10)
     h = ref.model.markov(10)
     np.testing.assert_allclose(got.model.markov(10), h, atol=1e-7 * np.max(np.abs(h)))
-    np.testing.assert_allclose(got.extras["mean"]["y"], np.mean(y, axis=0) + [300, -500])
+    np.testing.assert_allclose(got.extras["mean"]["y"], np.mean(y, axis=0) + cy)
     # Without centring the offsets bias the model.
-    raw = fit(y + [300.0, -500.0], u + [1e3, 2.0], order=3, past=10, remove_mean=False)
+    raw = fit(y + cy, u + cu, order=3, past=10, remove_mean=False)
     assert np.max(np.abs(raw.model.markov(10) - h)) > 1e-3
 
 

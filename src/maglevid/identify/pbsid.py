@@ -170,7 +170,7 @@ def _gamma_k(V: np.ndarray, p: int, f: int, m: int) -> np.ndarray:
 def _state_map_pbsid(
     st: _Stats, V: np.ndarray, p: int, f: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Left singular vectors, singular values of ``Gamma_f K_p Z_p`` and ``Gamma_f K_p``, eq. (P6)."""
+    """Left singular vectors and singular values of ``Gamma_f K_p Z_p``; ``Gamma_f K_p`` (P6)."""
     GK = _gamma_k(V, p, f, st.m)
     P = GK @ st.F[_z_rows(st, 0, p)]  # Gamma_f K_p Z_p in the factor's basis
     U, s, _ = np.linalg.svd(P, full_matrices=False)
