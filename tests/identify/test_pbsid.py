@@ -1,7 +1,7 @@
 """PBSID-opt and SSARX: exact without noise, consistent under feedback, streamed == in memory.
 
-Reference values. The generic plant below is defined here (its poles and Markov
-parameters are the truth); the bearing's v1..v9 and unstable pole come from
+Reference values. The generic plant is ``example_unstable_mimo`` (its poles,
+Markov parameters and noise gain are the truth); the bearing's v1..v9 and unstable pole come from
 the simulator's physics (``bench_amb_speed.bearing_case``'s truth). The closed
 loop uses a dynamic controller with direct feedthrough of ``y`` and a white
 reference ``r``, so the plant input is correlated with the current innovation:
@@ -26,31 +26,15 @@ from maglevid.identify.subspace import fit_moesp
 from maglevid.lti import StateSpace
 from maglevid.physics.amb import AMBParameters, v_from_matrices
 from maglevid.simulate import simulate_amb_loop
-from maglevid.simulate.kernel import simulate_lti
+from maglevid.simulate.feedback import example_unstable_mimo, simulate_innovation_loop
 
-# Unstable 3-state, 2-in, 2-out plant in innovation form (pole 1.07) ...
-A = np.array([[1.05, 0.2, 0.0], [0.0, 0.7, 0.3], [0.1, -0.2, 0.5]])
-B = np.array([[0.0, 1.0], [1.0, 0.0], [0.5, 0.5]])
-C = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
-K = np.array([[0.5, 0.0], [0.1, 0.2], [0.0, 0.4]])
-PLANT = StateSpace(A, B, C, np.zeros((2, 2)), dt=1.0)
-# ... under a 2-state controller xc+ = Ac xc + Bc y, u = Cc xc + Dc y + r.
-AC = np.diag([0.5, 0.3])
-BC = 0.5 * np.eye(2)
-CC = -np.diag([0.2, 0.1])
-DC = -np.array([[0.0, 0.3], [0.6, 0.0]])
+PLANT, K, CONTROLLER = example_unstable_mimo()
+A, C = PLANT.A, PLANT.C
 
 
 def generic_loop(n: int, noise: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
     """``(y, u)`` of the closed loop, inputs ``[r, e]`` white (r unit, e ``noise`` rms)."""
-    Acl = np.block([[A + B @ DC @ C, B @ CC], [BC @ C, AC]])
-    Bcl = np.block([[B, K + B @ DC], [np.zeros((2, 2)), BC]])
-    Ccl = np.block([[C, np.zeros((2, 2))], [DC @ C, CC]])
-    Dcl = np.block([[np.zeros((2, 2)), np.eye(2)], [np.eye(2), DC]])
-    rng = np.random.default_rng(seed)
-    w = np.hstack([rng.standard_normal((n, 2)), noise * rng.standard_normal((n, 2))])
-    out, _ = simulate_lti(StateSpace(Acl, Bcl, Ccl, Dcl, dt=1.0), w)
-    return out[:, :2], out[:, 2:]
+    return simulate_innovation_loop(PLANT, K, CONTROLLER, n, e_std=noise, rng=seed)
 
 
 def _markov_error(model: StateSpace) -> float:

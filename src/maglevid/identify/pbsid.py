@@ -94,7 +94,9 @@ _ROWS_PER_COLUMN = 5
 
 
 # ----------------------------------------------------------------- data stage
-def _window_stats(acc: _LagGram, nu: int, ny: int, w: int, shift: np.ndarray, center: bool):
+def _window_stats(
+    acc: _LagGram, nu: int, ny: int, w: int, shift: np.ndarray, center: bool
+) -> _Stats:
     """Scaled, normalised factor of the Hankel rows of window ``w`` (centred if asked).
 
     Centring: with ``s_a = sum_t z(t+a)`` the column sums of the Hankel rows, the
@@ -124,7 +126,7 @@ def _window_stats(acc: _LagGram, nu: int, ny: int, w: int, shift: np.ndarray, ce
         G = G - np.outer(s, s) / j
     d = np.tile(1.0 / scale, w)
     F, rank = factor_gram(G * (d[:, None] * d[None, :]) / j)
-    st = _Stats(
+    return _Stats(
         F=F,
         nu=nu,
         ny=ny,
@@ -136,7 +138,6 @@ def _window_stats(acc: _LagGram, nu: int, ny: int, w: int, shift: np.ndarray, ce
         rank=rank,
         factorization="gram",
     )
-    return st
 
 
 def _z_rows(st: _Stats, t0: int, t1: int) -> np.ndarray:
@@ -179,7 +180,7 @@ def _state_map_pbsid(
 
 def _corrected_future(st: _Stats, V: np.ndarray, D: np.ndarray, p: int, f: int) -> np.ndarray:
     """``ytil_f = y_f - Htil_f z_f`` (f ny x r), eq. (P7)."""
-    ny, m, nu = st.ny, st.m, st.nu
+    ny, m = st.ny, st.m
     out = np.empty((f * ny, st.F.shape[1]))
     for i in range(f):
         yi = st.F[st.y_rows(p + i, p + i + 1)] - D @ st.F[st.u_rows(p + i, p + i + 1)]
@@ -187,7 +188,6 @@ def _corrected_future(st: _Stats, V: np.ndarray, D: np.ndarray, p: int, f: int) 
             Xi = V[:, (p - i) * m :]  # Xi_i .. Xi_1 on z(p..p+i-1)
             yi = yi - Xi @ st.F[_z_rows(st, p, p + i)]
         out[i * ny : (i + 1) * ny] = yi
-    del nu
     return out
 
 
@@ -547,7 +547,7 @@ class PredictorAccumulator:
         p_top = self.past if self.past is not None else self.max_past
         assert p_top is not None
         f_top = self.future if self.future is not None else p_top
-        lags = (p_top if self.algorithm == "pbsid" else p_top + f_top - 1) if p_top else 1
+        lags = p_top if self.algorithm == "pbsid" else p_top + f_top - 1
         self._acc = _LagGram(self.nu + self.ny, max(lags, 1))
         self._shift: np.ndarray | None = None
 
@@ -598,12 +598,10 @@ class PredictorAccumulator:
         p_top, lags = _plan(N, self.nu + self.ny, self.ny, opt)
         if self.past is None:
             p_top = min(p_top, self.max_past)
-        if N < self._acc.min_samples() or lags > self._acc.L:
-            raise DataError(
-                f"{N} samples are too few for the lags kept ({self._acc.L})"
-                if N < self._acc.min_samples()
-                else f"order={order} needs a past above this accumulator's max_past"
-            )
+        if N < self._acc.min_samples():
+            raise DataError(f"{N} samples are too few for the lags kept ({self._acc.L})")
+        if lags > self._acc.L:
+            raise DataError(f"order={order} needs a past above this accumulator's max_past")
         assert self._shift is not None
         return _fit(self._acc, self.nu, self.ny, opt, p_top, self._shift, None)
 
