@@ -411,9 +411,13 @@ def _fit(
         with np.errstate(divide="ignore", invalid="ignore"):
             pct = 100.0 * (1.0 - num / den)
         fit["one_step_fit_percent"] = float(np.mean(pct))
+    # Fit of y(t) from the state of the last p samples, over the Hankel rows
+    # (scaled units; the second moment less the mean unless the rows are centred).
     Fy = st.F[st.y_rows(p, p + 1)]
-    var_y = np.maximum(np.einsum("ij,ij->i", Fy, Fy), 1e-300)
-    fit["varx_state_fit_percent"] = float(np.mean(100.0 * (1.0 - np.sqrt(np.diag(Re) / var_y))))
+    var_y = np.einsum("ij,ij->i", Fy, Fy) - (0.0 if center else (mean_y / s_y) ** 2)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        hfit = 100.0 * (1.0 - np.sqrt(np.diag(Re) / np.maximum(var_y, 0.0)))
+    fit["horizon_predictor_fit_percent"] = float(np.mean(hfit))
     extras.update(
         kalman_gain=K,
         innovation_covariance=Re_phys,
