@@ -517,15 +517,14 @@ class PredictorAccumulator:
     Examples
     --------
     >>> import numpy as np
-    >>> from maglevid.lti import StateSpace
-    >>> sys = StateSpace([[0.9, 0.2], [-0.2, 0.9]], [[1.0], [0.0]], [[1.0, 0.0]], dt=1.0)
-    >>> u = np.random.default_rng(0).standard_normal((3000, 1))
-    >>> y, _ = sys.simulate(u)
-    >>> acc = PredictorAccumulator(ny=1, nu=1, past=4)
+    >>> from maglevid.simulate.feedback import example_unstable_mimo, simulate_innovation_loop
+    >>> plant, K, controller = example_unstable_mimo()  # unstable, in closed loop
+    >>> y, u = simulate_innovation_loop(plant, K, controller, 3000, rng=0)  # no noise
+    >>> acc = PredictorAccumulator(ny=2, nu=2, past=2)
     >>> for k in range(0, 3000, 700):
     ...     _ = acc.update(y[k:k + 700], u[k:k + 700])
-    >>> res = acc.fit(order=2)
-    >>> np.allclose(res.model.markov(6), sys.markov(6))
+    >>> res = acc.fit(order=3)
+    >>> np.allclose(res.model.markov(8), plant.markov(8))
     True
     """
 
@@ -720,13 +719,12 @@ def fit_pbsid(
     Examples
     --------
     >>> import numpy as np
-    >>> from maglevid.lti import StateSpace
-    >>> sys = StateSpace([[0.9, 0.2], [-0.2, 0.9]], [[1.0], [0.0]], [[1.0, 0.0]], dt=1.0)
-    >>> u = np.random.default_rng(0).standard_normal((2000, 1))
-    >>> y, _ = sys.simulate(u)
-    >>> res = fit_pbsid(y, u, order=2, past=4)
-    >>> np.allclose(np.sort_complex(res.model.poles()), np.sort_complex(sys.poles()))
-    True
+    >>> from maglevid.simulate.feedback import example_unstable_mimo, simulate_innovation_loop
+    >>> plant, K, controller = example_unstable_mimo()  # unstable, in closed loop
+    >>> y, u = simulate_innovation_loop(plant, K, controller, 2000, rng=0)  # no noise
+    >>> res = fit_pbsid(y, u)  # automatic past and order
+    >>> res.options["order"], np.allclose(res.model.markov(8), plant.markov(8))
+    (3, True)
     """
     del rng
     return _fit_in_memory(
@@ -792,12 +790,11 @@ def fit_ssarx(
     Examples
     --------
     >>> import numpy as np
-    >>> from maglevid.lti import StateSpace
-    >>> sys = StateSpace([[0.9, 0.2], [-0.2, 0.9]], [[1.0], [0.0]], [[1.0, 0.0]], dt=1.0)
-    >>> u = np.random.default_rng(0).standard_normal((2000, 1))
-    >>> y, _ = sys.simulate(u)
-    >>> res = fit_ssarx(y, u, order=2, past=4)
-    >>> np.allclose(res.model.markov(6), sys.markov(6))
+    >>> from maglevid.simulate.feedback import example_unstable_mimo, simulate_innovation_loop
+    >>> plant, K, controller = example_unstable_mimo()  # unstable, in closed loop
+    >>> y, u = simulate_innovation_loop(plant, K, controller, 2000, e_std=0.1, rng=0)
+    >>> res = fit_ssarx(y, u, order=3)
+    >>> bool(np.max(np.abs(res.model.poles())) > 1.0)  # the unstable pole, found
     True
     """
     del rng

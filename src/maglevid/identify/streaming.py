@@ -376,6 +376,38 @@ def fit_physical_streamed(
     )
 
 
+def _feed_plant_io(
+    opener: Callable[[], Iterable[ClosedLoopData]],
+    progress: Progress | None,
+    method: str,
+    make: Callable[[int, int], Any],
+) -> tuple[Any, float, int]:
+    """One pass: ``make(ny, nu)`` builds the accumulator, fed ``(y_control, u)`` per chunk.
+
+    Returns the accumulator, ``dt`` and the number of chunks.
+    """
+    acc = None
+    dt = 0.0
+    n_chunks = 0
+    for chunk in _chunks(opener, progress):
+        data = chunk.with_plant_input() if chunk.u is None else chunk
+        if data.u is None:
+            raise DataError(
+                f"method {method!r} needs the plant input `u` (or `u_f` and `r`); chunk "
+                f"{n_chunks} has neither"
+            )
+        if acc is None:
+            dt = data.dt
+            acc = make(data.ny, data.nu)
+        elif abs(data.dt - dt) > 1e-12 * dt:
+            raise DataError(f"chunk {n_chunks} has dt={data.dt:g} s; the first had {dt:g} s")
+        acc.update(data.y_control, data.u)
+        n_chunks += 1
+    if acc is None:
+        raise DataError("the source gave no chunks")
+    return acc, dt, n_chunks
+
+
 def fit_subspace_streamed(
     source: ChunkSource,
     *,
@@ -415,32 +447,14 @@ def fit_subspace_streamed(
     -------
     IdentificationResult
     """
-    opener = _opener(source, chunk_size)
-    acc: SubspaceAccumulator | None = None
-    dt = 0.0
-    n_chunks = 0
-    for chunk in _chunks(opener, progress):
-        data = chunk.with_plant_input() if chunk.u is None else chunk
-        if data.u is None:
-            raise DataError(
-                f"method {algorithm!r} needs the plant input `u` (or `u_f` and `r`); chunk "
-                f"{n_chunks} has neither"
-            )
-        if acc is None:
-            dt = data.dt
-            acc = SubspaceAccumulator(
-                ny=data.ny,
-                nu=data.nu,
-                horizon=horizon,
-                max_horizon=max_horizon,
-                factorization=factorization,
-            )
-        elif abs(data.dt - dt) > 1e-12 * dt:
-            raise DataError(f"chunk {n_chunks} has dt={data.dt:g} s; the first had {dt:g} s")
-        acc.update(data.y_control, data.u)
-        n_chunks += 1
-    if acc is None:
-        raise DataError("the source gave no chunks")
+    acc, dt, n_chunks = _feed_plant_io(
+        _opener(source, chunk_size),
+        progress,
+        algorithm,
+        lambda ny, nu: SubspaceAccumulator(
+            ny=ny, nu=nu, horizon=horizon, max_horizon=max_horizon, factorization=factorization
+        ),
+    )
     res = acc.fit(
         algorithm=algorithm,
         order=order,
@@ -474,34 +488,20 @@ def fit_predictor_streamed(
     record to rounding, without ``residuals``. ``fit_options`` (order,
     feedthrough, weighting, rank_tol, coordinates) go to its ``fit``.
     """
-    opener = _opener(source, chunk_size)
-    acc: PredictorAccumulator | None = None
-    dt = 0.0
-    n_chunks = 0
-    for chunk in _chunks(opener, progress):
-        data = chunk.with_plant_input() if chunk.u is None else chunk
-        if data.u is None:
-            raise DataError(
-                f"method {algorithm!r} needs the plant input `u` (or `u_f` and `r`); chunk "
-                f"{n_chunks} has neither"
-            )
-        if acc is None:
-            dt = data.dt
-            acc = PredictorAccumulator(
-                ny=data.ny,
-                nu=data.nu,
-                algorithm=algorithm,
-                past=past,
-                future=future,
-                max_past=max_past,
-                remove_mean=remove_mean,
-            )
-        elif abs(data.dt - dt) > 1e-12 * dt:
-            raise DataError(f"chunk {n_chunks} has dt={data.dt:g} s; the first had {dt:g} s")
-        acc.update(data.y_control, data.u)
-        n_chunks += 1
-    if acc is None:
-        raise DataError("the source gave no chunks")
+    acc, dt, n_chunks = _feed_plant_io(
+        _opener(source, chunk_size),
+        progress,
+        algorithm,
+        lambda ny, nu: PredictorAccumulator(
+            ny=ny,
+            nu=nu,
+            algorithm=algorithm,
+            past=past,
+            future=future,
+            max_past=max_past,
+            remove_mean=remove_mean,
+        ),
+    )
     fit_options.setdefault("dt", dt)
     res = acc.fit(**fit_options)
     note = f"streamed: {acc.n_samples} samples in {n_chunks} chunk(s), one pass"
