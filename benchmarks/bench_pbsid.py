@@ -12,7 +12,7 @@ Three plants, so that the method is not tied to one:
    where MOESP/N4SID's v5 and v7 are ~50 % off) and the paper-like record
    (R1, kw1 +20 %, noise 1e-10 m, 3e-6 A). Unstable-pole error (relative, in z),
    largest v_i error (relative) and the fit's time, for PBSID-opt and SSARX in
-   physical coordinates (automatic past, order 4), MOESP/N4SID + physical
+   physical coordinates (automatic past up to 80, and PBSID-opt up to 40; order 4), MOESP/N4SID + physical
    coordinates at horizon 40, physical IV, SIPPY's PARSIM-K and maglevid's
    maximum-likelihood method where they are installed (else "not measured").
 2. **A generic MIMO closed loop** (``simulate.feedback.example_unstable_mimo``:
@@ -116,8 +116,8 @@ def _bearing_tools() -> dict[str, Callable[[Any], tuple[Any, Any] | str]]:
     return {
         "maglevid pbsid (physical coordinates)": predictor(fit_pbsid),
         # The bearing's Kalman predictor has a pole at ~0.98: the VARX truncation
-        # of the default past (AIC up to 40) shows at N = 1e6 (docs/subspace.md).
-        "maglevid pbsid, max_past=80": predictor(fit_pbsid, max_past=80),
+        # of a shorter past (AIC up to 40, not the default 80) shows at N >= 1e5.
+        "maglevid pbsid, max_past=40": predictor(fit_pbsid, max_past=40),
         "maglevid ssarx (physical coordinates)": predictor(fit_ssarx),
         "maglevid moesp + physical coordinates": subspace(fit_moesp),
         "maglevid n4sid + physical coordinates": subspace(fit_n4sid),
@@ -205,7 +205,7 @@ def suspension_loop(n: int, seed: int) -> tuple[np.ndarray, np.ndarray, float, f
 
 def bench_suspension(sizes: tuple[int, ...], seed: int = 5) -> list[dict[str, Any]]:
     # The Kalman predictor of this loop has a pole at 0.907 (the unstable pole's
-    # mirror): the VARX truncation 0.907^p is 2 % at the default max_past 40.
+    # mirror): the VARX truncation 0.907^p is 2e-4 at the default max_past 80.
     tools: dict[str, Callable[..., Any]] = {
         "maglevid pbsid": fit_pbsid,
         "maglevid ssarx": fit_ssarx,

@@ -60,7 +60,6 @@ from maglevid.identify._hankel import _LagGram, factor_gram, lower_factor
 from maglevid.identify.physical import physical_transformation
 from maglevid.identify.result import IdentificationResult
 from maglevid.identify.subspace import (
-    DEFAULT_MAX_HORIZON,
     _arx_horizon,
     _char_poly,
     _check_choice,
@@ -74,9 +73,17 @@ from maglevid.identify.subspace import (
 from maglevid.lti import StateSpace, undiscretize
 from maglevid.physics.amb import V_NAMES, v_from_matrices
 
-__all__ = ["METHODS", "PredictorAccumulator", "fit_pbsid", "fit_ssarx"]
+__all__ = ["DEFAULT_MAX_PAST", "METHODS", "PredictorAccumulator", "fit_pbsid", "fit_ssarx"]
 
 logger = logging.getLogger(__name__)
+
+#: Largest past the automatic rule considers. The VARX truncation is
+#: ``|lambda_max(A - K C)|^p``; the bearing's predictor has a pole at ~0.98 and
+#: p = 40 leaves v5/v7 3-5 % off at N >= 1e5, p = 80 0.7-2 % (docs/subspace.md).
+#: PBSID-opt accumulates p lags, as many as MOESP at horizon 40.
+DEFAULT_MAX_PAST = 80
+#: Default future of SSARX: ``min(p, 40)`` (its Hankel window is ``p + f``).
+_SSARX_FUTURE = 40
 
 _ALGORITHMS = ("pbsid", "ssarx")
 _WEIGHTINGS = ("cca", "none")
@@ -270,7 +277,7 @@ def _options(algorithm: str, **kw: Any) -> _Options:
         order=_check_int(kw["order"], "order", 1),
         past=_check_int(kw["past"], "past", 1),
         future=_check_int(kw["future"], "future", 1),
-        max_past=DEFAULT_MAX_HORIZON if max_past is None else max_past,
+        max_past=DEFAULT_MAX_PAST if max_past is None else max_past,
         dt=check_positive(kw["dt"], "dt"),
         feedthrough=bool(kw["feedthrough"]),
         weighting=_check_choice(kw["weighting"], "weighting", _WEIGHTINGS),
@@ -292,8 +299,14 @@ def _plan(N: int, m: int, ny: int, opt: _Options) -> tuple[int, int]:
     else:
         p_top = int(min(opt.max_past, (N + 1) // (2 + 2 * _ROWS_PER_COLUMN * m)))
         p_top = max(p_top, _min_past(opt.order, ny))
-    f_top = opt.future if opt.future is not None else p_top
-    return p_top, _window(opt, p_top, f_top) - 1
+    return p_top, _window(opt, p_top, _future(opt.algorithm, opt.future, p_top)) - 1
+
+
+def _future(algorithm: str, future: int | None, p: int) -> int:
+    """The future ``f``: as given, else ``p`` (PBSID-opt) or ``min(p, 40)`` (SSARX)."""
+    if future is not None:
+        return future
+    return p if algorithm == "pbsid" else min(p, _SSARX_FUTURE)
 
 
 def _min_past(order: int | None, ny: int) -> int:
@@ -333,7 +346,7 @@ def _fit(
                 f"the VARX order hit its upper limit {p_top}: the predictor may need a longer "
                 "past than the record allows (pass past= or a longer record)"
             )
-    f = opt.future if opt.future is not None else p
+    f = _future(opt.algorithm, opt.future, p)
     if f > p:
         raise DataError(f"`future`={f} may not exceed `past`={p} (the VARX has p lags)")
     if opt.order is not None and opt.order > f * ny:
@@ -509,7 +522,7 @@ class PredictorAccumulator:
         Fixed past and future; when ``past`` is omitted it is chosen at fit time
         (AIC), up to ``max_past``.
     max_past : int
-        Largest automatic past (default 40); reduced at fit time to what the
+        Largest automatic past (default 80); reduced at fit time to what the
         record supports, as in memory.
     remove_mean : bool
         Centre the data (offset-invariant fit; default True).
@@ -536,7 +549,7 @@ class PredictorAccumulator:
         algorithm: str = "pbsid",
         past: int | None = None,
         future: int | None = None,
-        max_past: int = DEFAULT_MAX_HORIZON,
+        max_past: int = DEFAULT_MAX_PAST,
         remove_mean: bool = True,
     ) -> None:
         self.ny = _check_int(ny, "ny", 1, allow_none=False)
@@ -549,8 +562,7 @@ class PredictorAccumulator:
         assert self.ny is not None and self.nu is not None
         p_top = self.past if self.past is not None else self.max_past
         assert p_top is not None
-        f_top = self.future if self.future is not None else p_top
-        lags = p_top if self.algorithm == "pbsid" else p_top + f_top - 1
+        lags = p_top if self.algorithm == "pbsid" else p_top + _future("ssarx", future, p_top) - 1
         self._acc = _LagGram(self.nu + self.ny, max(lags, 1))
         self._shift: np.ndarray | None = None
 
@@ -681,7 +693,7 @@ def fit_pbsid(
         ``"physical"``: the two-coil bearing's states ``[x, dx/dt, i1, i2]``
         (4 states, outputs ``[x, i1, i2]``), with ``v1..v9`` in ``parameters``.
     max_past : int, optional
-        Upper limit of the automatic past (default 40).
+        Upper limit of the automatic past (default 80, ``DEFAULT_MAX_PAST``).
     rng : numpy.random.Generator, optional
         Unused (deterministic); accepted for a uniform ``fit_*`` API.
 
@@ -773,7 +785,8 @@ def fit_ssarx(
     Parameters
     ----------
     y, u, order, past, future, dt, feedthrough, rank_tol, remove_mean, coordinates, max_past, rng
-        As in :func:`fit_pbsid` (the Hankel window is ``past + future``).
+        As in :func:`fit_pbsid`, except that ``future`` defaults to ``min(past, 40)``
+        (the Hankel window is ``past + future``).
     weighting : {"cca", "none"}
         ``W1 = (ytil_f ytil_f^T)^{-1/2}`` (canonical correlations, Jansson's
         choice; default) or ``W1 = I``. Noise-free data have a singular

@@ -58,7 +58,7 @@ from maglevid.data import ClosedLoopData
 from maglevid.exceptions import DataError
 from maglevid.identify.arx import RegressionAccumulator
 from maglevid.identify.iv import loop_instrument_system
-from maglevid.identify.pbsid import PredictorAccumulator
+from maglevid.identify.pbsid import DEFAULT_MAX_PAST, PredictorAccumulator
 from maglevid.identify.physical import (
     _plant_signals,
     physical_labels,
@@ -476,7 +476,7 @@ def fit_predictor_streamed(
     chunk_size: int = DEFAULT_CHUNK,
     past: int | None = None,
     future: int | None = None,
-    max_past: int = DEFAULT_MAX_HORIZON,
+    max_past: int = DEFAULT_MAX_PAST,
     remove_mean: bool = True,
     progress: Progress | None = None,
     **fit_options: Any,
