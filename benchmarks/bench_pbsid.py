@@ -13,8 +13,9 @@ Three plants, so that the method is not tied to one:
    (R1, kw1 +20 %, noise 1e-10 m, 3e-6 A). Unstable-pole error (relative, in z),
    largest v_i error (relative) and the fit's time, for PBSID-opt and SSARX in
    physical coordinates (automatic past up to 80, and PBSID-opt up to 40;
-   order 4), MOESP/N4SID + physical coordinates at horizon 40, physical IV, SIPPY's PARSIM-K and maglevid's
-   maximum-likelihood method where they are installed (else "not measured").
+   order 4), MOESP/N4SID + physical coordinates at horizon 40, physical IV,
+   SIPPY's PARSIM-K and maglevid's maximum-likelihood method where they are
+   installed (else "not measured").
 2. **A generic MIMO closed loop** (``simulate.feedback.example_unstable_mimo``:
    3 states, 2 x 2, pole 1.07, a controller with direct feedthrough, white r and
    innovations of 0.3 rms): largest error of the first 10 Markov parameters and
