@@ -48,7 +48,7 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -198,16 +198,40 @@ def _corrected_future(st: _Stats, V: np.ndarray, D: np.ndarray, p: int, f: int) 
     return out
 
 
+def _ssarx_regression(
+    st: _Stats, p: int, f: int, feedthrough: bool
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """VARX (P4) and ``beta`` of ``ytil_f ~ beta Z_p`` (P7) from one least-squares solve.
+
+    (P7) is linear in the rows, so ``beta`` is the regression of ``y_f`` less
+    that of ``D u_f`` and of ``Xi_k z(t+i-k)``: one factorisation of ``Z_p`` and
+    the future rows as right-hand sides (the first of which is the VARX's).
+    """
+    ny, nu, m = st.ny, st.nu, st.m
+    rhs = np.concatenate([st.F[st.y_rows(p, p + f)], st.F[_z_rows(st, p, p + f)]])
+    coef = _regress(rhs, st.F[_z_rows(st, 0, p)], _RCOND)
+    Cy, Cz = coef[: f * ny], coef[f * ny :]  # block i: coefficients of y(p+i), z(p+i)
+    if feedthrough:
+        V, D = _varx(st, p, True)
+    else:
+        V, D = Cy[:ny], np.zeros((ny, nu))
+    beta = np.empty_like(Cy)
+    for i in range(f):
+        b = Cy[i * ny : (i + 1) * ny] - D @ Cz[i * m : i * m + nu]
+        if i:  # Xi_i .. Xi_1 (V's last i blocks) on z(p..p+i-1)
+            b = b - V[:, (p - i) * m :] @ Cz[: i * m]
+        beta[i * ny : (i + 1) * ny] = b
+    return V, D, beta
+
+
 def _state_map_ssarx(
-    st: _Stats, V: np.ndarray, D: np.ndarray, p: int, f: int, weighting: str, notes: list[str]
+    st: _Stats, p: int, f: int, feedthrough: bool, weighting: str, notes: list[str]
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Left singular vectors, singular values and ``W1 beta`` of the weighted SVD, eq. (P8)."""
-    Yt = _corrected_future(st, V, D, p, f)
-    Zp = st.F[_z_rows(st, 0, p)]
-    beta = _regress(Yt, Zp, _RCOND)  # ytil_f = Gamma_f K_p Z_p + noise
+    V, D, beta = _ssarx_regression(st, p, f, feedthrough)  # ytil_f = Gamma_f K_p Z_p + noise
     W1beta = beta
     if weighting == "cca":
-        T = lower_factor(Yt)  # T T^T = ytil_f ytil_f^T / j
+        T = lower_factor(_corrected_future(st, V, D, p, f))  # T T^T = ytil_f ytil_f^T / j
         dT = np.abs(np.diag(T)) if T.shape[1] == T.shape[0] else np.zeros(1)
         if dT.min() > _CCA_FLOOR * dT.max():
             W1beta = sla.solve_triangular(T, beta, lower=True)
@@ -216,7 +240,7 @@ def _state_map_ssarx(
                 "weighting='cca' needs the corrected future outputs to have a full-rank "
                 "covariance, which noise-free data lack; the SVD was not weighted"
             )
-    U, s, _ = np.linalg.svd(W1beta @ Zp, full_matrices=False)
+    U, s, _ = np.linalg.svd(W1beta @ st.F[_z_rows(st, 0, p)], full_matrices=False)
     return U, s, W1beta
 
 
@@ -330,13 +354,23 @@ def _fit(
     m = nu + ny
     N = acc.n
     center = opt.remove_mean
+    # ---- one factor of the widest window the fit may use (the AIC's and the fit's
+    # Hankel rows are the same, rows 0..N - W, as MOESP's): W = p_top + 1 or p_top + f
+    if opt.future is not None and opt.past is not None and opt.future > opt.past:
+        raise DataError(f"`future`={opt.future} may not exceed `past`={opt.past}")
+    W = _window(opt, p_top, _future(opt.algorithm, opt.future, p_top))
+    if N - W + 1 < 2 * W * m:
+        raise DataError(
+            f"the record has {N} samples; past={p_top} needs at least "
+            f"{2 * W * m + W - 1} (2 x {W * m} Hankel columns)"
+        )
+    st_all = _window_stats(acc, nu, ny, W, shift, center)
     # ---- past p (the VARX order) and future f
     if opt.past is not None:
         p = opt.past
         past_rule = "given"
     else:
-        st_a = _window_stats(acc, nu, ny, p_top + 1, shift, center)
-        p_hat, aic = _arx_horizon(st_a, p_top, opt.feedthrough)
+        p_hat, aic = _arx_horizon(st_all, p_top, opt.feedthrough)
         p = max(p_hat, _min_past(opt.order, ny))
         past_rule = "auto"
         extras["varx_aic"] = aic
@@ -353,20 +387,14 @@ def _fit(
         raise DataError(
             f"`order`={opt.order} exceeds future * ny = {f * ny}; increase `future`/`past`"
         )
-    w = _window(opt, p, f)
-    if N - w + 1 < 2 * w * m:
-        raise DataError(
-            f"the record has {N} samples; past={p}, future={f} need at least "
-            f"{2 * w * m + w - 1} (2 x {w * m} Hankel columns)"
-        )
-    st = _window_stats(acc, nu, ny, w, shift, center)
+    st = replace(st_all, F=st_all.F[: _window(opt, p, f) * m])  # rows of z(0..w-1)
 
     # ---- VARX (P4) and the state sequence (P5)-(P8)
-    V, Ds = _varx(st, p, opt.feedthrough)
     if opt.algorithm == "pbsid":
+        V, _ = _varx(st, p, opt.feedthrough)
         U, s, GK = _state_map_pbsid(st, V, p, f)
     else:
-        U, s, GK = _state_map_ssarx(st, V, Ds, p, f, opt.weighting, notes)
+        U, s, GK = _state_map_ssarx(st, p, f, opt.feedthrough, opt.weighting, notes)
     n, gap = _order(s, opt.order, f * ny, opt.rank_tol)
     L = (U[:, :n] / np.sqrt(s[:n])[None, :]).T @ GK  # X = S^{-1/2} U^T (Gamma K) Z_p
     As, Bs, Cs, Dn, Ks, Re = _system_from_states(st, L, p, opt.feedthrough)  # eq. (P9)
