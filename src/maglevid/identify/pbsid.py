@@ -180,9 +180,22 @@ def _state_map_pbsid(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Left singular vectors and singular values of ``Gamma_f K_p Z_p``; ``Gamma_f K_p`` (P6)."""
     GK = _gamma_k(V, p, f, st.m)
-    P = GK @ st.F[_z_rows(st, 0, p)]  # Gamma_f K_p Z_p in the factor's basis
-    U, s, _ = np.linalg.svd(P, full_matrices=False)
+    U, s = _left_svd(GK @ st.F[_z_rows(st, 0, p)])  # Gamma_f K_p Z_p in the factor's basis
     return U, s, GK
+
+
+def _left_svd(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Left singular vectors and values of a wide ``P`` (rows << columns).
+
+    ``P^T = Q R`` first, then the SVD of the square ``R^T`` (same ``U``, ``s``):
+    the right singular vectors of ``P``, not needed, are never formed.
+    """
+    if P.shape[0] >= P.shape[1]:
+        U, s, _ = np.linalg.svd(P, full_matrices=False)
+        return U, s
+    R = sla.qr(P.T, mode="r", check_finite=False)[0][: P.shape[0]]
+    U, s, _ = np.linalg.svd(R.T)
+    return U, s
 
 
 def _corrected_future(st: _Stats, V: np.ndarray, D: np.ndarray, p: int, f: int) -> np.ndarray:
@@ -240,7 +253,7 @@ def _state_map_ssarx(
                 "weighting='cca' needs the corrected future outputs to have a full-rank "
                 "covariance, which noise-free data lack; the SVD was not weighted"
             )
-    U, s, _ = np.linalg.svd(W1beta @ st.F[_z_rows(st, 0, p)], full_matrices=False)
+    U, s = _left_svd(W1beta @ st.F[_z_rows(st, 0, p)])
     return U, s, W1beta
 
 
