@@ -57,7 +57,7 @@ import scipy.linalg as sla
 from maglevid._validation import as_signal, check_positive
 from maglevid.exceptions import DataError, IdentificationError, ModelError
 from maglevid.identify._hankel import _LagGram, factor_gram, lower_factor
-from maglevid.identify.physical import physical_transformation
+from maglevid.identify.physical import to_physical_coordinates
 from maglevid.identify.result import IdentificationResult
 from maglevid.identify.subspace import (
     _arx_horizon,
@@ -66,10 +66,12 @@ from maglevid.identify.subspace import (
     _check_int,
     _check_rank_tol,
     _choose_order,
+    _observability,
     _predictor_residuals,
     _regress,
     _Stats,
 )
+from maglevid.identify.uncertainty import one_step_fit_percent
 from maglevid.lti import StateSpace, undiscretize
 from maglevid.physics.amb import V_NAMES, v_from_matrices
 
@@ -460,10 +462,9 @@ def _fit(
             y, u = y - mean_y, u - mean_u
         residuals = _predictor_residuals(model, K, y, u)
         yc = y - y.mean(axis=0)
-        num = np.sqrt(np.einsum("ij,ij->j", residuals, residuals))
-        den = np.sqrt(np.einsum("ij,ij->j", yc, yc))
-        with np.errstate(divide="ignore", invalid="ignore"):
-            pct = 100.0 * (1.0 - num / den)
+        pct = one_step_fit_percent(
+            np.einsum("ij,ij->j", residuals, residuals), np.einsum("ij,ij->j", yc, yc)
+        )
         fit["one_step_fit_percent"] = float(np.mean(pct))
     # Fit of y(t) from the state of the last p samples, over the Hankel rows
     # (scaled units; the second moment less the mean unless the rows are centred).
@@ -523,24 +524,23 @@ def _bearing_coordinates(
 ) -> tuple[StateSpace, StateSpace, np.ndarray, np.ndarray]:
     """The two-coil AMB model in states ``[x, dx/dt, i1, i2]`` (physical.py, section 3).
 
-    ``T`` from the continuous model as :func:`~maglevid.identify.physical.
-    to_physical_coordinates` makes it; the Kalman gain transforms as ``T K``.
+    :func:`~maglevid.identify.physical.to_physical_coordinates`; the Kalman gain
+    transforms as ``T K``, with ``T^-1`` read off the two observability matrices
+    (``O_phys = O T^-1``; both have full column rank).
     """
-    if model.nx != 4 or model.ny != 3 or model.nu != 2:
+    if model.nu != 2:
         raise DataError(
             "coordinates='physical' is the two-coil bearing's transform: 4 states, outputs "
             f"[x, i1, i2], inputs [u1, u2]; got nx={model.nx}, ny={model.ny}, nu={model.nu}"
         )
     try:
-        cont = undiscretize(model)
-    except ModelError as exc:
-        raise IdentificationError(f"no continuous counterpart of the model: {exc}") from exc
-    T = physical_transformation(cont.A, cont.C)
-    Ti = np.linalg.inv(T)
-    disc = StateSpace(T @ model.A @ Ti, T @ model.B, model.C @ Ti, model.D, model.dt)
-    phys_c = StateSpace(T @ cont.A @ Ti, T @ cont.B, cont.C @ Ti, cont.D, None)
-    v, _ = v_from_matrices(phys_c.A, phys_c.B)
-    return disc, phys_c, T @ K, v
+        disc, cont = to_physical_coordinates(model)
+    except DataError as exc:
+        msg = f"coordinates='physical' is the two-coil bearing's transform: {exc}"
+        raise DataError(msg) from exc
+    Ti = sla.lstsq(_observability(model.A, model.C, 2), _observability(disc.A, disc.C, 2))[0]
+    v, _ = v_from_matrices(cont.A, cont.B)
+    return disc, cont, np.linalg.solve(Ti, K), v
 
 
 # ------------------------------------------------------------- accumulator
