@@ -27,8 +27,11 @@ Three plants, so that the method is not tied to one:
    back (``simulate_suspension`` has r = 0; this loop is built here from the
    same plant and controller): the unstable continuous pole, relative error.
 
-Times are medians of three runs (one above 2 s), one BLAS thread.
-:func:`markdown_section` formats the results for ``benchmarks/run_all.py``.
+Times are medians of three runs (one above 2 s), one BLAS thread; progress
+goes to stderr, the Markdown to stdout (``--out`` writes it to a file too).
+``SECTION`` (where ``benchmarks/sections.py`` exists) plugs this into
+``make bench``: :func:`run` measures, :func:`markdown_section` reports,
+:func:`targets` judges the issue's four targets for PBSID-opt and SSARX.
 """
 
 from __future__ import annotations
@@ -36,6 +39,7 @@ from __future__ import annotations
 import argparse
 import os
 import statistics
+import sys
 import time
 from collections.abc import Callable
 from typing import Any
@@ -150,7 +154,7 @@ def bench_bearing(sizes: tuple[int, ...], cases: tuple[str, ...]) -> list[dict[s
                     {**row, "time_s": t, "pole_error": pe["pole_error"], "found": pe["found"]}
                     | {"v_error": v_err}
                 )
-                print(_row_text(rows[-1]), flush=True)
+                print(_row_text(rows[-1]), file=sys.stderr, flush=True)
     return rows
 
 
@@ -181,7 +185,7 @@ def bench_generic(sizes: tuple[int, ...], seed: int = 3) -> list[dict[str, Any]]
                     "pole_error": float(np.max(np.abs(np.sort_complex(m.poles()) - p_true))),
                 }
             )
-            print(_row_text(rows[-1]), flush=True)
+            print(_row_text(rows[-1]), file=sys.stderr, flush=True)
     return rows
 
 
@@ -233,7 +237,7 @@ def bench_suspension(sizes: tuple[int, ...], seed: int = 5) -> list[dict[str, An
                     "s_true": s_true,
                 }
             )
-            print(_row_text(rows[-1]), flush=True)
+            print(_row_text(rows[-1]), file=sys.stderr, flush=True)
     return rows
 
 
@@ -306,12 +310,75 @@ def markdown_section(results: dict[str, Any]) -> list[str]:
     return out
 
 
+def targets(results: dict[str, Any], judge: Any) -> None:
+    """The issue-16 verdicts through ``judge.add(target, measured_text, met)`` (run_all)."""
+    rows = [r for r in results["bearing"] if "error" not in r]
+
+    def get(case: str, n: int, tool: str) -> dict[str, Any] | None:
+        return next((r for r in rows if (r["case"], r["N"], r["tool"]) == (case, n, tool)), None)
+
+    for method in ("pbsid", "ssarx"):
+        me = f"maglevid {method} (physical coordinates)"
+        checks: dict[str, list[tuple[str, bool]]] = {"v": [], "pole": [], "peer": [], "moesp": []}
+        for r in (r for r in rows if r["tool"] == me):
+            case, n = r["case"], r["N"]
+            where = f"{case} {n:.0e}"
+            ml, iv = get(case, n, "maglevid ml"), get(case, n, "maglevid physical (IV)")
+            best = ml or iv
+            if best is not None and best.get("v_error") is not None:
+                ratio = r["v_error"] / best["v_error"]
+                checks["v"].append((f"{where}: {ratio:.2g}x", ratio <= 2.0))
+            pk = get(case, n, "SIPPY PARSIM-K")
+            if pk is not None:
+                checks["pole"].append(
+                    (
+                        f"{where}: {r['pole_error']:.1e} vs {pk['pole_error']:.1e}",
+                        r["pole_error"] <= pk["pole_error"],
+                    )
+                )
+                speed = pk["time_s"] / r["time_s"]
+                checks["peer"].append((f"{where}: {speed:.0f}x", speed >= 50.0))
+            mo = get(case, n, "maglevid moesp + physical coordinates")
+            if mo is not None:
+                ratio = r["time_s"] / mo["time_s"]
+                checks["moesp"].append((f"{where}: {ratio:.2g}x", ratio <= 2.0))
+        names = {
+            "v": "v_i error within 2x of the best consistent method (ML, else physical IV)",
+            "pole": "unstable pole as accurate as the best peer (PARSIM-K)",
+            "peer": ">= 50x faster than PARSIM-K",
+            "moesp": "within 2x MOESP's time",
+        }
+        for key, label in names.items():
+            target = f"{method} (bearing): {label}"
+            if not checks[key]:
+                judge.add(target, "no measurement on this run", None)
+                continue
+            text = "; ".join(t for t, _ in checks[key])
+            judge.add(target, text, all(ok for _, ok in checks[key]))
+
+
+def _measure(run_: Any, plan: dict[str, Any], args: Any) -> dict[str, Any]:
+    sizes = [10_000] if plan.get("quick") else list(SIZES)
+    result: dict[str, Any] = run_.call("benchmarks.bench_pbsid:run", sizes=sizes)
+    return result
+
+
+try:  # run_all's section registry (benchmarks/sections.py, issue 15), where present
+    from benchmarks.sections import Section
+except ImportError:  # pragma: no cover - older branches: run_all uses main()
+    pass
+else:
+    #: The ``make bench`` section (``run_all.PLUGINS`` names this module).
+    SECTION = Section("pbsid", _measure, markdown_section, targets)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sizes", nargs="+", type=float, default=list(SIZES))
+    ap.add_argument("--quick", action="store_true", help="N = 1e4 only")
     ap.add_argument("--out", help="write the markdown section here")
     args = ap.parse_args(argv)
-    res = run(tuple(int(n) for n in args.sizes))
+    res = run(tuple(int(n) for n in ([1e4] if args.quick else args.sizes)))
     text = "\n".join(markdown_section(res)) + "\n"
     if args.out:
         with open(args.out, "w", encoding="utf-8") as fh:
