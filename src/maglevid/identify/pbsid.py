@@ -215,38 +215,39 @@ def _corrected_future(st: _Stats, V: np.ndarray, D: np.ndarray, p: int, f: int) 
 
 def _ssarx_regression(
     st: _Stats, p: int, f: int, feedthrough: bool
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """VARX (P4) and ``beta`` of ``ytil_f ~ beta Z_p`` (P7) from one least-squares solve.
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """VARX (P4) and ``beta`` of ``ytil_f ~ beta Z_p`` (P7), one factorisation of ``Z_p``.
 
-    (P7) is linear in the rows, so ``beta`` is the regression of ``y_f`` less
-    that of ``D u_f`` and of ``Xi_k z(t+i-k)``: one factorisation of ``Z_p`` and
-    the future rows as right-hand sides (the first of which is the VARX's).
+    The rows of ``Z_p`` are factored once by pivoted QR (``Z_p^T P = Q R``) and
+    both regressions, the VARX's ``y(p)`` and the corrected future ``ytil_f``
+    (formed with the VARX's coefficients), are solved on it.
     """
-    ny, nu, m = st.ny, st.nu, st.m
-    rhs = np.concatenate([st.F[st.y_rows(p, p + f)], st.F[_z_rows(st, p, p + f)]])
-    coef = _regress(rhs, st.F[_z_rows(st, 0, p)], _RCOND)
-    Cy, Cz = coef[: f * ny], coef[f * ny :]  # block i: coefficients of y(p+i), z(p+i)
+    Zp = st.F[_z_rows(st, 0, p)]
+    Q, R, piv = sla.qr(Zp.T, mode="economic", pivoting=True, check_finite=False)
+    d = np.abs(np.diag(R))
+    q = int(np.count_nonzero(d > _RCOND * d[0])) if d.size and d[0] > 0 else 0
+
+    def solve(Y: np.ndarray) -> np.ndarray:  # basic least-squares solution of Y ~ M Zp
+        M = np.zeros((Y.shape[0], Zp.shape[0]))
+        M[:, piv[:q]] = sla.solve_triangular(R[:q, :q], Q[:, :q].T @ Y.T).T
+        return M
+
     if feedthrough:
         V, D = _varx(st, p, True)
     else:
-        V, D = Cy[:ny], np.zeros((ny, nu))
-    beta = np.empty_like(Cy)
-    for i in range(f):
-        b = Cy[i * ny : (i + 1) * ny] - D @ Cz[i * m : i * m + nu]
-        if i:  # Xi_i .. Xi_1 (V's last i blocks) on z(p..p+i-1)
-            b = b - V[:, (p - i) * m :] @ Cz[: i * m]
-        beta[i * ny : (i + 1) * ny] = b
-    return V, D, beta
+        V, D = solve(st.F[st.y_rows(p, p + 1)]), np.zeros((st.ny, st.nu))
+    Yt = _corrected_future(st, V, D, p, f)
+    return V, D, solve(Yt), Yt
 
 
 def _state_map_ssarx(
     st: _Stats, p: int, f: int, feedthrough: bool, weighting: str, notes: list[str]
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Left singular vectors, singular values and ``W1 beta`` of the weighted SVD, eq. (P8)."""
-    V, D, beta = _ssarx_regression(st, p, f, feedthrough)  # ytil_f = Gamma_f K_p Z_p + noise
+    _, _, beta, Yt = _ssarx_regression(st, p, f, feedthrough)  # ytil_f = Gamma_f K_p Z_p + e
     W1beta = beta
     if weighting == "cca":
-        T = lower_factor(_corrected_future(st, V, D, p, f))  # T T^T = ytil_f ytil_f^T / j
+        T = lower_factor(Yt)  # T T^T = ytil_f ytil_f^T / j
         dT = np.abs(np.diag(T)) if T.shape[1] == T.shape[0] else np.zeros(1)
         if dT.min() > _CCA_FLOOR * dT.max():
             W1beta = sla.solve_triangular(T, beta, lower=True)
