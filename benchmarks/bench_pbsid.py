@@ -155,7 +155,37 @@ def bench_bearing(sizes: tuple[int, ...], cases: tuple[str, ...]) -> list[dict[s
                     | {"v_error": v_err}
                 )
                 print(_row_text(rows[-1]), file=sys.stderr, flush=True)
+            _interleaved_times([r for r in rows if r["case"] == case and r["N"] == n], data)
     return rows
+
+
+MOESP_TOOL = "maglevid moesp + physical coordinates"
+
+
+def _interleaved_times(rows: list[dict[str, Any]], data: Any) -> None:
+    """Re-time the maglevid fits interleaved: rounds of one call each (module notes).
+
+    A shared core's speed drifts by tens of percent within seconds, so each
+    fit's ratio to MOESP is the median over rounds of its time over MOESP's in
+    the same round (as ``bench_amb_speed`` times its regressions); ``time_s``
+    becomes the median of the rounds.
+    """
+    tools = _bearing_tools()
+    timed = [r for r in rows if "error" not in r and r["tool"].startswith("maglevid")]
+    if not any(r["tool"] == MOESP_TOOL for r in timed):
+        return
+    rounds = 5 if data.n_samples <= 100_000 else 3
+    times: dict[str, list[float]] = {r["tool"]: [] for r in timed}
+    for _ in range(rounds):
+        for tool in times:
+            t0 = time.perf_counter()
+            tools[tool](data)
+            times[tool].append(time.perf_counter() - t0)
+    ref = times[MOESP_TOOL]
+    for r in timed:
+        t = times[r["tool"]]
+        r["time_s"] = statistics.median(t)
+        r["moesp_ratio"] = statistics.median(a / b for a, b in zip(t, ref, strict=True))
 
 
 # ------------------------------------------------------------------ generic
@@ -271,17 +301,22 @@ def markdown_section(results: dict[str, Any]) -> list[str]:
         "## Closed-loop subspace: PBSID-opt and SSARX",
         "",
         f"`python -m benchmarks.bench_pbsid`; one BLAS thread; load average at the end "
-        f"{results['load'][0]:.1f} (2 shared cores). Errors relative; times median of 3.",
+        f"{results['load'][0]:.1f} (2 shared cores). Errors relative. Bearing: maglevid "
+        "fits timed interleaved (3-5 rounds, one call of each per round; time / MOESP's "
+        "is the median of the per-round ratios), peers median of 3 (1 above 2 s); "
+        "other tables median of 3.",
         "",
-        "| record | N | tool | time [s] | unstable pole error | max v error |",
-        "|---|---|---|---|---|---|",
+        "| record | N | tool | time [s] | time / MOESP's | unstable pole error | max v error |",
+        "|---|---|---|---|---|---|---|",
     ]
     for r in results["bearing"]:
         if "error" in r:
-            out.append(f"| {r['case']} | {r['N']:.0e} | {r['tool']} | - | - | {r['error']} |")
+            out.append(f"| {r['case']} | {r['N']:.0e} | {r['tool']} | - | - | - | {r['error']} |")
         else:
+            ratio = r.get("moesp_ratio")
             out.append(
                 f"| {r['case']} | {r['N']:.0e} | {r['tool']} | {r['time_s']:.3g} | "
+                f"{'-' if ratio is None else f'{ratio:.2f}'} | "
                 f"{_e(r['pole_error'])} | {_e(r['v_error'])} |"
             )
     out += [
@@ -338,9 +373,8 @@ def targets(results: dict[str, Any], judge: Any) -> None:
                 )
                 speed = pk["time_s"] / r["time_s"]
                 checks["peer"].append((f"{where}: {speed:.0f}x", speed >= 50.0))
-            mo = get(case, n, "maglevid moesp + physical coordinates")
-            if mo is not None:
-                ratio = r["time_s"] / mo["time_s"]
+            if r.get("moesp_ratio") is not None:
+                ratio = r["moesp_ratio"]
                 checks["moesp"].append((f"{where}: {ratio:.2g}x", ratio <= 2.0))
         names = {
             "v": "v_i error within 2x of the best consistent method (ML, else physical IV)",
