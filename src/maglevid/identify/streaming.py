@@ -13,6 +13,11 @@ Subspace (``moesp``, ``n4sid``): two passes
     of the deviations ``z = [u, y] - mean`` and the first and last samples;
     ``docs/subspace.md``), as the in-memory registry methods do.
 
+Closed-loop subspace (``pbsid``, ``ssarx``): one pass
+    The lagged products of
+    :class:`~maglevid.identify.pbsid.PredictorAccumulator`, whose VARX
+    carries its own constant (``remove_mean``), so one pass suffices.
+
 The physical AMB method (``physical``, least squares or IV): two passes
     The plant ARX of :mod:`maglevid.identify.physical` is a linear regression
     ``y(k+1) = Theta phi(k) + eps(k)`` with instruments ``Z`` (section 4 there).
@@ -59,6 +64,7 @@ from maglevid.data import ClosedLoopData
 from maglevid.exceptions import DataError
 from maglevid.identify.arx import RegressionAccumulator
 from maglevid.identify.iv import loop_instrument_system
+from maglevid.identify.pbsid import DEFAULT_MAX_PAST, PredictorAccumulator
 from maglevid.identify.physical import (
     _plant_signals,
     physical_labels,
@@ -78,6 +84,7 @@ __all__ = [
     "DEFAULT_CHUNK",
     "STREAMED_METHODS",
     "fit_physical_streamed",
+    "fit_predictor_streamed",
     "fit_subspace_streamed",
     "identify_streamed",
 ]
@@ -385,6 +392,38 @@ def fit_physical_streamed(
     return with_dc_levels(res, dc, loop)
 
 
+def _feed_plant_io(
+    opener: Callable[[], Iterable[ClosedLoopData]],
+    progress: Progress | None,
+    method: str,
+    make: Callable[[int, int], Any],
+) -> tuple[Any, float, int]:
+    """One pass: ``make(ny, nu)`` builds the accumulator, fed ``(y_control, u)`` per chunk.
+
+    Returns the accumulator, ``dt`` and the number of chunks.
+    """
+    acc = None
+    dt = 0.0
+    n_chunks = 0
+    for chunk in _chunks(opener, progress):
+        data = chunk.with_plant_input() if chunk.u is None else chunk
+        if data.u is None:
+            raise DataError(
+                f"method {method!r} needs the plant input `u` (or `u_f` and `r`); chunk "
+                f"{n_chunks} has neither"
+            )
+        if acc is None:
+            dt = data.dt
+            acc = make(data.ny, data.nu)
+        elif abs(data.dt - dt) > 1e-12 * dt:
+            raise DataError(f"chunk {n_chunks} has dt={data.dt:g} s; the first had {dt:g} s")
+        acc.update(data.y_control, data.u)
+        n_chunks += 1
+    if acc is None:
+        raise DataError("the source gave no chunks")
+    return acc, dt, n_chunks
+
+
 def fit_subspace_streamed(
     source: ChunkSource,
     *,
@@ -488,6 +527,45 @@ def _subspace_chunk(chunk: ClosedLoopData, algorithm: str, index: int) -> Closed
     return data
 
 
+def fit_predictor_streamed(
+    source: ChunkSource,
+    *,
+    algorithm: str = "pbsid",
+    chunk_size: int = DEFAULT_CHUNK,
+    past: int | None = None,
+    future: int | None = None,
+    max_past: int = DEFAULT_MAX_PAST,
+    remove_mean: bool = True,
+    progress: Progress | None = None,
+    **fit_options: Any,
+) -> IdentificationResult:
+    """PBSID-opt or SSARX of a record streamed in chunks (one pass).
+
+    The lagged products of :class:`~maglevid.identify.pbsid.PredictorAccumulator`;
+    equals :func:`~maglevid.identify.pbsid.fit_pbsid` / ``fit_ssarx`` on the whole
+    record to rounding, without ``residuals``. ``fit_options`` (order,
+    feedthrough, weighting, rank_tol, coordinates) go to its ``fit``.
+    """
+    acc, dt, n_chunks = _feed_plant_io(
+        _opener(source, chunk_size),
+        progress,
+        algorithm,
+        lambda ny, nu: PredictorAccumulator(
+            ny=ny,
+            nu=nu,
+            algorithm=algorithm,
+            past=past,
+            future=future,
+            max_past=max_past,
+            remove_mean=remove_mean,
+        ),
+    )
+    fit_options.setdefault("dt", dt)
+    res = acc.fit(**fit_options)
+    note = f"streamed: {acc.n_samples} samples in {n_chunks} chunk(s), one pass"
+    return replace(res, notes=(*res.notes, note))
+
+
 def _moesp(source: ChunkSource, **options: Any) -> IdentificationResult:
     return fit_subspace_streamed(source, algorithm="moesp", **options)
 
@@ -501,11 +579,13 @@ STREAMED_METHODS: Mapping[str, Callable[..., IdentificationResult]] = {
     "physical": fit_physical_streamed,
     "moesp": _moesp,
     "n4sid": _n4sid,
+    "pbsid": lambda source, **o: fit_predictor_streamed(source, algorithm="pbsid", **o),
+    "ssarx": lambda source, **o: fit_predictor_streamed(source, algorithm="ssarx", **o),
 }
 
 
 def identify_streamed(source: ChunkSource, method: str, **options: Any) -> IdentificationResult:
-    """Run the streamed form of a registered method (``physical``, ``moesp``, ``n4sid``).
+    """Run the streamed form of a registered method (``physical``, ``moesp``, ``n4sid``, ...).
 
     Raises
     ------

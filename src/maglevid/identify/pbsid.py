@@ -1,0 +1,907 @@
+"""Closed-loop subspace identification: PBSID-opt and SSARX, from one VARX.
+
+Open-loop subspace methods (:mod:`maglevid.identify.subspace`) are biased under
+feedback: the future inputs are correlated with the past noise through the
+controller. The predictor-based methods here are consistent whatever the
+(causal, unknown) controller, because they only ever regress the output on the
+*past* of ``z = [u, y]``, with which the innovation is uncorrelated.
+
+Innovation form and its predictor (docs/subspace.md, eqs. (P1)-(P3))::
+
+    x(t+1) = A x(t) + B u(t) + K e(t),    y(t) = C x(t) + D u(t) + e(t)       (P1)
+    x(t+1) = Abar x(t) + Bbar u(t) + K y(t),  Abar = A - K C, Bbar = B - K D    (P2)
+    x(t)   = Abar^p x(t-p) + sum_{k=1}^{p} Abar^{k-1} Btil z(t-k),  Btil = [Bbar, K]  (P3)
+
+With ``Abar`` stable, ``Abar^p -> 0`` and the output obeys the VARX (P4)::
+
+    y(t) = sum_{k=1}^{p} Xi_k z(t-k) + D u(t) + e(t),   Xi_k = C Abar^{k-1} Btil   (P4)
+
+whose regressors are the past only: least squares is consistent in closed
+loop. Both methods estimate (P4) once and differ in how they get the state:
+
+* **PBSID-opt** (Chiuso 2007; van Wingerden & Verhaegen's optimised form):
+  ``Gamma_f K_p`` is assembled from the VARX coefficients, block ``(i, c)``
+  being ``Xi_{p+i-c}`` for ``c >= i`` and 0 otherwise (eq. (P5)); the SVD of
+  ``Gamma_f K_p Z_p`` gives the order and the state sequence (eq. (P6)).
+* **SSARX** (Jansson 2003): the VARX's predictor Markov parameters remove the
+  effect of the future ``z`` from the future outputs, ``ytil_f = y_f - Htil_f
+  z_f = Gamma_f x + e_f`` (eq. (P7)); ``ytil_f`` is regressed on the past and a
+  canonical-correlation weighted SVD gives the state (eq. (P8)).
+
+From the state sequence ``X``, ``[C D]`` and the innovations follow by least
+squares on ``y(t)``, then ``[A B K]`` on ``x(t+1)`` (eq. (P9)): the model comes
+with its Kalman gain, no Riccati equation is solved.
+
+Data stage: everything above is a linear function of a window of ``w``
+consecutive samples (``w = p + 1`` for PBSID-opt, ``p + f`` for SSARX), so the
+fit needs only the Gram matrix of that window's Hankel rows, which the lagged
+sums of :class:`~maglevid.identify._hankel._LagGram` give for a record of any
+length in one pass (memory independent of ``N``); :class:`PredictorAccumulator`
+is the streaming form. With ``remove_mean`` (the default) the Gram is centred
+(regressions with an intercept), so constant offsets of ``y`` and ``u`` change
+nothing.
+
+Nothing here stabilises an estimate: an unstable plant gives an unstable model.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+import scipy.linalg as sla
+
+from maglevid._validation import as_signal, check_positive
+from maglevid.exceptions import DataError, IdentificationError, ModelError
+from maglevid.identify._hankel import _LagGram, factor_gram, lower_factor
+from maglevid.identify.physical import to_physical_coordinates
+from maglevid.identify.result import IdentificationResult
+from maglevid.identify.subspace import (
+    _arx_horizon,
+    _char_poly,
+    _check_choice,
+    _check_int,
+    _check_rank_tol,
+    _choose_order,
+    _observability,
+    _predictor_residuals,
+    _regress,
+    _Stats,
+)
+from maglevid.identify.uncertainty import one_step_fit_percent
+from maglevid.lti import StateSpace, undiscretize
+from maglevid.physics.amb import V_NAMES, v_from_matrices
+
+__all__ = ["DEFAULT_MAX_PAST", "METHODS", "PredictorAccumulator", "fit_pbsid", "fit_ssarx"]
+
+logger = logging.getLogger(__name__)
+
+#: Largest past the automatic rule considers. The VARX truncation is
+#: ``|lambda_max(A - K C)|^p``; the bearing's predictor has a pole at ~0.98 and
+#: p = 40 leaves v5/v7 3-5 % off at N >= 1e5, p = 80 0.7-2 % (docs/subspace.md).
+#: PBSID-opt accumulates p lags, as many as MOESP at horizon 40.
+DEFAULT_MAX_PAST = 80
+#: Default future of SSARX: ``min(p, 40)`` (its Hankel window is ``p + f``).
+_SSARX_FUTURE = 40
+
+_ALGORITHMS = ("pbsid", "ssarx")
+_WEIGHTINGS = ("cca", "none")
+_COORDINATES = ("identified", "physical")
+#: Relative singular-value floor of the order choice (Gram route, as MOESP's).
+_DEFAULT_RANK_TOL = 1e-6
+#: Relative rank threshold of the least-squares steps.
+_RCOND = 1e-10
+#: CCA weighting needs the corrected future's covariance resolved to this ratio.
+_CCA_FLOOR = 1e-8
+#: Samples per chunk of the in-memory pass (as in subspace.py).
+_CHUNK = 1 << 16
+#: The automatic past keeps at least this many Hankel rows per column.
+_ROWS_PER_COLUMN = 5
+
+
+# ----------------------------------------------------------------- data stage
+def _window_stats(
+    acc: _LagGram, nu: int, ny: int, w: int, shift: np.ndarray, center: bool
+) -> _Stats:
+    """Scaled, normalised factor of the Hankel rows of window ``w`` (centred if asked).
+
+    Centring: with ``s_a = sum_t z(t+a)`` the column sums of the Hankel rows, the
+    Gram of the rows less their means is ``G - s s^T / j``; ``s_a`` is the total
+    less the first ``a`` and the last ``w - 1 - a`` samples (head and tail kept).
+    """
+    N, m = acc.n, nu + ny
+    j = N - w + 1
+    G = acc.gram(w)
+    mean = acc.moments.mean()
+    var = acc.moments.sumsq / N - (mean**2 if center else 0.0)
+    scale = np.sqrt(np.maximum(var, 0.0))
+    zero = np.flatnonzero(scale <= 1e-12 * (np.abs(mean + shift) + 1e-300))
+    if zero.size:
+        c = int(zero[0])
+        name = f"u[:, {c}]" if c < nu else f"y[:, {c - nu}]"
+        raise DataError(
+            f"`{name}` is constant; every input must excite the system and every output "
+            "must be measured"
+        )
+    if center:
+        total = acc.moments.sum
+        head = np.cumsum(np.concatenate([np.zeros((1, m)), acc.head[: w - 1]]), axis=0)
+        tail = acc.pending[::-1][: w - 1]  # newest first
+        tcum = np.cumsum(np.concatenate([np.zeros((1, m)), tail]), axis=0)
+        s = np.concatenate([total - head[a] - tcum[w - 1 - a] for a in range(w)])
+        G = G - np.outer(s, s) / j
+    d = np.tile(1.0 / scale, w)
+    F, rank = factor_gram(G * (d[:, None] * d[None, :]) / j)
+    return _Stats(
+        F=F,
+        nu=nu,
+        ny=ny,
+        i_rows=w // 2,
+        j=j,
+        n_samples=N,
+        scale=scale,
+        mean=mean + shift,
+        rank=rank,
+        factorization="gram",
+    )
+
+
+def _z_rows(st: _Stats, t0: int, t1: int) -> np.ndarray:
+    """Rows of ``z(t0..t1-1)`` (time-major ``[u, y]``)."""
+    m = st.m
+    return np.arange(t0 * m, t1 * m)
+
+
+# ------------------------------------------------------------- the algorithms
+def _varx(st: _Stats, p: int, feedthrough: bool) -> tuple[np.ndarray, np.ndarray]:
+    """VARX (P4): coefficients ``V`` (ny x p m) on ``z(t-p..t-1)`` (oldest first) and ``D``."""
+    ny, nu = st.ny, st.nu
+    X = st.F[_z_rows(st, 0, p)]
+    if feedthrough:
+        X = np.concatenate([X, st.F[st.u_rows(p, p + 1)]])
+    theta = _regress(st.F[st.y_rows(p, p + 1)], X, _RCOND)  # eq. (P4)
+    V = theta[:, : p * st.m]
+    D = theta[:, p * st.m :] if feedthrough else np.zeros((ny, nu))
+    return V, D
+
+
+def _gamma_k(V: np.ndarray, p: int, f: int, m: int) -> np.ndarray:
+    """``Gamma_f K_p`` (f ny x p m) from the VARX, eq. (P5): block (i, c) = Xi_{p+i-c}."""
+    ny = V.shape[0]
+    GK = np.zeros((f * ny, p * m))
+    for i in range(f):  # row i: C Abar^i K_p = [0 (i blocks), V[:, blocks 0..p-1-i]]
+        GK[i * ny : (i + 1) * ny, i * m :] = V[:, : (p - i) * m]
+    return GK
+
+
+def _state_map_pbsid(
+    st: _Stats, V: np.ndarray, p: int, f: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Left singular vectors and singular values of ``Gamma_f K_p Z_p``; ``Gamma_f K_p`` (P6)."""
+    GK = _gamma_k(V, p, f, st.m)
+    U, s = _left_svd(GK @ st.F[_z_rows(st, 0, p)])  # Gamma_f K_p Z_p in the factor's basis
+    return U, s, GK
+
+
+def _left_svd(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Left singular vectors and values of a wide ``P`` (rows << columns).
+
+    ``P^T = Q R`` first, then the SVD of the square ``R^T`` (same ``U``, ``s``):
+    the right singular vectors of ``P``, not needed, are never formed.
+    """
+    if P.shape[0] >= P.shape[1]:
+        U, s, _ = np.linalg.svd(P, full_matrices=False)
+        return U, s
+    R = sla.qr(P.T, mode="r", check_finite=False)[0][: P.shape[0]]
+    U, s, _ = np.linalg.svd(R.T)
+    return U, s
+
+
+def _corrected_future(st: _Stats, V: np.ndarray, D: np.ndarray, p: int, f: int) -> np.ndarray:
+    """``ytil_f = y_f - Htil_f z_f`` (f ny x r), eq. (P7)."""
+    ny, m = st.ny, st.m
+    out = np.empty((f * ny, st.F.shape[1]))
+    for i in range(f):
+        yi = st.F[st.y_rows(p + i, p + i + 1)] - D @ st.F[st.u_rows(p + i, p + i + 1)]
+        if i:  # sum_{k=1}^{i} Xi_k z(p+i-k); Xi_k is V's block p-k
+            Xi = V[:, (p - i) * m :]  # Xi_i .. Xi_1 on z(p..p+i-1)
+            yi = yi - Xi @ st.F[_z_rows(st, p, p + i)]
+        out[i * ny : (i + 1) * ny] = yi
+    return out
+
+
+def _ssarx_regression(
+    st: _Stats, p: int, f: int, feedthrough: bool
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """VARX (P4) and ``beta`` of ``ytil_f ~ beta Z_p`` (P7), one factorisation of ``Z_p``.
+
+    The rows of ``Z_p`` are factored once by pivoted QR (``Z_p^T P = Q R``) and
+    both regressions, the VARX's ``y(p)`` and the corrected future ``ytil_f``
+    (formed with the VARX's coefficients), are solved on it.
+    """
+    Zp = st.F[_z_rows(st, 0, p)]
+    Q, R, piv = sla.qr(Zp.T, mode="economic", pivoting=True, check_finite=False)
+    d = np.abs(np.diag(R))
+    q = int(np.count_nonzero(d > _RCOND * d[0])) if d.size and d[0] > 0 else 0
+
+    def solve(Y: np.ndarray) -> np.ndarray:  # basic least-squares solution of Y ~ M Zp
+        M = np.zeros((Y.shape[0], Zp.shape[0]))
+        M[:, piv[:q]] = sla.solve_triangular(R[:q, :q], Q[:, :q].T @ Y.T).T
+        return M
+
+    if feedthrough:
+        V, D = _varx(st, p, True)
+    else:
+        V, D = solve(st.F[st.y_rows(p, p + 1)]), np.zeros((st.ny, st.nu))
+    Yt = _corrected_future(st, V, D, p, f)
+    return V, D, solve(Yt), Yt
+
+
+def _state_map_ssarx(
+    st: _Stats, p: int, f: int, feedthrough: bool, weighting: str, notes: list[str]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Left singular vectors, singular values and ``W1 beta`` of the weighted SVD, eq. (P8)."""
+    _, _, beta, Yt = _ssarx_regression(st, p, f, feedthrough)  # ytil_f = Gamma_f K_p Z_p + e
+    W1beta = beta
+    if weighting == "cca":
+        T = lower_factor(Yt)  # T T^T = ytil_f ytil_f^T / j
+        dT = np.abs(np.diag(T)) if T.shape[1] == T.shape[0] else np.zeros(1)
+        if dT.min() > _CCA_FLOOR * dT.max():
+            W1beta = sla.solve_triangular(T, beta, lower=True)
+        else:
+            notes.append(
+                "weighting='cca' needs the corrected future outputs to have a full-rank "
+                "covariance, which noise-free data lack; the SVD was not weighted"
+            )
+    U, s = _left_svd(W1beta @ st.F[_z_rows(st, 0, p)])
+    return U, s, W1beta
+
+
+def _order(s: np.ndarray, order: int | None, n_max: int, rank_tol: float) -> tuple[int, float]:
+    if order is None:
+        return _choose_order(s, n_max, rank_tol)
+    if order > s.size or s[order - 1] <= 0.0:
+        raise IdentificationError(
+            f"order={order} exceeds the rank of the predictor data "
+            f"({int(np.count_nonzero(s > 0))}); increase `past`/`future`"
+        )
+    gap = float(s[order - 1] / s[order]) if s.size > order and s[order] > 0 else float("inf")
+    return order, gap
+
+
+def _system_from_states(
+    st: _Stats, L: np.ndarray, p: int, feedthrough: bool
+) -> tuple[np.ndarray, ...]:
+    """``[C D]`` from ``y(t)``, then ``[A B K]`` from ``x(t+1)``, eq. (P9) (scaled units)."""
+    X = L @ st.F[_z_rows(st, 0, p)]  # x(t)   = L Z_p(t)
+    Xn = L @ st.F[_z_rows(st, 1, p + 1)]  # x(t+1) = L Z_p(t+1)
+    Ut = st.F[st.u_rows(p, p + 1)]
+    Yt = st.F[st.y_rows(p, p + 1)]
+    n = X.shape[0]
+    if feedthrough:
+        CD = _regress(Yt, np.concatenate([X, Ut]), _RCOND)
+        C, D = CD[:, :n], CD[:, n:]
+    else:
+        C, D = _regress(Yt, X, _RCOND), np.zeros((st.ny, st.nu))
+    E = Yt - C @ X - D @ Ut  # innovations e(t)
+    ABK = _regress(Xn, np.concatenate([X, Ut, E]), _RCOND)
+    A, B, K = ABK[:, :n], ABK[:, n : n + st.nu], ABK[:, n + st.nu :]
+    Re = E @ E.T  # the factor is normalised: sample covariance
+    return A, B, C, D, K, 0.5 * (Re + Re.T)
+
+
+# ------------------------------------------------------------------- options
+@dataclass(frozen=True)
+class _Options:
+    algorithm: str
+    order: int | None
+    past: int | None
+    future: int | None
+    max_past: int
+    dt: float
+    feedthrough: bool
+    weighting: str
+    rank_tol: float
+    remove_mean: bool
+    coordinates: str
+
+
+def _options(algorithm: str, **kw: Any) -> _Options:
+    rank_tol = _check_rank_tol(kw["rank_tol"])
+    max_past = _check_int(kw["max_past"], "max_past", 1)
+    return _Options(
+        algorithm=_check_choice(algorithm, "algorithm", _ALGORITHMS),
+        order=_check_int(kw["order"], "order", 1),
+        past=_check_int(kw["past"], "past", 1),
+        future=_check_int(kw["future"], "future", 1),
+        max_past=DEFAULT_MAX_PAST if max_past is None else max_past,
+        dt=check_positive(kw["dt"], "dt"),
+        feedthrough=bool(kw["feedthrough"]),
+        weighting=_check_choice(kw["weighting"], "weighting", _WEIGHTINGS),
+        rank_tol=_DEFAULT_RANK_TOL if rank_tol is None else rank_tol,
+        remove_mean=bool(kw["remove_mean"]),
+        coordinates=_check_choice(kw["coordinates"], "coordinates", _COORDINATES),
+    )
+
+
+def _window(opt: _Options, p: int, f: int) -> int:
+    """Samples per Hankel row: ``p + 1`` (PBSID-opt) or ``p + f`` (SSARX, at least p + 1)."""
+    return p + 1 if opt.algorithm == "pbsid" else p + max(f, 1)
+
+
+def _plan(N: int, m: int, ny: int, opt: _Options) -> tuple[int, int]:
+    """``(p_top, lags)``: largest past the fit may choose and the lags to accumulate."""
+    if opt.past is not None:
+        p_top = opt.past
+    else:
+        p_top = int(min(opt.max_past, (N + 1) // (2 + 2 * _ROWS_PER_COLUMN * m)))
+        p_top = max(p_top, _min_past(opt.order, ny))
+    return p_top, _window(opt, p_top, _future(opt.algorithm, opt.future, p_top)) - 1
+
+
+def _future(algorithm: str, future: int | None, p: int) -> int:
+    """The future ``f``: as given, else ``p`` (PBSID-opt) or ``min(p, 40)`` (SSARX)."""
+    if future is not None:
+        return future
+    return p if algorithm == "pbsid" else min(p, _SSARX_FUTURE)
+
+
+def _min_past(order: int | None, ny: int) -> int:
+    # f ny >= n with f = p by default: Gamma_f must have full column rank.
+    return 1 if order is None else max(1, math.ceil(order / ny))
+
+
+# ---------------------------------------------------------------- the driver
+def _fit(
+    acc: _LagGram,
+    nu: int,
+    ny: int,
+    opt: _Options,
+    p_top: int,
+    shift: np.ndarray,
+    data: tuple[np.ndarray, np.ndarray] | None,
+) -> IdentificationResult:
+    """Everything after the pass over the data (in memory and streamed alike)."""
+    notes: list[str] = []
+    extras: dict[str, Any] = {}
+    m = nu + ny
+    N = acc.n
+    center = opt.remove_mean
+    # ---- one factor of the widest window the fit may use (the AIC's and the fit's
+    # Hankel rows are the same, rows 0..N - W, as MOESP's): W = p_top + 1 or p_top + f
+    if opt.future is not None and opt.past is not None and opt.future > opt.past:
+        raise DataError(f"`future`={opt.future} may not exceed `past`={opt.past}")
+    W = _window(opt, p_top, _future(opt.algorithm, opt.future, p_top))
+    if N - W + 1 < 2 * W * m:
+        raise DataError(
+            f"the record has {N} samples; past={p_top} needs at least "
+            f"{2 * W * m + W - 1} (2 x {W * m} Hankel columns)"
+        )
+    st_all = _window_stats(acc, nu, ny, W, shift, center)
+    # ---- past p (the VARX order) and future f
+    if opt.past is not None:
+        p = opt.past
+        past_rule = "given"
+    else:
+        p_hat, aic = _arx_horizon(st_all, p_top, opt.feedthrough)
+        p = max(p_hat, _min_past(opt.order, ny))
+        past_rule = "auto"
+        extras["varx_aic"] = aic
+        notes.append(f"past {p} chosen automatically: VARX order by AIC over 1..{p_top}")
+        if p_hat >= p_top:
+            notes.append(
+                f"the VARX order hit its upper limit {p_top}: the predictor may need a longer "
+                "past than the record allows (pass past= or a longer record)"
+            )
+    f = _future(opt.algorithm, opt.future, p)
+    if f > p:
+        raise DataError(f"`future`={f} may not exceed `past`={p} (the VARX has p lags)")
+    if opt.order is not None and opt.order > f * ny:
+        raise DataError(
+            f"`order`={opt.order} exceeds future * ny = {f * ny}; increase `future`/`past`"
+        )
+    st = replace(st_all, F=st_all.F[: _window(opt, p, f) * m])  # rows of z(0..w-1)
+
+    # ---- VARX (P4) and the state sequence (P5)-(P8)
+    if opt.algorithm == "pbsid":
+        V, _ = _varx(st, p, opt.feedthrough)
+        U, s, GK = _state_map_pbsid(st, V, p, f)
+    else:
+        U, s, GK = _state_map_ssarx(st, p, f, opt.feedthrough, opt.weighting, notes)
+    n, gap = _order(s, opt.order, f * ny, opt.rank_tol)
+    L = (U[:, :n] / np.sqrt(s[:n])[None, :]).T @ GK  # X = S^{-1/2} U^T (Gamma K) Z_p
+    As, Bs, Cs, Dn, Ks, Re = _system_from_states(st, L, p, opt.feedthrough)  # eq. (P9)
+    if opt.order is None:
+        notes.append(
+            f"order {n} chosen automatically: largest gap of the singular values "
+            f"(s_{n}/s_{n + 1} = {gap:.3g}, values below {opt.rank_tol:.1e} x s_1 floored)"
+        )
+        if gap < 10.0:
+            notes.append(
+                f"order choice is marginal (gap ratio {gap:.3g} < 10); inspect "
+                "`singular_values` and pass `order=` explicitly"
+            )
+
+    # ---- physical units (z_s = z / scale)
+    s_u, s_y = st.scale[:nu], st.scale[nu:]
+    A = As
+    B = Bs / s_u[None, :]
+    C = Cs * s_y[:, None]
+    D = (Dn * s_y[:, None]) / s_u[None, :]
+    K = Ks / s_y[None, :]
+    Re_phys = Re * np.outer(s_y, s_y)
+    model = StateSpace(A, B, C, D, opt.dt)
+    params: dict[str, float] = {}
+    continuous = None
+    if opt.coordinates == "physical":
+        model, continuous, K, v = _bearing_coordinates(model, K)
+        params.update(zip(V_NAMES, v.tolist()))
+    else:
+        try:
+            continuous = undiscretize(model)
+        except ModelError as exc:
+            notes.append(f"no continuous-time model: {exc}")
+    params.update({f"a{k + 1}": float(v) for k, v in enumerate(_char_poly(model.A))})
+    rho = float(np.max(np.abs(np.linalg.eigvals(model.A - K @ model.C)))) if n else 0.0
+    if not rho < 1.0:
+        notes.append(f"the identified predictor A - K C is not stable (spectral radius {rho:.4g})")
+    if not model.is_stable():
+        notes.append(
+            "the model is unstable (poles outside the unit circle); it is reported as found"
+        )
+
+    # ---- fit (one-step-ahead predictor; never an open-loop simulation)
+    fit: dict[str, float] = {}
+    residuals = None
+    mean_u, mean_y = st.mean[:nu], st.mean[nu:]
+    if data is not None and rho < 1.0:
+        y, u = data
+        if center:
+            y, u = y - mean_y, u - mean_u
+        residuals = _predictor_residuals(model, K, y, u)
+        yc = y - y.mean(axis=0)
+        pct = one_step_fit_percent(
+            np.einsum("ij,ij->j", residuals, residuals), np.einsum("ij,ij->j", yc, yc)
+        )
+        fit["one_step_fit_percent"] = float(np.mean(pct))
+    # Fit of y(t) from the state of the last p samples, over the Hankel rows
+    # (scaled units; the second moment less the mean unless the rows are centred).
+    Fy = st.F[st.y_rows(p, p + 1)]
+    var_y = np.einsum("ij,ij->i", Fy, Fy) - (0.0 if center else (mean_y / s_y) ** 2)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        hfit = 100.0 * (1.0 - np.sqrt(np.diag(Re) / np.maximum(var_y, 0.0)))
+    fit["horizon_predictor_fit_percent"] = float(np.mean(hfit))
+    extras.update(
+        kalman_gain=K,
+        innovation_covariance=Re_phys,
+        predictor_spectral_radius=rho,
+        past=p,
+        future=f,
+        order=n,
+        order_gap_ratio=gap,
+        hankel_rows=st.j,
+        factor_rank=st.rank,
+        channel_scale=st.scale,
+        mean={"u": mean_u, "y": mean_y} if center else None,
+    )
+    options = {
+        "order": n,
+        "order_rule": "given" if opt.order is not None else "auto",
+        "past": p,
+        "past_rule": past_rule,
+        "future": f,
+        "max_past": opt.max_past,
+        "dt": opt.dt,
+        "feedthrough": opt.feedthrough,
+        "rank_tol": opt.rank_tol,
+        "remove_mean": opt.remove_mean,
+        "coordinates": opt.coordinates,
+        "factorization": "gram",
+    }
+    if opt.algorithm == "ssarx":
+        options["weighting"] = opt.weighting
+    logger.debug("%s: order %d, past %d, future %d, j=%d", opt.algorithm, n, p, f, st.j)
+    return IdentificationResult(
+        method=opt.algorithm,
+        model=model,
+        parameters=params,
+        covariance=None,
+        n_samples=N,
+        options=options,
+        residuals=residuals,
+        fit=fit,
+        singular_values=s,
+        notes=tuple(notes),
+        continuous_model=continuous,
+        extras=extras,
+    )
+
+
+def _bearing_coordinates(
+    model: StateSpace, K: np.ndarray
+) -> tuple[StateSpace, StateSpace, np.ndarray, np.ndarray]:
+    """The two-coil AMB model in states ``[x, dx/dt, i1, i2]`` (physical.py, section 3).
+
+    :func:`~maglevid.identify.physical.to_physical_coordinates`; the Kalman gain
+    transforms as ``T K``, with ``T^-1`` read off the two observability matrices
+    (``O_phys = O T^-1``; both have full column rank).
+    """
+    if model.nu != 2:
+        raise DataError(
+            "coordinates='physical' is the two-coil bearing's transform: 4 states, outputs "
+            f"[x, i1, i2], inputs [u1, u2]; got nx={model.nx}, ny={model.ny}, nu={model.nu}"
+        )
+    try:
+        disc, cont = to_physical_coordinates(model)
+    except DataError as exc:
+        msg = f"coordinates='physical' is the two-coil bearing's transform: {exc}"
+        raise DataError(msg) from exc
+    Ti = sla.lstsq(_observability(model.A, model.C, 2), _observability(disc.A, disc.C, 2))[0]
+    v, _ = v_from_matrices(cont.A, cont.B)
+    return disc, cont, np.linalg.solve(Ti, K), v
+
+
+# ------------------------------------------------------------- accumulator
+class PredictorAccumulator:
+    """Lagged products of ``z = [u, y]`` fed chunk by chunk; fit PBSID-opt or SSARX at the end.
+
+    Memory is independent of the record length: ``L + 1`` lagged ``m x m``
+    products and ``L`` head and tail samples, with ``L = p`` (PBSID-opt) or
+    ``p + f - 1`` (SSARX) for the largest past ``p`` and future ``f`` the fit
+    may use. A chunk boundary changes only the order of summation, so
+    :meth:`fit` equals :func:`fit_pbsid` / :func:`fit_ssarx` on the whole record
+    to rounding, without the time series of ``residuals``.
+
+    Parameters
+    ----------
+    ny, nu : int
+        Output and input channels.
+    algorithm : {"pbsid", "ssarx"}
+    past, future : int, optional
+        Fixed past and future; when ``past`` is omitted it is chosen at fit time
+        (AIC), up to ``max_past``.
+    max_past : int
+        Largest automatic past (default 80); reduced at fit time to what the
+        record supports, as in memory.
+    remove_mean : bool
+        Centre the data (offset-invariant fit; default True).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from maglevid.simulate.feedback import example_unstable_mimo, simulate_innovation_loop
+    >>> plant, K, controller = example_unstable_mimo()  # unstable, in closed loop
+    >>> y, u = simulate_innovation_loop(plant, K, controller, 3000, rng=0)  # no noise
+    >>> acc = PredictorAccumulator(ny=2, nu=2, past=2)
+    >>> for k in range(0, 3000, 700):
+    ...     _ = acc.update(y[k:k + 700], u[k:k + 700])
+    >>> res = acc.fit(order=3)
+    >>> np.allclose(res.model.markov(8), plant.markov(8))
+    True
+    """
+
+    def __init__(
+        self,
+        ny: int,
+        nu: int,
+        *,
+        algorithm: str = "pbsid",
+        past: int | None = None,
+        future: int | None = None,
+        max_past: int = DEFAULT_MAX_PAST,
+        remove_mean: bool = True,
+    ) -> None:
+        self.ny = _check_int(ny, "ny", 1, allow_none=False)
+        self.nu = _check_int(nu, "nu", 1, allow_none=False)
+        self.algorithm = _check_choice(algorithm, "algorithm", _ALGORITHMS)
+        self.past = _check_int(past, "past", 1)
+        self.future = _check_int(future, "future", 1)
+        self.max_past = _check_int(max_past, "max_past", 1, allow_none=False)
+        self.remove_mean = bool(remove_mean)
+        assert self.ny is not None and self.nu is not None
+        p_top = self.past if self.past is not None else self.max_past
+        assert p_top is not None
+        lags = p_top if self.algorithm == "pbsid" else p_top + _future("ssarx", future, p_top) - 1
+        self._acc = _LagGram(self.nu + self.ny, max(lags, 1))
+        self._shift: np.ndarray | None = None
+
+    @property
+    def n_samples(self) -> int:
+        """Samples seen so far."""
+        return self._acc.n
+
+    def update(self, y: Any, u: Any) -> PredictorAccumulator:
+        """Add the next chunk: ``y`` (c, ny) and ``u`` (c, nu), time first. Returns self."""
+        y = as_signal(y, "y", n_channels=self.ny)
+        u = as_signal(u, "u", n_samples=y.shape[0], n_channels=self.nu)
+        z = np.concatenate([u, y], axis=1)
+        if self._shift is None:
+            # A reference offset taken off every sample before the products: with
+            # remove_mean the centred Gram then has no cancellation against a large
+            # operating point (the shift itself drops out of the centred fit).
+            self._shift = z.mean(axis=0) if self.remove_mean else np.zeros(z.shape[1])
+        self._acc.update(z - self._shift)
+        return self
+
+    def fit(
+        self,
+        *,
+        order: int | None = None,
+        dt: float = 1.0,
+        feedthrough: bool = False,
+        weighting: str = "cca",
+        rank_tol: float | None = None,
+        coordinates: str = "identified",
+    ) -> IdentificationResult:
+        """Identify from the data seen so far (options as in :func:`fit_pbsid`)."""
+        opt = _options(
+            self.algorithm,
+            order=order,
+            past=self.past,
+            future=self.future,
+            max_past=self.max_past,
+            dt=dt,
+            feedthrough=feedthrough,
+            weighting=weighting,
+            rank_tol=rank_tol,
+            remove_mean=self.remove_mean,
+            coordinates=coordinates,
+        )
+        assert self.ny is not None and self.nu is not None
+        N = self.n_samples
+        p_top, lags = _plan(N, self.nu + self.ny, self.ny, opt)
+        if self.past is None:
+            p_top = min(p_top, self.max_past)
+        if N < self._acc.min_samples():
+            raise DataError(f"{N} samples are too few for the lags kept ({self._acc.L})")
+        if lags > self._acc.L:
+            raise DataError(f"order={order} needs a past above this accumulator's max_past")
+        assert self._shift is not None
+        return _fit(self._acc, self.nu, self.ny, opt, p_top, self._shift, None)
+
+
+def _fit_in_memory(algorithm: str, y: Any, u: Any, kw: dict[str, Any]) -> IdentificationResult:
+    opt = _options(algorithm, **kw)
+    y = as_signal(y, "y", min_samples=2)
+    N = y.shape[0]
+    u = as_signal(u, "u", n_samples=N)
+    ny, nu = y.shape[1], u.shape[1]
+    p_top, lags = _plan(N, nu + ny, ny, opt)
+    if N < 2 * lags + 1:
+        raise DataError(f"the record has {N} samples; the past asked for needs {2 * lags + 1}")
+    acc = _LagGram(nu + ny, lags)
+    shift = None
+    for t0 in range(0, N, _CHUNK):  # the same accumulator a stream would use
+        z = np.concatenate([u[t0 : t0 + _CHUNK], y[t0 : t0 + _CHUNK]], axis=1)
+        if shift is None:
+            shift = z.mean(axis=0) if opt.remove_mean else np.zeros(nu + ny)
+        acc.update(z - shift)
+    assert shift is not None
+    return _fit(acc, nu, ny, opt, p_top, shift, (y, u))
+
+
+# ------------------------------------------------------------- public API
+def fit_pbsid(
+    y: Any,
+    u: Any,
+    *,
+    order: int | None = None,
+    past: int | None = None,
+    future: int | None = None,
+    dt: float = 1.0,
+    feedthrough: bool = False,
+    rank_tol: float | None = None,
+    remove_mean: bool = True,
+    coordinates: str = "identified",
+    max_past: int | None = None,
+    rng: np.random.Generator | None = None,
+) -> IdentificationResult:
+    """Innovation-form state-space model by PBSID-opt, consistent in closed loop.
+
+    Implements the optimised predictor-based subspace identification of Chiuso
+    (2007) in the form of van Wingerden & Verhaegen: one VARX of the one-step
+    predictor (docs/subspace.md eq. (P4)), ``Gamma_f K_p`` assembled from its
+    coefficients (P5), the state sequence from the SVD of ``Gamma_f K_p Z_p``
+    (P6) and ``(A, B, C, D, K)`` by least squares on the states (P9).
+
+    Parameters
+    ----------
+    y : array_like, shape (N, ny)
+        Outputs, time first.
+    u : array_like, shape (N, nu)
+        Plant inputs (in closed loop: what the plant received).
+    order : int, optional
+        Model order; by default the largest gap of the singular values.
+    past : int, optional
+        VARX order ``p`` (past window). Default: AIC over ``1..max_past``
+        (the smallest exact order on noise-free data).
+    future : int, optional
+        Future window ``f <= p`` (rows of ``Gamma_f``); default ``p``.
+    dt : float
+        Sample time in seconds.
+    feedthrough : bool
+        Estimate ``D`` (default False: ``D = 0``, and ``u(t)`` may then depend on
+        ``y(t)`` through the controller).
+    rank_tol : float, optional
+        Singular values below ``rank_tol * s_1`` count as zero in the order
+        choice (default 1e-6).
+    remove_mean : bool
+        Centre the data (regressions with an intercept): constant offsets of
+        ``y`` and ``u`` do not change the model. Default True.
+    coordinates : {"identified", "physical"}
+        ``"physical"``: the two-coil bearing's states ``[x, dx/dt, i1, i2]``
+        (4 states, outputs ``[x, i1, i2]``), with ``v1..v9`` in ``parameters``.
+    max_past : int, optional
+        Upper limit of the automatic past (default 80, ``DEFAULT_MAX_PAST``).
+    rng : numpy.random.Generator, optional
+        Unused (deterministic); accepted for a uniform ``fit_*`` API.
+
+    Returns
+    -------
+    IdentificationResult
+        ``model`` (discrete, ``dt``); ``extras["kalman_gain"]`` ``K`` and
+        ``extras["innovation_covariance"]``; ``parameters`` a1..an of
+        ``det(zI - A)`` (and v1..v9 in physical coordinates);
+        ``singular_values`` those used for the order; ``residuals`` the one-step
+        prediction errors of ``(A, B, C, D, K)``.
+
+    Raises
+    ------
+    DataError
+        Bad shapes or options, too few samples, a constant channel.
+    IdentificationError
+        No information in the data, or an order above the rank found.
+
+    Notes
+    -----
+    Consistent under feedback with an unknown causal controller as ``N -> oo``
+    and ``p -> oo`` (the truncation error is ``O(|lambda_max(A - K C)|^p)``).
+    On noise-free closed-loop data the VARX is unique only while ``p ny <= n +
+    n_c`` (``n_c`` the controller's order); the automatic past (AIC) picks the
+    smallest exact order, where the result is exact.
+
+    References
+    ----------
+    A. Chiuso, "The role of vector autoregressive modeling in predictor-based
+    subspace identification," Automatica 43(6):1034-1048, 2007. J.-W. van
+    Wingerden and M. Verhaegen, "Subspace identification of bilinear and LPV
+    systems for open- and closed-loop data," Automatica 45(2):372-381, 2009.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from maglevid.simulate.feedback import example_unstable_mimo, simulate_innovation_loop
+    >>> plant, K, controller = example_unstable_mimo()  # unstable, in closed loop
+    >>> y, u = simulate_innovation_loop(plant, K, controller, 2000, rng=0)  # no noise
+    >>> res = fit_pbsid(y, u)  # automatic past and order
+    >>> res.options["order"], np.allclose(res.model.markov(8), plant.markov(8))
+    (3, True)
+    """
+    del rng
+    return _fit_in_memory(
+        "pbsid",
+        y,
+        u,
+        dict(
+            order=order,
+            past=past,
+            future=future,
+            dt=dt,
+            feedthrough=feedthrough,
+            weighting="none",
+            rank_tol=rank_tol,
+            remove_mean=remove_mean,
+            coordinates=coordinates,
+            max_past=max_past,
+        ),
+    )
+
+
+def fit_ssarx(
+    y: Any,
+    u: Any,
+    *,
+    order: int | None = None,
+    past: int | None = None,
+    future: int | None = None,
+    dt: float = 1.0,
+    feedthrough: bool = False,
+    weighting: str = "cca",
+    rank_tol: float | None = None,
+    remove_mean: bool = True,
+    coordinates: str = "identified",
+    max_past: int | None = None,
+    rng: np.random.Generator | None = None,
+) -> IdentificationResult:
+    """Innovation-form state-space model by SSARX (Jansson 2003), consistent in closed loop.
+
+    The VARX (docs/subspace.md eq. (P4)) gives the predictor's Markov
+    parameters; they remove the future ``z``'s effect from the future outputs
+    (P7), the corrected future is regressed on the past and a
+    canonical-correlation weighted SVD gives the state (P8); ``(A, B, C, D, K)``
+    by least squares on the states (P9).
+
+    Parameters
+    ----------
+    y, u, order, past, future, dt, feedthrough, rank_tol, remove_mean, coordinates, max_past, rng
+        As in :func:`fit_pbsid`, except that ``future`` defaults to ``min(past, 40)``
+        (the Hankel window is ``past + future``).
+    weighting : {"cca", "none"}
+        ``W1 = (ytil_f ytil_f^T)^{-1/2}`` (canonical correlations, Jansson's
+        choice; default) or ``W1 = I``. Noise-free data have a singular
+        corrected-future covariance; the SVD is then unweighted (noted).
+
+    Returns, Raises
+        As :func:`fit_pbsid`.
+
+    References
+    ----------
+    M. Jansson, "Subspace identification and ARX modeling," 13th IFAC Symposium
+    on System Identification, Rotterdam, 2003.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from maglevid.simulate.feedback import example_unstable_mimo, simulate_innovation_loop
+    >>> plant, K, controller = example_unstable_mimo()  # unstable, in closed loop
+    >>> y, u = simulate_innovation_loop(plant, K, controller, 2000, e_std=0.1, rng=0)
+    >>> res = fit_ssarx(y, u, order=3)
+    >>> bool(np.max(np.abs(res.model.poles())) > 1.0)  # the unstable pole, found
+    True
+    """
+    del rng
+    return _fit_in_memory(
+        "ssarx",
+        y,
+        u,
+        dict(
+            order=order,
+            past=past,
+            future=future,
+            dt=dt,
+            feedthrough=feedthrough,
+            weighting=weighting,
+            rank_tol=rank_tol,
+            remove_mean=remove_mean,
+            coordinates=coordinates,
+            max_past=max_past,
+        ),
+    )
+
+
+# --------------------------------------------------------------- registry
+def _method(algorithm: str, summary: str):  # type: ignore[no-untyped-def]
+    fit = fit_pbsid if algorithm == "pbsid" else fit_ssarx
+
+    def run(data: Any, **options: Any) -> IdentificationResult:
+        if getattr(data, "u", None) is None and getattr(data, "u_f", None) is not None:
+            data = data.with_plant_input()
+        if getattr(data, "u", None) is None:
+            raise DataError(
+                f"method {algorithm!r} needs the plant input `u` (or `u_f` and `r`), which "
+                "the recording lacks"
+            )
+        options.setdefault("dt", data.dt)
+        return fit(data.y_control, data.u, **options)
+
+    run.__name__ = f"identify_{algorithm}"
+    run.__doc__ = summary
+    return run
+
+
+#: Methods for ``maglevid identify --method NAME`` (see identify/registry.py).
+METHODS = {
+    "pbsid": _method(
+        "pbsid",
+        "PBSID-opt closed-loop subspace (Chiuso 2007): one VARX, consistent under feedback, "
+        "innovation model with Kalman gain",
+    ),
+    "ssarx": _method(
+        "ssarx",
+        "SSARX closed-loop subspace (Jansson 2003): VARX-corrected future, CCA-weighted SVD, "
+        "innovation model with Kalman gain",
+    ),
+}
