@@ -674,6 +674,7 @@ def cramer_rao_bound(
     v: Any = None,
     noise: NoiseModel | None = None,
     estimate_noise: bool = False,
+    estimate_force: bool = False,
     m: float | None = None,
     i0: float | None = None,
 ) -> CramerRaoBound:
@@ -696,6 +697,10 @@ def cramer_rao_bound(
         Default :meth:`NoiseModel.from_data` (the simulator's ``noise_std``).
     estimate_noise : bool
         Treat the sensor noise levels as unknown.
+    estimate_force : bool
+        Treat the force disturbance's variance as unknown (as the ``ml``
+        method does by default; the bound at ``force_std = 0`` is then that of
+        an interior point, slightly wider than ML's on the boundary).
     m, i0 : float, optional
         Mass and bias current; default ``data.loop["operating_point"]``.
 
@@ -728,7 +733,9 @@ def cramer_rao_bound(
     op_m, op_i0 = operating_point(data.loop)
     m = op_m if m is None else m
     i0 = op_i0 if i0 is None else i0
-    model = amb_linear_gaussian_model(v, data.dt, noise, m=m, estimate_noise=estimate_noise)
+    model = amb_linear_gaussian_model(
+        v, data.dt, noise, m=m, estimate_noise=estimate_noise, estimate_force=estimate_force
+    )
     offset, x0 = fit_nuisance(model, y, u)
     stats = predictor_statistics(model, y, u, offset=offset, x0=x0)
     fisher_v = eliminate_nuisance(stats.fisher, 9)
