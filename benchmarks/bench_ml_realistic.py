@@ -88,7 +88,8 @@ def run_case(fault: dict, runs: int, n: int, seed0: int) -> dict:
             "sd_over_se": (sd / med_se).round(2).tolist(),
             "median_time_s": float(np.median(times[name])),
         }
-    out["model_error_over_ml_se"] = ((_v(r0) - vt0) / np.median(se["ML"], axis=0)).round(3).tolist()
+    model_error = (_v(r0) - vt0) / np.median(se["ML"], axis=0)
+    out["model_error_over_ml_se"] = model_error.round(3).tolist()
     out["model_error_relative"] = ((_v(r0) - vt0) / np.abs(vt0)).tolist()
     return out
 
@@ -109,7 +110,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"== {c}  ({time.perf_counter() - t:.0f} s; ML force_std {r['force_std_ml']:.4f} N)")
         for name in METHODS:
             m = r[name]
-            print(f"  {name}: coverage {m['coverage']:.3f}, median time {m['median_time_s']:.2f} s")
+            cov, t = m["coverage"], m["median_time_s"]
+            print(f"  {name}: coverage {cov:.3f}, median time {t:.2f} s")
             print(f"    bias/sd {m['bias_over_sd']}")
             print(f"    se %    {m['rel_se_percent']}")
             print(f"    sd/se   {m['sd_over_se']}")
