@@ -71,9 +71,10 @@ def test_small_monte_carlo_coverage_at_the_settled_point():
 
 
 def test_without_the_force_disturbance_the_likelihood_is_not_the_datas(realistic):
-    """ML told there is no force disturbance fits the wrong noise model (before
-    the force term its intervals covered the settled point 41 % of the time on
-    16 records). The data reject that model: the likelihood-ratio statistic of
+    """ML told there is no force disturbance fits the wrong noise model (its
+    intervals covered the settled point 77 % of the time on 20 records of 1e4,
+    its scatter up to 2.3x its stated errors). The data reject that model: the
+    likelihood-ratio statistic of
     the one extra parameter is far beyond chi2(1)'s 99.9 % point (10.8). With
     the force estimated every v_i is within 4 standard errors."""
     good = fit_ml(realistic)
