@@ -1,7 +1,7 @@
 """The Cramér-Rao bound of the AMB's physical parameters from closed-loop data.
 
-Noise model (the one :func:`maglevid.simulate.amb.simulate_amb_loop` uses, plus
-two optional process noises the simulator does not draw)::
+Noise model (the one :func:`maglevid.simulate.amb.simulate_amb_loop` draws, plus
+optional amplifier noise the simulator does not draw)::
 
     x(k+1) = A(v) x(k) + B(v) (u(k) + a(k)) + b_F(v) f(k)          (ZOH of eq. (3))
     y(k)   = C x(k) + c + e(k),   e ~ N(0, diag(s_x^2, s_i1^2, s_i2^2))
@@ -10,7 +10,10 @@ two optional process noises the simulator does not draw)::
 sensor noise of ``[x, i1, i2]``, ``f`` a force disturbance on the rotor [N]
 held over each sample (``b_F`` is the ZOH of ``B_F = [0, 1/m, 0, 0]^T``), ``a``
 amplifier noise [V] held over each sample, ``c`` constant offsets of the
-outputs. The simulator draws ``e`` only (``f = a = 0``): that is the default.
+outputs. The simulator draws ``e`` and, on its default nonlinear plant, ``f``
+(``force_std``, 0.1 N; ``a = 0``); :meth:`NoiseModel.from_data` reads both from
+the record's metadata. On the nonlinear plant the model is eq. (3) linearised at
+the settled operating point (``metadata["operating_point_true"]["v"]``).
 
 Innovations form
 ----------------
@@ -156,11 +159,15 @@ class NoiseModel:
 
     @classmethod
     def from_data(cls, data: ClosedLoopData) -> NoiseModel | None:
-        """The simulator's noise model from ``metadata["noise_std"]`` (``None`` if absent)."""
-        s = data.metadata.get("noise_std") if isinstance(data.metadata, Mapping) else None
+        """The simulator's noise model from ``metadata["noise_std"]`` and ``["force_std"]``
+        (``None`` without positive sensor noise levels)."""
+        meta = data.metadata if isinstance(data.metadata, Mapping) else {}
+        s = meta.get("noise_std")
         if s is None or np.any(np.asarray(s, dtype=float) <= 0):
             return None
-        return cls(tuple(np.asarray(s, dtype=float).tolist()))  # type: ignore[arg-type]
+        f = meta.get("force_std")
+        f = 0.0 if f is None or not np.isfinite(float(f)) else float(f)
+        return cls(tuple(np.asarray(s, dtype=float).tolist()), force_std=f)  # type: ignore[arg-type]
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -222,6 +229,7 @@ def amb_linear_gaussian_model(
     *,
     m: float | None = None,
     estimate_noise: bool = False,
+    estimate_force: bool = False,
 ) -> LinearGaussianModel:
     """The AMB's discrete model and noise covariances with derivatives (module notes).
 
@@ -237,15 +245,21 @@ def amb_linear_gaussian_model(
     estimate_noise : bool
         Also differentiate with respect to ``log s_x, log s_i1, log s_i2``
         (the parameters are then ``v1..v9`` and those three).
+    estimate_force : bool
+        Also differentiate with respect to the force disturbance's variance
+        ``s_F^2`` [N^2] (last parameter, ``force_var``). The variance, not its
+        log, so that ``s_F = 0`` (no disturbance) is an ordinary point on the
+        boundary of the parameter space (``dQ / d s_F^2 = b_F b_F^T``). Without
+        ``m`` the disturbance is an acceleration [m/s^2] (``B_F = [0, 1, 0, 0]``).
     """
     v = np.asarray(v, dtype=float).reshape(-1)
     Ac, Bc = amb_matrices(v)
     n = 4
     bF = np.zeros((n, 1))
-    if noise.force_std > 0:
-        if m is None:
+    if noise.force_std > 0 or estimate_force:
+        if m is None and not estimate_force:
             raise DataError("a force disturbance needs the rotor mass `m`")
-        bF[1, 0] = 1.0 / float(m)
+        bF[1, 0] = 1.0 if m is None else 1.0 / float(m)
     Bx = np.hstack([Bc, bF])
     dAc = np.zeros((9, n, n))
     dBx = np.zeros((9, n, 3))
@@ -274,6 +288,12 @@ def amb_linear_gaussian_model(
             dRn[j, j, j] = 2.0 * s2[j]  # d s^2 / d log s
         dR = np.concatenate([dR, dRn])
         names = (*names, "log_sx", "log_si1", "log_si2")
+    if estimate_force:
+        dAd = np.concatenate([dAd, np.zeros((1, n, n))])
+        dBd = np.concatenate([dBd, np.zeros((1, n, 2))])
+        dQ = np.concatenate([dQ, (bFd @ bFd.T)[None]])
+        dR = np.concatenate([dR, np.zeros((1, 3, 3))])
+        names = (*names, "force_var")
     return LinearGaussianModel(Ad, Bd, C_AMB.copy(), Q, R, dAd, dBd, dQ, dR, names)
 
 
@@ -654,6 +674,7 @@ def cramer_rao_bound(
     v: Any = None,
     noise: NoiseModel | None = None,
     estimate_noise: bool = False,
+    estimate_force: bool = False,
     m: float | None = None,
     i0: float | None = None,
 ) -> CramerRaoBound:
@@ -676,6 +697,10 @@ def cramer_rao_bound(
         Default :meth:`NoiseModel.from_data` (the simulator's ``noise_std``).
     estimate_noise : bool
         Treat the sensor noise levels as unknown.
+    estimate_force : bool
+        Treat the force disturbance's variance as unknown (as the ``ml``
+        method does by default; the bound at ``force_std = 0`` is then that of
+        an interior point, slightly wider than ML's on the boundary).
     m, i0 : float, optional
         Mass and bias current; default ``data.loop["operating_point"]``.
 
@@ -708,7 +733,9 @@ def cramer_rao_bound(
     op_m, op_i0 = operating_point(data.loop)
     m = op_m if m is None else m
     i0 = op_i0 if i0 is None else i0
-    model = amb_linear_gaussian_model(v, data.dt, noise, m=m, estimate_noise=estimate_noise)
+    model = amb_linear_gaussian_model(
+        v, data.dt, noise, m=m, estimate_noise=estimate_noise, estimate_force=estimate_force
+    )
     offset, x0 = fit_nuisance(model, y, u)
     stats = predictor_statistics(model, y, u, offset=offset, x0=x0)
     fisher_v = eliminate_nuisance(stats.fisher, 9)

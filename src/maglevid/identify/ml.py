@@ -13,6 +13,13 @@ What: the exact (stationary) Gaussian likelihood of the logged ``y`` given
 
 * ``v1..v9`` (eq. (4)), through the ZOH model (eq. (7));
 * the three sensor noise levels (``log s``), unless given;
+* the variance ``s_F^2`` of a white force disturbance on the rotor, held over
+  each sample (process noise through ``b_F``, the ZOH of
+  ``B_F = [0, 1/m, 0, 0]^T``), unless given: the realistic bearing of the
+  simulator (and a real one) has it, and a likelihood without it is not the
+  likelihood of the data -- its intervals then cover far less than they say;
+  ``s_F^2 >= 0`` is kept by an active-set step (``s_F = 0`` on a record
+  without disturbance is on the boundary);
 * output offsets ``c`` (a constant offset of ``u`` is the same as one of
   ``y`` for this plant, which has no pole at ``z = 1``: both are absorbed);
 * the initial predictor state (the plant is unstable; the steady-state
@@ -34,10 +41,12 @@ included), propagated to R, L, ki, kw, x0, ... by the delta method.
 from __future__ import annotations
 
 import logging
+import warnings
 from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
+import scipy.linalg as sla
 
 from maglevid.data import ClosedLoopData
 from maglevid.exceptions import DataError, IdentificationError
@@ -80,7 +89,7 @@ def fit_ml(
     *,
     start: Any = "physical",
     noise_std: Any = "estimate",
-    force_std: float = 0.0,
+    force_std: Any = "estimate",
     amplifier_std: Any = (0.0, 0.0),
     max_iter: int = 60,
     m: float | None = None,
@@ -99,9 +108,12 @@ def fit_ml(
         Sensor noise standard deviations of ``[x, i1, i2]``: estimated with the
         parameters (default), taken from ``metadata["noise_std"]`` of a
         simulated record, or given [m, A, A].
-    force_std : float
-        Force disturbance on the rotor [N per sample, held], assumed known (0:
-        none, as the simulator).
+    force_std : "estimate", "metadata" or float
+        Standard deviation of the white force disturbance on the rotor [N, held
+        over each sample]: estimated (default; started at 0), taken from
+        ``metadata["force_std"]`` of a simulated record, or given (0: none, the
+        paper's linear model). Without the mass ``m`` it is an acceleration
+        [m/s^2].
     amplifier_std : (2,) sequence
         Amplifier input noise [V per sample, held], assumed known.
     max_iter : int
@@ -119,16 +131,57 @@ def fit_ml(
     Raises
     ------
     DataError
-        Wrong signals or options.
+        Wrong signals or options, or a degenerate record (saturated, constant:
+        the predictor or its information cannot be computed).
     IdentificationError
         The predictor does not exist at the start, or no descent is found.
     """
+    try:
+        return _fit_ml(data, start, noise_std, force_std, amplifier_std, max_iter, m, i0)
+    except (np.linalg.LinAlgError, FloatingPointError, ValueError, sla.LinAlgWarning) as exc:
+        # A saturated or constant record makes the DARE, the Lyapunov equation or
+        # an inverse fail inside numpy/scipy (LinAlgError, or a ValueError on
+        # LAPACK errors / non-finite arrays): the record's fault, said once.
+        # Our own DataErrors pass; any other ValueError is a bug and propagates.
+        if isinstance(exc, DataError) or not (
+            isinstance(exc, (np.linalg.LinAlgError, FloatingPointError, sla.LinAlgWarning))
+            or _raised_in_numerics(exc)
+        ):
+            raise
+        raise DataError(
+            f"ml: the record is degenerate for the Kalman predictor ({exc}); a saturated, "
+            "constant or non-bearing record cannot be fitted by maximum likelihood"
+        ) from exc
+
+
+def _raised_in_numerics(exc: BaseException) -> bool:
+    """Whether ``exc`` was raised inside numpy or scipy (its innermost frame)."""
+    tb = exc.__traceback__
+    while tb is not None and tb.tb_next is not None:
+        tb = tb.tb_next
+    name = "" if tb is None else tb.tb_frame.f_code.co_filename
+    return any(f"{sep}{pkg}{sep}" in name for pkg in ("numpy", "scipy") for sep in "/\\")
+
+
+def _fit_ml(
+    data: ClosedLoopData,
+    start: Any,
+    noise_std: Any,
+    force_std: Any,
+    amplifier_std: Any,
+    max_iter: int,
+    m: float | None,
+    i0: float | None,
+) -> IdentificationResult:
     y, u = _signals(data)
     op_m, op_i0 = operating_point(data.loop)
     m = op_m if m is None else m
     i0 = op_i0 if i0 is None else i0
     v0, noise0, start_kind, notes = _start(data, start, m=m, i0=i0)
-    noise, estimate_noise = _noise(data, noise_std, force_std, amplifier_std, noise0)
+    noise, estimate_noise = _noise(data, noise_std, amplifier_std, noise0)
+    force0, est_force = _force(data, force_std)
+    noise = NoiseModel(noise.sensor_std, force_std=force0, amplifier_std=noise.amplifier_std)
+    lay = _Layout(noise, estimate_noise, est_force)
     # A poor IV start (short or very noisy record) can leave the scoring in a
     # wrong basin; the nominal bearing the loop was designed on is the other
     # natural start. The one with the higher likelihood goes first; the other
@@ -136,13 +189,13 @@ def fit_ml(
     starts = [(v0, start_kind)]
     v_nom = _nominal_v(data)
     if start_kind == "physical" and v_nom is not None:
-        nom_first = _start_likelihood(y, u, v_nom, noise, estimate_noise, data.dt, m) < (
-            _start_likelihood(y, u, v0, noise, estimate_noise, data.dt, m)
+        nom_first = _start_likelihood(y, u, v_nom, lay, data.dt, m) < (
+            _start_likelihood(y, u, v0, lay, data.dt, m)
         )
         starts = [(v_nom, "nominal"), starts[0]] if nom_first else [starts[0], (v_nom, "nominal")]
     best = None
     for k, (vs, kind) in enumerate(starts):
-        run = _optimise(y, u, vs, noise, estimate_noise, dt=data.dt, m=m, max_iter=max_iter)
+        run = _optimise(y, u, vs, lay, dt=data.dt, m=m, max_iter=max_iter)
         if (
             best is None
             or (run[3] and not best[0][3])
@@ -168,15 +221,14 @@ def fit_ml(
         data,
         theta,
         final,
-        noise,
-        estimate_noise,
+        lay,
         m=m,
         i0=i0,
         iterations=it,
         options={
             "start": start_kind,
             "noise_std": noise_std if isinstance(noise_std, str) else list(noise.sensor_std),
-            "force_std": float(force_std),
+            "force_std": force_std if isinstance(force_std, str) else float(force_std),
             "amplifier_std": list(noise.amplifier_std),
             "max_iter": int(max_iter),
             "m": m,
@@ -195,16 +247,14 @@ def _start_likelihood(
     y: np.ndarray,
     u: np.ndarray,
     v: np.ndarray,
-    noise: NoiseModel,
-    est: bool,
+    lay: _Layout,
     dt: float,
     m: float | None,
 ) -> float:
     """Eq. (1) at a starting point (inf where the predictor does not exist)."""
-    theta = np.concatenate([v, np.log(noise.sensor_std)]) if est else v
     try:
         return float(
-            _evaluate(_model(theta, noise, est, dt, m), _Spectra(y, u), derivatives=False)["nll"]
+            _evaluate(lay.model(lay.theta(v), dt, m), _Spectra(y, u), derivatives=False)["nll"]
         )
     except (IdentificationError, ValueError, FloatingPointError, np.linalg.LinAlgError):
         return float("inf")
@@ -265,7 +315,6 @@ def _start(
 def _noise(
     data: ClosedLoopData,
     noise_std: Any,
-    force_std: float,
     amplifier_std: Any,
     s0: np.ndarray | None,
 ) -> tuple[NoiseModel, bool]:
@@ -290,17 +339,71 @@ def _noise(
             )
     else:
         s, est = tuple(np.asarray(noise_std, dtype=float).reshape(-1).tolist()), False
-    return NoiseModel(s, force_std=force_std, amplifier_std=amplifier_std), est  # type: ignore[arg-type]
+    return NoiseModel(s, amplifier_std=amplifier_std), est  # type: ignore[arg-type]
 
 
-def _model(theta: np.ndarray, noise: NoiseModel, est: bool, dt: float, m: float | None) -> Any:
-    if est:
-        noise = NoiseModel(
-            tuple(np.exp(theta[9:12]).tolist()),  # type: ignore[arg-type]
-            force_std=noise.force_std,
-            amplifier_std=noise.amplifier_std,
+def _force(data: ClosedLoopData, force_std: Any) -> tuple[float, bool]:
+    """The force disturbance's level to start from [N] and whether it is estimated."""
+    if isinstance(force_std, str):
+        if force_std == "estimate":
+            return 0.0, True
+        if force_std == "metadata":
+            f = data.metadata.get("force_std") if isinstance(data.metadata, Mapping) else None
+            if f is None:
+                raise DataError("force_std='metadata': the recording has no force_std")
+            return float(f), False
+        raise DataError(
+            f"`force_std` must be 'estimate', 'metadata' or a number >= 0; got {force_std!r}"
         )
-    return amb_linear_gaussian_model(theta[:9], dt, noise, m=m, estimate_noise=est)
+    try:
+        f = float(force_std)
+    except (TypeError, ValueError):
+        raise DataError(f"`force_std` must be a number >= 0; got {force_std!r}") from None
+    if not np.isfinite(f) or f < 0:
+        raise DataError(f"`force_std` must be a number >= 0; got {force_std!r}")
+    return f, False
+
+
+class _Layout:
+    """The parameter vector ``[v1..v9, log s (if estimated), s_F^2 (if estimated)]``."""
+
+    def __init__(self, noise: NoiseModel, est: bool, est_force: bool) -> None:
+        self.noise, self.est, self.est_force = noise, est, est_force
+        self.size = 9 + 3 * est + est_force
+        self.i_force = self.size - 1 if est_force else None
+
+    def theta(self, v: np.ndarray) -> np.ndarray:
+        parts = [np.asarray(v, dtype=float)]
+        if self.est:
+            parts.append(np.log(self.noise.sensor_std))
+        if self.est_force:
+            parts.append([self.noise.force_std**2])
+        return np.concatenate(parts)
+
+    def lower(self) -> np.ndarray:
+        """Lower bounds (the force variance is >= 0)."""
+        lo = np.full(self.size, -np.inf)
+        if self.i_force is not None:
+            lo[self.i_force] = 0.0
+        return lo
+
+    def sensor(self, theta: np.ndarray) -> np.ndarray:
+        return np.exp(theta[9:12]) if self.est else np.asarray(self.noise.sensor_std)
+
+    def force(self, theta: np.ndarray) -> float:
+        if self.i_force is None:
+            return self.noise.force_std
+        return float(np.sqrt(max(theta[self.i_force], 0.0)))
+
+    def model(self, theta: np.ndarray, dt: float, m: float | None) -> Any:
+        noise = NoiseModel(
+            tuple(self.sensor(theta).tolist()),  # type: ignore[arg-type]
+            force_std=self.force(theta),
+            amplifier_std=self.noise.amplifier_std,
+        )
+        return amb_linear_gaussian_model(
+            theta[:9], dt, noise, m=m, estimate_noise=self.est, estimate_force=self.est_force
+        )
 
 
 # ---------------------------------------------------------------------------
@@ -488,8 +591,7 @@ def _optimise(
     y: np.ndarray,
     u: np.ndarray,
     v0: np.ndarray,
-    noise: NoiseModel,
-    est: bool,
+    lay: _Layout,
     *,
     dt: float,
     m: float | None,
@@ -497,7 +599,7 @@ def _optimise(
 ) -> tuple[np.ndarray, dict[str, Any], int, bool, float]:
     """Fisher scoring with Levenberg-Marquardt damping on eq. (1).
 
-    The parameters are ``[v, log s (if estimated)]``; the transient ``tau``
+    The parameters are ``[v, log s, s_F^2 (if estimated)]``; the transient ``tau``
     is profiled out exactly at every point (it enters affinely), so the
     reduced gradient and information (Schur complement) drive the step.
     Returns the estimate, the final evaluation (information with ``tau``
@@ -505,13 +607,14 @@ def _optimise(
     iterations, whether it converged and the final value of eq. (1).
     """
     sp = _Spectra(y, u)
-    theta = np.concatenate([v0, np.log(noise.sensor_std)]) if est else v0.copy()
+    theta = lay.theta(v0)
     p = theta.size
+    lower = lay.lower()
 
     stride = max(1, len(sp.z) // _FISHER_FREQUENCIES)
 
     def evaluate(th: np.ndarray, derivatives: bool, full: bool = False) -> dict[str, Any]:
-        model = _model(th, noise, est, dt, m)
+        model = lay.model(th, dt, m)
         return _evaluate(model, sp, derivatives=derivatives, stride=1 if full else stride)
 
     try:
@@ -520,29 +623,47 @@ def _optimise(
         raise IdentificationError(f"ml: no stable Kalman predictor at the start ({exc})") from exc
     it = 0
     converged = False
-    # Stage 1 holds the noise levels at their start (the IV fit's estimate): the
-    # dynamics converge from a poor start without the noise levels absorbing
-    # the misfit; stage 2 frees everything.
-    stages = [np.arange(9), np.arange(p)] if est else [np.arange(p)]
+    # Stage 1 holds the noise levels at their start (the IV fit's estimate, no
+    # force disturbance): the dynamics converge from a poor start without the
+    # noise levels absorbing the misfit; stage 2 frees everything.
+    stages = [np.arange(9), np.arange(p)] if p > 9 else [np.arange(p)]
     for free in stages:
-        theta, st, n_it, converged = _scoring(evaluate, theta, st, free, max_iter - it)
+        theta, st, n_it, converged = _scoring(
+            evaluate, theta, st, free, max_iter - it, lower=lower
+        )
         it += n_it
     st = evaluate(theta, True, full=True)  # the covariance from every frequency
     return theta, st, it, converged, float(st["nll"])
 
 
 def _scoring(
-    evaluate: Any, theta: np.ndarray, st: dict[str, Any], free: np.ndarray, max_iter: int
+    evaluate: Any,
+    theta: np.ndarray,
+    st: dict[str, Any],
+    free_all: np.ndarray,
+    max_iter: int,
+    *,
+    lower: np.ndarray | None = None,
 ) -> tuple[np.ndarray, dict[str, Any], int, bool]:
-    """Levenberg-Marquardt-damped Fisher scoring on the ``free`` parameters."""
+    """Levenberg-Marquardt-damped Fisher scoring on the ``free`` parameters.
+
+    Active set for the ``lower`` bounds: a parameter on its bound whose
+    gradient points out of the feasible set is held there for the step (it is
+    at its constrained optimum, and the convergence test leaves it out); a
+    step across a bound is cut at the bound.
+    """
     p = theta.size
-    k = free.size
+    lower = np.full(p, -np.inf) if lower is None else lower
     lam = 1e-3
     it = 0
     while it < max_iter:
         it += 1
+        g_all = st["gradient"][:p]
+        pinned = (theta <= lower) & (g_all > 0)
+        free = free_all[~pinned[free_all]]
+        k = free.size
         info_red = eliminate_nuisance(st["fisher"], p)[np.ix_(free, free)]
-        g = st["gradient"][free]
+        g = g_all[free]
         d = np.sqrt(np.clip(np.diag(info_red), 1e-300, None))
         decrease = float(g @ pinv_information(info_red) @ g)
         if decrease < _TOL * k:
@@ -551,13 +672,24 @@ def _scoring(
             Ms = info_red / np.outer(d, d) + lam * np.eye(k)
             trial = theta.copy()
             trial[free] -= np.linalg.solve(Ms, g / d) / d
+            trial = np.maximum(trial, lower)
             # A lightly damped step is usually accepted: evaluate it with the
             # derivatives at once (one pass instead of two); a heavily damped one
             # is checked cheaply first.
             likely = lam < 1e-2
             try:
-                st_t = evaluate(trial, likely)
-            except (IdentificationError, ValueError, FloatingPointError, np.linalg.LinAlgError):
+                # An ill-conditioned predictor (Lyapunov equation, DARE) at a trial
+                # point is a bad point: rejected like a failed one, not warned about.
+                with warnings.catch_warnings():
+                    warnings.simplefilter("error", sla.LinAlgWarning)
+                    st_t = evaluate(trial, likely)
+            except (
+                IdentificationError,
+                ValueError,
+                FloatingPointError,
+                np.linalg.LinAlgError,
+                sla.LinAlgWarning,
+            ):
                 lam *= 10.0
                 continue
             if st_t["nll"] < st["nll"]:
@@ -576,8 +708,7 @@ def _result(
     data: ClosedLoopData,
     theta: np.ndarray,
     final: dict[str, Any],
-    noise: NoiseModel,
-    est: bool,
+    lay: _Layout,
     *,
     m: float | None,
     i0: float | None,
@@ -590,7 +721,12 @@ def _result(
     """Model, parameters with covariance (inverse Fisher, delta method) and diagnostics."""
     v = theta[:9]
     info = final["fisher"]
-    cov_v = invert_information(eliminate_nuisance(info, 9))
+    keep = np.ones(info.shape[0], dtype=bool)
+    if lay.i_force is not None and theta[lay.i_force] <= 0.0:
+        # No force disturbance (its variance on the bound 0, the constrained
+        # optimum): the parameter is known there, not a free nuisance.
+        keep[lay.i_force] = False
+    cov_v = invert_information(eliminate_nuisance(info[np.ix_(keep, keep)], 9))
     dnames, _ = derived_parameters(v, m=m, i0=i0)
 
     def chain(vv: np.ndarray) -> np.ndarray:
@@ -608,7 +744,7 @@ def _result(
     y = np.asarray(data.y, float)
     E = np.array(final["eps"])
     # Output offsets: the zero-frequency bin, E(1) = N (I - C (I - F)^-1 K) c.
-    model = _model(theta, noise, est, data.dt, m)
+    model = lay.model(theta, data.dt, m)
     K = final["K"]
     Fm = model.A - K @ model.C
     Hc = np.eye(3) - model.C @ np.linalg.solve(np.eye(4) - Fm, K)
@@ -621,7 +757,7 @@ def _result(
     fitd["one_step_fit_percent_min"] = float(np.nanmin(osf))
     fitd["neg_log_likelihood"] = float(final["nll"])
     fitd["structure_residual"] = 0.0  # the model is parameterised in eq. (4) itself
-    sensor = np.exp(theta[9:12]) if est else np.asarray(noise.sensor_std)
+    sensor = lay.sensor(theta)
     return IdentificationResult(
         method="ml",
         model=amb_state_space(v, data.dt),  # eq. (7): the ZOH model in physical coordinates
@@ -635,7 +771,9 @@ def _result(
         notes=tuple(notes),
         extras={
             "sensor_noise_std": sensor,
-            "sensor_noise_estimated": est,
+            "sensor_noise_estimated": lay.est,
+            "force_std": lay.force(theta),
+            "force_std_estimated": lay.est_force,
             "output_offsets": c,
             "transient": final["tau"],
             "kalman_gain": final["K"],

@@ -1,0 +1,137 @@
+"""Maximum likelihood on the realistic bearing (the simulator's default).
+
+The nonlinear magnet (eq. (1)) under the nominal bias voltages, a 0.1 N white
+force disturbance on the rotor and the command line's sensor noise. ML's
+noise model carries the force disturbance as an estimated parameter (its
+variance); the reference of every estimate is eq. (4) linearised at the
+operating point the (faulty) bearing settles at
+(``metadata["operating_point_true"]["v"]``, as in
+test_settled_point_identification.py). The linear-plant tests of exactness
+and efficiency are in test_ml.py; the large Monte Carlo is
+benchmarks/bench_ml_realistic.py (100 records per case: coverage 0.94-0.95,
+scatter/stated error 0.9-1.2, docs/gosiewski.md, "Maximum likelihood").
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from maglevid.exceptions import DataError
+from maglevid.identify.cramer_rao import cramer_rao_bound
+from maglevid.identify.ml import fit_ml
+from maglevid.identify.physical import fit_physical
+from maglevid.physics.amb import V_NAMES, AMBParameters
+from maglevid.simulate.amb import DEFAULT_FORCE_STD, simulate_amb_loop
+
+NOM = AMBParameters.nominal()
+FAULTS = [{}, {"R1": 1.2}, {"kw1": 0.8}, {"K1": 0.9}]
+
+
+def _v(res):
+    return np.array([res.parameters[k] for k in V_NAMES])
+
+
+def _se(res):
+    return np.array([res.std_errors()[k] for k in V_NAMES])
+
+
+def _settled(d):
+    return np.asarray(d.metadata["operating_point_true"]["v"])
+
+
+@pytest.fixture(scope="module")
+def realistic():
+    """One R1 +20 % record of the default kind (controller on the nominal bearing)."""
+    return simulate_amb_loop(NOM.with_fault(R1=1.2), nominal=NOM, n_samples=6000, rng=31)
+
+
+def test_small_monte_carlo_coverage_at_the_settled_point():
+    """8 records (healthy, R1 +20 %, kw1 -20 %, K1 -10 %; two seeds each) x 9
+    parameters = 72 intervals. At a true 95 % the misses are ~Binomial(72, 0.05)
+    (mean 3.6; P(>= 12) = 2e-4 if independent): 0-11 accepted. The intervals
+    must also be the efficient ones (v1, R1 to ~1 % on 0.6 s; IV's are ~40 %),
+    or wide intervals would pass. Started from IV: also the convergence check."""
+    misses, force = 0, []
+    for k, fault in enumerate(FAULTS):
+        for seed in (0, 1):
+            d = simulate_amb_loop(
+                NOM.with_fault(**fault), nominal=NOM, n_samples=6000, rng=200 + 10 * k + seed
+            )
+            res = fit_ml(d)
+            assert res.extras["converged"], fault
+            ci = res.confidence_intervals(0.95)
+            misses += sum(not (ci[n][0] <= t <= ci[n][1]) for n, t in zip(V_NAMES, _settled(d)))
+            assert res.std_errors()["R1"] < 0.02 * res.parameters["R1"], fault
+            force.append(res.extras["force_std"])
+    assert misses <= 11, misses
+    # The force disturbance is estimated: 0.098 N mean over 400 records of 1e4
+    # samples (benchmark); here 8 records of 6000, each within ~15 %.
+    assert np.mean(force) == pytest.approx(DEFAULT_FORCE_STD, rel=0.1)
+
+
+def test_without_the_force_disturbance_the_likelihood_is_not_the_datas(realistic):
+    """ML told there is no force disturbance fits the wrong noise model (its
+    intervals covered the settled point 77 % of the time on 20 records of 1e4,
+    its scatter up to 2.3x its stated errors). The data reject that model: the
+    likelihood-ratio statistic of
+    the one extra parameter is far beyond chi2(1)'s 99.9 % point (10.8). With
+    the force estimated every v_i is within 4 standard errors."""
+    good = fit_ml(realistic)
+    z = (_v(good) - _settled(realistic)) / _se(good)
+    assert np.all(np.abs(z) < 4), z
+    assert good.extras["force_std"] == pytest.approx(DEFAULT_FORCE_STD, rel=0.3)
+    # ML's stated errors are the Cramér-Rao bound of the same model (force and
+    # sensor levels unknown), at the estimate vs at the settled point: within 15 %.
+    crb = cramer_rao_bound(realistic, estimate_noise=True, estimate_force=True).std()
+    np.testing.assert_allclose(_se(good) / [crb[k] for k in V_NAMES], 1.0, atol=0.15)
+    bad = fit_ml(realistic, force_std=0.0)
+    lr = 2 * (bad.fit["neg_log_likelihood"] - good.fit["neg_log_likelihood"])
+    assert lr > 100, lr
+
+
+def test_ml_is_far_more_precise_than_iv_on_the_realistic_bearing(realistic):
+    """The issue's target, >= 5x lower standard error than IV (the default
+    ``physical``) on the parameters a coil fault moves; measured ~50x."""
+    ml, iv = fit_ml(realistic).std_errors(), fit_physical(realistic).std_errors()
+    for k in ("R1", "R2", "kw1", "kw2", "v1", "v5"):
+        assert 5 * ml[k] < iv[k], (k, ml[k], iv[k])
+
+
+def test_no_force_disturbance_puts_its_variance_on_the_bound():
+    """A linear-plant record without force: the estimated variance stops at (or
+    next to) its bound 0 and the fit still converges (the active set)."""
+    d = simulate_amb_loop(
+        NOM.with_fault(R1=1.2), nominal=NOM, n_samples=6000, rng=9,
+        plant_model="linear", force_std=0.0,
+    )  # fmt: skip
+    res = fit_ml(d)
+    assert res.extras["converged"]
+    assert res.extras["force_std"] < 0.2 * DEFAULT_FORCE_STD
+    z = (_v(res) - np.asarray(d.metadata["truth_v"])) / _se(res)
+    assert np.all(np.abs(z) < 4), z
+
+
+def test_force_option_errors(realistic):
+    with pytest.raises(DataError, match="force_std"):
+        fit_ml(realistic, force_std=-1.0)
+    with pytest.raises(DataError, match="force_std"):
+        fit_ml(realistic, force_std="guess")
+
+
+def test_a_saturated_record_is_a_data_error(realistic):
+    """The logged amplifier inputs clipped at 30 % of their peak (as the method
+    contract's saturated record): the logged u is no longer what drove the
+    bearing. Where the Kalman predictor's equations fail inside scipy, ML says
+    so with one DataError at its own boundary (never a LinAlgError/ValueError,
+    the contract test's case); where they do not (this record), no optimum
+    exists and the result says it did not converge."""
+    d = realistic
+    lim = 0.3 * float(np.max(np.abs(d.u)))
+    u = np.clip(d.u, -lim, lim)
+    try:
+        res = fit_ml(d.replace(u=u, u_f=u - d.r))
+    except DataError:
+        return
+    assert not res.extras["converged"]
+    assert any("without converging" in n for n in res.notes)
