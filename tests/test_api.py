@@ -157,3 +157,13 @@ def test_import_maglevid_stays_light():
 def test_identify_refuses_a_mapping_for_data_in_memory(faulty):
     with pytest.raises(maglevid.DataError, match="mapping"):
         maglevid.identify(faulty, mapping={"layout": "time_first"})
+
+
+def test_submodules_reached_through_the_functions_name():
+    # `import maglevid.diagnose.pipeline as p` (and mock.patch's dotted paths) reach
+    # `pipeline` as an attribute of `maglevid.diagnose`, the function.
+    import maglevid.diagnose.pipeline as pipeline
+    import maglevid.identify.arx as arx
+
+    assert pipeline.diagnose is maglevid.diagnose
+    assert callable(arx.fit_arx)

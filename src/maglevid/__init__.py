@@ -64,9 +64,25 @@ for _name in _FUNCTIONS:
 def __getattr__(name: str) -> Any:
     if name in _FUNCTIONS:
         fn = getattr(importlib.import_module("maglevid.api"), name)
+        _bind_submodules(fn, name)
         globals()[name] = fn
         return fn
     raise AttributeError(f"module 'maglevid' has no attribute {name!r}")
+
+
+def _bind_submodules(fn: Any, package: str) -> None:
+    """The subpackage's modules as attributes of the function of the same name.
+
+    ``import maglevid.diagnose.pipeline as p`` and ``mock.patch("maglevid.diagnose.
+    pipeline.x")`` reach ``pipeline`` as an attribute of ``maglevid.diagnose``,
+    which is the function: so the function carries the modules too.
+    """
+    import pkgutil
+
+    pkg = importlib.import_module(f"{__name__}.{package}")
+    for info in pkgutil.iter_modules(pkg.__path__):
+        if not hasattr(fn, info.name):
+            setattr(fn, info.name, importlib.import_module(f"{pkg.__name__}.{info.name}"))
 
 
 def __dir__() -> list[str]:
