@@ -44,10 +44,12 @@ and explained in ``docs/papers.md``):
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass, fields, replace
 from typing import Any
 
 import numpy as np
+from scipy.optimize import root
 
 from maglevid._validation import check_positive
 from maglevid.exceptions import DataError, ModelError
@@ -57,12 +59,17 @@ __all__ = [
     "C_AMB",
     "V_NAMES",
     "AMBParameters",
+    "OperatingPoint",
     "amb_matrices",
     "amb_nonlinear_rhs",
     "amb_state_space",
+    "bias_voltages",
+    "linearized_v",
+    "loop_dc_feedback",
     "open_loop_poles",
     "parameters_from_v",
     "ratios_from_v",
+    "settled_operating_point",
     "v_from_matrices",
     "v_from_parameters",
 ]
@@ -384,3 +391,239 @@ def amb_nonlinear_rhs(
     di1 = (p.kw1 * u[0] - p.R1 * i1 - p.K1 * i1 * dx / (2 * g1**2)) / (p.Ls1 + p.K1 / (2 * g1))
     di2 = (p.kw2 * u[1] - p.R2 * i2 + p.K2 * i2 * dx / (2 * g2**2)) / (p.Ls2 + p.K2 / (2 * g2))
     return np.array([dx, F / p.m, di1, di2])
+
+
+# ---------------------------------------------------------------------------
+# The operating point a (faulty) bearing settles at under its controller
+# ---------------------------------------------------------------------------
+def linearized_v(p: AMBParameters, *, x: float, I1: float, I2: float) -> np.ndarray:
+    """v1..v9 of eq. (4) for eq. (1) linearised at displacement ``x`` and currents ``I1, I2``.
+
+    At ``x = 0, I1 = I2 = i0`` this is ``p.v()``. With gaps ``g1 = x0 - x``,
+    ``g2 = x0 + x`` and inductances ``L_j(x) = Ls_j + K_j / (2 g_j)``::
+
+        v1 = (K1 I1^2 / (2 g1^3) + K2 I2^2 / (2 g2^3)) / m
+        v2 = K1 I1 / (2 g1^2) / m         v3 = K2 I2 / (2 g2^2) / m
+        v4 = K1 I1 / (2 g1^2) / L1(x)     v6 = K2 I2 / (2 g2^2) / L2(x)
+        v5 = R1 / L1(x)   v7 = R2 / L2(x)   v8 = kw1 / L1(x)   v9 = kw2 / L2(x)
+
+    (at an equilibrium ``kw_j u_j = R_j I_j``, so the current equations have no
+    ``x`` term).
+    """
+    g1, g2 = p.x0 - x, p.x0 + x
+    L1, L2 = p.Ls1 + p.K1 / (2 * g1), p.Ls2 + p.K2 / (2 * g2)
+    ki1, ki2 = p.K1 * I1 / (2 * g1**2), p.K2 * I2 / (2 * g2**2)
+    ks = p.K1 * I1**2 / (2 * g1**3) + p.K2 * I2**2 / (2 * g2**3)
+    return np.array(
+        [ks / p.m, ki1 / p.m, ki2 / p.m, ki1 / L1, p.R1 / L1, ki2 / L2, p.R2 / L2, p.kw1 / L1,
+         p.kw2 / L2]
+    )  # fmt: skip
+
+
+def bias_voltages(nominal: AMBParameters) -> np.ndarray:
+    """Amplifier bias inputs ``R_j i0 / kw_j`` [V] that hold ``i_j = i0`` in the *nominal* bearing.
+
+    A real controller applies these whatever the bearing has become; a fault
+    then moves the operating point (see :func:`settled_operating_point`).
+    """
+    return np.array([nominal.R1 * nominal.i0 / nominal.kw1, nominal.R2 * nominal.i0 / nominal.kw2])
+
+
+@dataclass(frozen=True)
+class OperatingPoint:
+    """Where a bearing settles under its loop, and eq. (4) linearised there.
+
+    Attributes
+    ----------
+    x : float
+        Rotor displacement [m].
+    I1, I2 : float
+        Absolute coil currents [A].
+    U1, U2 : float
+        Voltages across the coils ``kw_j u_j = R_j I_j`` [V].
+    u : ndarray (2,)
+        Absolute amplifier inputs ``u_bias + u_f`` [V].
+    u_bias : ndarray (2,)
+        The bias inputs the controller applies (those of the nominal bearing).
+    u_f : ndarray (2,)
+        The commanded offset: the feedback at rest [V].
+    y : ndarray (3,)
+        The measured deviations ``[x, I1 - i0, I2 - i0]`` from the *nominal*
+        bias ``i0`` (what a recording logs at rest).
+    x_hat, e : ndarray
+        Observer state and integral state at rest (empty without a loop).
+    v : ndarray (9,)
+        :func:`linearized_v` at ``(x, I1, I2)``.
+    A_c, B_c : ndarray
+        ``amb_matrices(v)``.
+    """
+
+    x: float
+    I1: float
+    I2: float
+    U1: float
+    U2: float
+    u: np.ndarray
+    u_bias: np.ndarray
+    u_f: np.ndarray
+    y: np.ndarray
+    x_hat: np.ndarray
+    e: np.ndarray
+    v: np.ndarray
+    A_c: np.ndarray
+    B_c: np.ndarray
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-safe form (``metadata["operating_point_true"]`` of a simulated recording)."""
+        d = asdict(self)
+        return {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in d.items()}
+
+
+def loop_dc_feedback(loop: Mapping[str, Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The feedback at rest of an observer-based state feedback with integral action.
+
+    ``loop`` holds ``"controller"`` (``F``, ``Fe``, ``E``; eq. (42)) and ``"observer"``
+    (``A``, ``B``, ``C``, ``G``; eq. (43)), as in a recording's ``loop``. With
+    constant signals the observer sits at its fixed point
+    ``x̂ = W (B u_f - G y)``, ``W = (I - A - G C)^-1``, and ``u_f = -F x̂ + F_e e``;
+    eliminating ``x̂``::
+
+        u_f = P_y y + P_e e,   (I + F W B) P_y = F W G,   (I + F W B) P_e = F_e.
+
+    Returns
+    -------
+    P_y : ndarray (nu, ny)
+    P_e : ndarray (nu, ne)
+    E : ndarray (ne, ny)
+        The integrated outputs: at rest ``E y = 0``.
+    """
+    try:
+        ctrl, obs = loop["controller"], loop["observer"]
+        F, Fe, E = (np.asarray(ctrl[k], float) for k in ("F", "Fe", "E"))
+        A, B, C, G = (np.asarray(obs[k], float) for k in ("A", "B", "C", "G"))
+    except (KeyError, TypeError) as exc:
+        raise DataError(
+            "the loop must hold controller {F, Fe, E} and observer {A, B, C, G}; "
+            f"missing {exc}"
+        ) from None
+    W = np.linalg.inv(np.eye(A.shape[0]) - A - G @ C)
+    M = np.eye(F.shape[0]) + F @ W @ B
+    return np.linalg.solve(M, F @ W @ G), np.linalg.solve(M, Fe), E
+
+
+def settled_operating_point(
+    plant: AMBParameters,
+    nominal: AMBParameters,
+    loop: Mapping[str, Any] | None = None,
+    *,
+    u_bias: Any = None,
+    force: float = 0.0,
+) -> OperatingPoint:
+    """The equilibrium a (possibly faulty) bearing settles at, and eq. (4) there.
+
+    The amplifiers apply the *nominal* bias inputs plus the command,
+    ``u_j = u_bias_j + u_fj`` (``u_bias`` defaults to :func:`bias_voltages` of
+    ``nominal``; a recording's ``loop["operating_point"]["u_bias"]`` is used when
+    present). At rest, eq. (1) with ``x' = i' = 0`` gives::
+
+        0 = K1/4 (I1/(x0 - x))^2 - K2/4 (I2/(x0 + x))^2 + force     (force balance)
+        kw_j (u_bias_j + u_fj) = R_j I_j                             (coil j)
+
+    and the loop (:func:`loop_dc_feedback`) gives ``u_f = P_y y + P_e e`` with
+    ``y = [x, I1 - i0, I2 - i0]`` and ``E y = 0`` (the integral action drives the
+    integrated outputs to their zero reference). Unknowns ``x, I1, I2, e``: as
+    many as equations. Without a loop (``loop=None``) the commanded offset is
+    zero: the open-loop rest point of the currents under the bias alone, with
+    ``x`` from the force balance.
+
+    Parameters
+    ----------
+    plant : AMBParameters
+        The real bearing.
+    nominal : AMBParameters
+        The bearing the controller was designed on (its ``i0`` is the current
+        the logged deviations are taken from).
+    loop : mapping, optional
+        ``{"controller": {...}, "observer": {...}}`` (a recording's ``loop``).
+    u_bias : (2,) array_like, optional
+        Bias inputs [V] (default: the loop's, else the nominal bearing's).
+    force : float
+        Static external force on the rotor [N] (e.g. a load), positive towards coil 1.
+
+    Raises
+    ------
+    ModelError
+        No rest point with the rotor inside the gap and positive currents (the
+        fault is beyond what the loop compensates).
+
+    Examples
+    --------
+    >>> nom = AMBParameters.nominal()
+    >>> op = settled_operating_point(nom.with_fault(K2=0.92), nom)
+    >>> round(op.x * 1e6, 2), round(op.I1, 4)     # no loop: the rotor moves off centre
+    (-7.29, 0.5)
+    """
+    i0 = nominal.i0
+    if u_bias is None:
+        u_bias = (loop or {}).get("operating_point", {}).get("u_bias")
+    ub = bias_voltages(nominal) if u_bias is None else np.asarray(u_bias, float).reshape(2)
+    if loop is not None:
+        Py, Pe, E = loop_dc_feedback(loop)
+    else:
+        Py, Pe, E = np.zeros((2, 3)), np.zeros((2, 0)), np.zeros((0, 3))
+    ne = E.shape[0]
+    kw, R = np.array([plant.kw1, plant.kw2]), np.array([plant.R1, plant.R2])
+    e_scale = 1.0 / max(float(np.max(np.abs(Pe), initial=0.0)), 1e-300)
+    f_scale = plant.K1 * i0**2 / (4 * plant.x0**2)
+    y_scale = np.array([nominal.x0, i0, i0])
+
+    def unpack(th: np.ndarray) -> tuple[float, float, float, np.ndarray]:
+        return th[0] * nominal.x0, th[1] * i0, th[2] * i0, th[3:] * e_scale
+
+    def resid(th: np.ndarray) -> np.ndarray:
+        x, I1, I2, e = unpack(th)
+        y = np.array([x, I1 - i0, I2 - i0])
+        uf = Py @ y + Pe @ e
+        g1, g2 = plant.x0 - x, plant.x0 + x
+        f = plant.K1 / 4 * (I1 / g1) ** 2 - plant.K2 / 4 * (I2 / g2) ** 2 + force  # eq. (1)
+        cur = (kw * (ub + uf) - R * np.array([I1, I2])) / (R * i0)
+        return np.concatenate([[f / f_scale], cur, (E @ y) / (E @ y_scale)])
+
+    sol = root(resid, np.concatenate([[0.0, 1.0, 1.0], np.zeros(ne)]), method="hybr",
+               options={"xtol": 1e-14})  # fmt: skip
+    res = float(np.max(np.abs(resid(sol.x))))
+    x, I1, I2, e = unpack(sol.x)
+    if res > 1e-9 or not (abs(x) < plant.x0 and I1 > 0 and I2 > 0):
+        raise ModelError(
+            "the bearing has no rest point with this loop "
+            f"(residual {res:.3g}, x = {x:.3g} m, I1 = {I1:.3g} A, I2 = {I2:.3g} A): the fault is "
+            "beyond what the loop can compensate"
+        )
+    return _operating_point(plant, loop, ub, Py, Pe, float(x), float(I1), float(I2), e, i0)
+
+
+def _operating_point(
+    plant: AMBParameters,
+    loop: Mapping[str, Any] | None,
+    ub: np.ndarray,
+    Py: np.ndarray,
+    Pe: np.ndarray,
+    x: float,
+    I1: float,
+    I2: float,
+    e: np.ndarray,
+    i0: float,
+) -> OperatingPoint:
+    y = np.array([x, I1 - i0, I2 - i0])
+    uf = Py @ y + Pe @ e
+    x_hat = np.zeros(0)
+    if loop is not None:
+        obs = loop["observer"]
+        A, B, C, G = (np.asarray(obs[k], float) for k in ("A", "B", "C", "G"))
+        x_hat = np.linalg.solve(np.eye(A.shape[0]) - A - G @ C, B @ uf - G @ y)
+    v = linearized_v(plant, x=x, I1=I1, I2=I2)
+    Ac, Bc = amb_matrices(v)
+    return OperatingPoint(
+        x=x, I1=I1, I2=I2, U1=plant.R1 * I1, U2=plant.R2 * I2, u=ub + uf, u_bias=ub,
+        u_f=uf, y=y, x_hat=x_hat, e=np.asarray(e, float), v=v, A_c=Ac, B_c=Bc,
+    )  # fmt: skip

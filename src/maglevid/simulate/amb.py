@@ -35,10 +35,10 @@ import argparse
 import logging
 import math
 from collections.abc import Callable, Iterable, Sequence
+from dataclasses import asdict
 from typing import Any
 
 import numpy as np
-from scipy.optimize import root
 
 from maglevid._validation import check_positive
 from maglevid.control import (
@@ -58,6 +58,9 @@ from maglevid.physics.amb import (
     OUTPUT_NAMES,
     AMBParameters,
     amb_state_space,
+    bias_voltages,
+    linearized_v,
+    settled_operating_point,
 )
 from maglevid.simulate.excitation import EXCITATION_KINDS, make_excitation
 from maglevid.simulate.loop import simulate_linear_loop
@@ -179,44 +182,6 @@ def default_amb_observer(nominal: AMBParameters, dt: float) -> Observer:
 # ---------------------------------------------------------------------------
 # Nonlinear plant
 # ---------------------------------------------------------------------------
-def linearized_v(p: AMBParameters, *, x: float, I1: float, I2: float) -> np.ndarray:
-    """v1..v9 of eq. (4) for eq. (1) linearised at displacement ``x`` and currents ``I1, I2``.
-
-    At ``x = 0, I1 = I2 = i0`` this is ``p.v()``. With gaps ``g1 = x0 - x``,
-    ``g2 = x0 + x`` and inductances ``L_j(x) = Ls_j + K_j / (2 g_j)``::
-
-        v1 = (K1 I1^2 / (2 g1^3) + K2 I2^2 / (2 g2^3)) / m
-        v2 = K1 I1 / (2 g1^2) / m         v3 = K2 I2 / (2 g2^2) / m
-        v4 = K1 I1 / (2 g1^2) / L1(x)     v6 = K2 I2 / (2 g2^2) / L2(x)
-        v5 = R1 / L1(x)   v7 = R2 / L2(x)   v8 = kw1 / L1(x)   v9 = kw2 / L2(x)
-
-    (at an equilibrium ``kw_j u_j = R_j I_j``, so the current equations have no
-    ``x`` term).
-    """
-    g1, g2 = p.x0 - x, p.x0 + x
-    L1, L2 = p.Ls1 + p.K1 / (2 * g1), p.Ls2 + p.K2 / (2 * g2)
-    ki1, ki2 = p.K1 * I1 / (2 * g1**2), p.K2 * I2 / (2 * g2**2)
-    ks = p.K1 * I1**2 / (2 * g1**3) + p.K2 * I2**2 / (2 * g2**3)
-    return np.array(
-        [
-            ks / p.m,
-            ki1 / p.m,
-            ki2 / p.m,
-            ki1 / L1,
-            p.R1 / L1,
-            ki2 / L2,
-            p.R2 / L2,
-            p.kw1 / L1,
-            p.kw2 / L2,
-        ]
-    )
-
-
-def _bias_voltage(nominal: AMBParameters) -> np.ndarray:
-    """``R_j i0 / kw_j`` of the nominal bearing: holds ``i_j = i0`` there."""
-    return np.array([nominal.R1 * nominal.i0 / nominal.kw1, nominal.R2 * nominal.i0 / nominal.kw2])
-
-
 def nonlinear_equilibrium(
     plant: AMBParameters,
     nominal: AMBParameters,
@@ -225,17 +190,10 @@ def nonlinear_equilibrium(
 ) -> dict[str, Any]:
     """Rest point of the nonlinear loop (no excitation, no noise).
 
-    Unknowns: displacement ``x``, absolute currents ``I1, I2``, integral ``e``.
-    Equations: zero force (eq. (1)); ``kw_j (u_bias_j + u_fj) = R_j I_j``; and
-    ``E y = 0`` (a constant integral needs zero integrated error). The feedback at
-    rest follows from the observer's fixed point
-    ``x̂ = (I - A_o - G C_o)^-1 (B_o u_f - G y)``, ``u_f = -F x̂ + F_e e``.
-
-    Returns
-    -------
-    dict
-        ``x``, ``I1``, ``I2`` (plant), ``y`` (measured deviations), ``u_f``,
-        ``x_hat``, ``e`` and ``v`` (:func:`linearized_v` there).
+    :func:`~maglevid.physics.amb.settled_operating_point` with this observer and
+    controller and the nominal bearing's bias inputs, as a dict (``x``, ``I1``,
+    ``I2``, ``y``, ``u_f``, ``x_hat``, ``e``, ``v`` and the rest of
+    :class:`~maglevid.physics.amb.OperatingPoint`).
 
     Raises
     ------
@@ -243,63 +201,8 @@ def nonlinear_equilibrium(
         When no rest point is found (the fault is beyond what the integral
         action can compensate).
     """
-    i0 = nominal.i0
-    ub = _bias_voltage(nominal)
-    Abar, Bo, G = observer.A_bar, observer.B, observer.G
-    F, Fe, E = controller.F, controller.Fe, controller.E
-    ne = E.shape[0]
-    W = np.linalg.solve(np.eye(observer.nx) - Abar, np.eye(observer.nx))
-    # u_f = (I + F W B_o)^-1 (F W G y + F_e e)
-    Mu = np.eye(2) + F @ W @ Bo
-    Py = np.linalg.solve(Mu, F @ W @ G)
-    Pe = np.linalg.solve(Mu, Fe)
-    e_scale = 1.0 / max(float(np.max(np.abs(Fe))), 1e-300)
-    f_scale = nominal.K1 * i0**2 / (4 * nominal.x0**2)
-    y_scale = np.array([nominal.x0, i0, i0])
-
-    def unpack(th: np.ndarray) -> tuple[float, float, float, np.ndarray]:
-        return th[0] * nominal.x0, th[1] * i0, th[2] * i0, th[3:] * e_scale
-
-    def resid(th: np.ndarray) -> np.ndarray:
-        x, I1, I2, e = unpack(th)
-        y = np.array([x, I1 - i0, I2 - i0])
-        uf = Py @ y + Pe @ e
-        g1, g2 = plant.x0 - x, plant.x0 + x
-        force = plant.K1 / 4 * (I1 / g1) ** 2 - plant.K2 / 4 * (I2 / g2) ** 2  # eq. (1)
-        cur = np.array([plant.kw1, plant.kw2]) * (ub + uf) - np.array(
-            [plant.R1, plant.R2]
-        ) * np.array([I1, I2])
-        return np.concatenate(
-            [
-                [force / f_scale],
-                cur / (np.array([plant.R1, plant.R2]) * i0),
-                (E @ y) / (E @ y_scale),
-            ]
-        )
-
-    th0 = np.concatenate([[0.0, 1.0, 1.0], np.zeros(ne)])
-    sol = root(resid, th0, method="hybr", options={"xtol": 1e-14})
-    res = float(np.max(np.abs(resid(sol.x))))
-    x, I1, I2, e = unpack(sol.x)
-    if res > 1e-9 or not (abs(x) < plant.x0 and I1 > 0 and I2 > 0):
-        raise ModelError(
-            "the nonlinear loop has no rest point with this plant and controller "
-            f"(residual {res:.3g}, x = {x:.3g} m, I1 = {I1:.3g} A, I2 = {I2:.3g} A): the fault is "
-            "beyond what the integral action can compensate"
-        )
-    y = np.array([x, I1 - i0, I2 - i0])
-    uf = Py @ y + Pe @ e
-    x_hat = W @ (Bo @ uf - G @ y)
-    return {
-        "x": float(x),
-        "I1": float(I1),
-        "I2": float(I2),
-        "y": y,
-        "u_f": uf,
-        "x_hat": x_hat,
-        "e": np.asarray(e, float),
-        "v": linearized_v(plant, x=float(x), I1=float(I1), I2=float(I2)),
-    }
+    loop = {"controller": controller.to_dict(), "observer": observer.to_dict()}
+    return asdict(settled_operating_point(plant, nominal, loop))
 
 
 def _rk4_stepper(p: AMBParameters, h: float) -> Callable[..., tuple[float, float, float, float]]:
@@ -387,7 +290,7 @@ def _simulate_nonlinear(
     """Sample-by-sample loop with eq. (1) integrated by RK4 under ZOH. Returns y, u_f."""
     N = r.shape[0]
     i0, x0 = nominal.i0, plant.x0
-    ub1, ub2 = (float(b) for b in _bias_voltage(nominal))
+    ub1, ub2 = (float(b) for b in bias_voltages(nominal))
     Abar, Bo, G = observer.A_bar, observer.B, observer.G
     F, Fe, E = controller.F, controller.Fe, controller.E
     nx, ne = Abar.shape[0], E.shape[0]
@@ -648,12 +551,8 @@ def simulate_amb_loop(
         x_hat0, e0 = eq["x_hat"], eq["e"]
         meta["substeps"] = substeps
         meta["operating_point_true"] = {
-            "x": eq["x"],
-            "I1": eq["I1"],
-            "I2": eq["I2"],
-            "y": eq["y"].tolist(),
-            "u_f": eq["u_f"].tolist(),
-            "v": eq["v"].tolist(),
+            k: (np.asarray(val).tolist() if isinstance(val, np.ndarray) else val)
+            for k, val in eq.items()
         }
     meta["initial_state"] = {"x_hat": np.asarray(x_hat0).tolist(), "e": np.asarray(e0).tolist()}
 
@@ -665,7 +564,7 @@ def simulate_amb_loop(
             "i0": nominal.i0,
             "x0": nominal.x0,
             "m": nominal.m,
-            "u_bias": _bias_voltage(nominal).tolist(),
+            "u_bias": bias_voltages(nominal).tolist(),
         },
         "nominal": nominal.to_dict(),
         "dt_design": dt,
