@@ -35,7 +35,7 @@ coil currents the bearing settles at (a coil-2 K -8 % needs more current in coil
 2 and, by force balance ``K1 I1^2 = K2 I2^2``, changes coil 1's too; a higher
 resistance with the nominal bias voltage carries less current). The identified
 ``v`` is the linearisation at *that* point, so each hypothesis predicts ``v``
-there (:class:`OperatingPoint`, :func:`maglevid.simulate.amb.linearized_v`):
+there (:class:`MeasuredOperatingPoint`, :func:`maglevid.physics.amb.linearized_v`):
 the measured displacement and coil-current levels of the recording, the
 currents taken relative to the hypothesis's own bias ``i0`` (so "only i0
 changed" stays a hypothesis). Without an operating point the design point
@@ -65,14 +65,13 @@ import numpy as np
 from scipy import optimize, special
 
 from maglevid.exceptions import DataError
-from maglevid.physics.amb import AMBParameters, v_from_parameters
-from maglevid.simulate.amb import linearized_v
+from maglevid.physics.amb import AMBParameters, linearized_v, v_from_parameters
 
 __all__ = [
     "HYPOTHESES",
     "FaultHypothesis",
     "IsolationResult",
-    "OperatingPoint",
+    "MeasuredOperatingPoint",
     "isolate_fault",
     "v_with_sensor_gains",
 ]
@@ -157,7 +156,7 @@ HYPOTHESES: dict[str, tuple[str, str, str]] = {
 
 
 @dataclass(frozen=True)
-class OperatingPoint:
+class MeasuredOperatingPoint:
     """Where the bearing sat during a recording, relative to the design point.
 
     ``x`` [m] the settled displacement, ``dI1``, ``dI2`` [A] the settled coil
@@ -184,7 +183,7 @@ def v_with_sensor_gains(
     gi1: float = 1.0,
     gi2: float = 1.0,
     *,
-    operating_point: OperatingPoint | None = None,
+    operating_point: MeasuredOperatingPoint | None = None,
 ) -> np.ndarray:
     """v1..v9 as identified through sensors with gains ``gx``, ``gi1``, ``gi2``.
 
@@ -198,7 +197,7 @@ def v_with_sensor_gains(
 
 
 def _v_of(
-    theta: Mapping[str, float], base: AMBParameters, op: OperatingPoint | None
+    theta: Mapping[str, float], base: AMBParameters, op: MeasuredOperatingPoint | None
 ) -> np.ndarray:
     phys = {k: v for k, v in theta.items() if k not in SENSOR_GAINS}
     gains = {k: v for k, v in theta.items() if k in SENSOR_GAINS}
@@ -263,7 +262,7 @@ class IsolationResult:
     explained: bool
     indistinguishable: tuple[FaultHypothesis, ...] = field(default=())
     model_error: float = 0.0
-    operating_point: OperatingPoint | None = None
+    operating_point: MeasuredOperatingPoint | None = None
 
     @property
     def singles(self) -> tuple[FaultHypothesis, ...]:
@@ -305,7 +304,7 @@ def _fit(
     base: AMBParameters,
     v_hat: np.ndarray,
     w: _Weights,
-    op: OperatingPoint | None,
+    op: MeasuredOperatingPoint | None,
 ) -> FaultHypothesis:
     # Whitened residual: L^T (v_hat - v(theta)), with W = L L^T.
     b0 = {k: (1.0 if k in SENSOR_GAINS else getattr(base, k)) for k in names}
@@ -364,7 +363,7 @@ def isolate_fault(
     hypotheses: Sequence[str] | None = None,
     alpha: float = 0.01,
     try_pairs: bool = True,
-    operating_point: OperatingPoint | None = None,
+    operating_point: MeasuredOperatingPoint | None = None,
     model_error: float = 0.0,
 ) -> IsolationResult:
     """Find the physical change that explains an identified ``v`` (see module docs).
@@ -385,7 +384,7 @@ def isolate_fault(
         Significance level of the chi-square tests.
     try_pairs : bool
         Also fit pairs of simultaneous changes when no single one fits.
-    operating_point : OperatingPoint, optional
+    operating_point : MeasuredOperatingPoint, optional
         Where the bearing settled in the recording; each hypothesis predicts
         ``v`` there (default: the design point).
     model_error : float
