@@ -666,22 +666,14 @@ def diagnose(
     if store is not None and drift:
         drifts = _drifts(store, diag, tol, alpha)
         if drifts:
-            words = "; ".join(
-                f"{d['parameter']} {d['slope_percent_per_day']:+.2g} %/day (p = {d['p_value']:.2g}"
-                + (
-                    f", projected to leave ±{d['tolerance_percent']:.0f} % "
-                    f"on {d['projected_crossing'][:10]})"
-                    if d["projected_crossing"]
-                    else ")"
-                )
-                for d in drifts
-            )
+            words = "; ".join(_drift_words(d) for d in drifts)
             extra = {
                 "drifts": tuple(drifts),
-                "reasons": (*diag.reasons, f"drift over the history: {words}"),
+                "reasons": (*diag.reasons, f"over the history: {words}"),
             }
             if diag.verdict_code in ("no_change", "within_tolerance"):
-                extra["verdict"] = f"No fault yet, but drifting: {words}"
+                kind = "drifting" if any(d["kind"] == "drift" for d in drifts) else "a step"
+                extra["verdict"] = f"No fault yet, but {kind}: {words}"
                 extra["verdict_code"] = "drift"
             diag = _replace_diagnosis(diag, **extra)
     return diag
@@ -763,6 +755,35 @@ def _clean_json(obj: Any) -> Any:
 MIN_DRIFT_POINTS = 4
 
 
+def _iso_day(seconds: float) -> str | None:
+    """An ISO timestamp (UTC) from seconds since 1970; ``None`` beyond the calendar."""
+    try:
+        return datetime.fromtimestamp(float(seconds), tz=timezone.utc).isoformat(
+            timespec="seconds"
+        )
+    except (OverflowError, ValueError, OSError):  # a near-flat trend: far beyond 9999
+        return None
+
+
+def _drift_words(d: Mapping[str, Any]) -> str:
+    """One history finding in words: a dated step, or a drift and where it heads."""
+    if d.get("kind") == "step":
+        return (
+            f"{d['parameter']} stepped {d['step_percent']:+.3g} % between "
+            f"{(d['step_after'] or '?')[:10]} and {(d['step_before'] or '?')[:10]} "
+            f"(change-point test p = {d['p_value']:.2g})"
+        )
+    head = f"{d['parameter']} {d['slope_percent_per_day']:+.2g} %/day (p = {d['p_value']:.2g}"
+    if d.get("already_beyond"):
+        return head + f", the trend is already beyond ±{d['tolerance_percent']:.0f} %)"
+    if d.get("projected_crossing"):
+        return (
+            head + f", projected to leave ±{d['tolerance_percent']:.0f} % "
+            f"on {d['projected_crossing'][:10]})"
+        )
+    return head + ")"
+
+
 def _drifts(
     store: Any,
     diag: Diagnosis,
@@ -776,7 +797,7 @@ def _drifts(
     so a healthy machine raises a false drift alarm with probability <= alpha
     per diagnosis rather than ~13 alpha.
     """
-    from maglevid.diagnose.drift import detect_drift
+    from maglevid.diagnose.drift import detect_drift, detect_step
 
     alpha_each = alpha / len(DIAGNOSED_PARAMETERS)
     out = []
@@ -799,25 +820,35 @@ def _drifts(
             tolerance=float(t) * abs(b),
             baseline=b,
         )
+        step = detect_step(tr.time[ok] / 86400.0, tr.value[ok], tr.std_error[ok], alpha=alpha_each)
+        entry = {
+            "parameter": k,
+            "slope_percent_per_day": 100.0 * res.slope / b if b else float("nan"),
+            "p_value": res.p_value,
+            "n_points": int(ok.sum()),
+            "projected_crossing": None,
+            "tolerance_percent": 100.0 * float(t),
+            "method": res.method,
+            "kind": "drift",
+        }
+        if step.is_step:
+            times = np.sort(tr.time[ok])
+            entry.update(
+                kind="step",
+                p_value=step.p_value,
+                step_percent=100.0 * step.size / b if b else float("nan"),
+                step_after=_iso_day(times[step.index - 1]),
+                step_before=_iso_day(times[step.index]),
+            )
+            out.append(entry)
+            continue
         if not res.drifting:
             continue
-        crossing = None
-        if res.projected_crossing_time is not None and np.isfinite(res.projected_crossing_time):
-            try:
-                crossing = datetime.fromtimestamp(
-                    res.projected_crossing_time * 86400.0, tz=timezone.utc
-                ).isoformat(timespec="seconds")
-            except (OverflowError, ValueError, OSError):  # a near-flat trend: far beyond 9999
-                crossing = None
-        out.append(
-            {
-                "parameter": k,
-                "slope_percent_per_day": 100.0 * res.slope / b if b else float("nan"),
-                "p_value": res.p_value,
-                "n_points": int(ok.sum()),
-                "projected_crossing": crossing,
-                "tolerance_percent": 100.0 * float(t),
-                "method": res.method,
-            }
-        )
+        crossing = res.projected_crossing_time
+        if crossing is not None and np.isfinite(crossing):
+            if crossing * 86400.0 <= float(np.max(tr.time[ok])):
+                entry["already_beyond"] = True  # never project a crossing already past
+            else:
+                entry["projected_crossing"] = _iso_day(crossing * 86400.0)
+        out.append(entry)
     return out

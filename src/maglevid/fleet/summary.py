@@ -295,14 +295,21 @@ class MachineSummary:
         return tuple(d for d in self.drifts if d.get("drifting"))
 
     @property
+    def inconclusive(self) -> bool:
+        """The latest diagnosis could not resolve the tolerance (never shown as ok)."""
+        return self.latest is not None and self.latest.get("verdict_code") == "inconclusive"
+
+    @property
     def state(self) -> str:
-        """``changed``, ``drifting``, ``ok``, or ``undiagnosed`` (no usable diagnosis)."""
+        """``changed``, ``drifting``, ``inconclusive``, ``ok``, or ``undiagnosed``."""
         if self.changed:
             return "changed"
         if self.drifting:
             return "drifting"
         if self.latest is None:
             return "undiagnosed"
+        if self.inconclusive:
+            return "inconclusive"
         return "ok"
 
     def to_dict(self) -> dict[str, Any]:
@@ -351,6 +358,10 @@ class FleetSummary:
         return tuple(m for m in self.machines if m.drifting)
 
     @property
+    def inconclusive(self) -> tuple[MachineSummary, ...]:
+        return tuple(m for m in self.machines if m.state == "inconclusive")
+
+    @property
     def problems(self) -> tuple[RecordingOutcome, ...]:
         return tuple(o for o in self.outcomes if o.problem is not None)
 
@@ -370,6 +381,7 @@ class FleetSummary:
             "verdicts": self.verdicts,
             "changed": [m.name for m in self.changed],
             "drifting": [m.name for m in self.drifting],
+            "inconclusive": [m.name for m in self.inconclusive],
             "n_problems": len(self.problems),
             "machines": [m.to_dict() for m in self.machines],
             "recordings": [o.to_dict() for o in self.outcomes],
