@@ -33,8 +33,10 @@ def test_frechet_jacobian_equals_brute_force_delta_method(noisy):
     ny, nu, dt = 3, 2, data.dt
     y = np.asarray(data.y)
     u = np.asarray(data.u)
-    ys = np.sqrt(np.mean(y**2, axis=0))
-    hs = np.sqrt(np.mean(np.hstack([y[:, :1], u]) ** 2, axis=0))
+    # realization scales: standard deviations (deviations from the operating point,
+    # issue 12), as fit_physical uses them
+    ys = np.std(y, axis=0)
+    hs = np.std(np.hstack([y[:, :1], u]), axis=0)
 
     def chain(theta):  # the whole chain with a fresh logm at every step
         At, Bt, Ct, _ = realize_plant_arx(theta, ny=ny, nu=nu, y_scale=ys, h_scale=hs)

@@ -125,6 +125,11 @@ class LinearFit:
         ``sum_k eps(k)^2`` per left-hand side (also when ``residuals`` is None).
     n_rows : int or None
         Rows of the regression.
+    intercept : ndarray, shape (ny,), or None
+        The constant ``c`` of ``Y(k) = Theta phi(k) + c + eps(k)`` when the
+        regression estimated one (``intercept=True``); ``None`` otherwise.
+    regressor_means : ndarray, shape (n,), or None
+        Means of the regressors over the rows (with ``intercept=True``).
     """
 
     coefficients: np.ndarray
@@ -140,6 +145,8 @@ class LinearFit:
     noise_covariance: np.ndarray | None = None
     residual_sum_of_squares: np.ndarray | None = None
     n_rows: int | None = None
+    intercept: np.ndarray | None = None
+    regressor_means: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         for name in (
@@ -149,6 +156,8 @@ class LinearFit:
             "singular_values",
             "noise_covariance",
             "residual_sum_of_squares",
+            "intercept",
+            "regressor_means",
         ):
             if getattr(self, name) is None:
                 continue
@@ -446,10 +455,27 @@ class RegressionAccumulator:
         Instruments (``None``: least squares).
     labels : sequence of str, optional
         Regressor names, used in error messages.
+    intercept : bool
+        Estimate a constant ``c`` too: ``Y(k) = Theta phi(k) + c + eps(k)``, the
+        constant also being an instrument. A column of ones is put *first* in
+        ``X``; its QR step removes the column means from every other column, so
+        the rest of ``R`` is the factor of the centred ``[Z, Phi, Y]`` and the
+        slopes are those of the regression on deviations from the means over
+        the rows (Frisch-Waugh-Lovell, which holds for IV when the constant is
+        an included instrument). ``Theta``, its covariance and the effective
+        instruments then refer to centred data, and the result is the same, to
+        rounding, when constants are added to any column of ``Y``, ``Phi`` or
+        ``Z``: the estimate is invariant to the operating point of a recording.
     """
 
     def __init__(
-        self, n: int, ny: int, *, nz: int | None = None, labels: Sequence[str] | None = None
+        self,
+        n: int,
+        ny: int,
+        *,
+        nz: int | None = None,
+        labels: Sequence[str] | None = None,
+        intercept: bool = False,
     ) -> None:
         if n < 1 or ny < 1:
             raise DataError(f"need at least one regressor and one output; got n={n}, ny={ny}")
@@ -462,7 +488,8 @@ class RegressionAccumulator:
         self.n, self.ny, self.nz = n, ny, nz
         self.labels = labels
         self.estimator = "ls" if nz is None else ("iv" if nz == n else "2sls")
-        self._qr = _RunningQR((0 if nz is None else nz) + n + ny)
+        self.intercept = bool(intercept)
+        self._qr = _RunningQR(int(self.intercept) + (0 if nz is None else nz) + n + ny)
         self._solved = False
         self._pass2: dict[str, Any] = {}
 
@@ -516,6 +543,9 @@ class RegressionAccumulator:
             if self.nz is None
             else ["instruments"] * len(z) + ["Phi"] * len(phi) + ["Y"] * len(y)
         )
+        if self.intercept:
+            blocks = [np.ones((phi[0].shape[0], 1)), *blocks]
+            names = ["intercept", *names]
         self._qr.update(blocks, names, check=check)
 
     def solve(
@@ -538,7 +568,13 @@ class RegressionAccumulator:
                 f"`Phi` has {N} rows for {n} regressors; need more rows than regressors"
             )
         R = self._qr.R
-        norms = np.linalg.norm(R, axis=0) / np.sqrt(N)  # RMS of each column of X
+        means = None
+        if self.intercept:
+            # Row 0 of R is the ones column's: R[0, j] / R[0, 0] = mean of column j;
+            # the rest is the factor of the centred columns.
+            means = R[0, 1:] / R[0, 0]
+            R = R[1:, 1:]
+        norms = np.linalg.norm(R, axis=0) / np.sqrt(N)  # RMS of each (centred) column of X
         k0 = 0 if nz is None else nz
         s = norms[k0 : k0 + n]
         _zero_columns(s, "Phi", self.labels)
@@ -602,7 +638,16 @@ class RegressionAccumulator:
             "kernel": kernel,
             "sum_e2": np.zeros(ny),
             "n": 0,
+            "eps0": np.zeros(ny),
+            "psi0": np.zeros(n),
         }
+        if means is not None:
+            # constants of the second pass: eps = Y - Phi Theta^T - c, psi = (Z - mean Z) W
+            m_phi, m_y = means[k0 : k0 + n], means[k0 + n :]
+            p2["intercept"] = m_y - m_phi @ theta
+            p2["regressor_means"] = m_phi
+            p2["eps0"] = p2["intercept"]
+            p2["psi0"] = (m_phi if nz is None else means[:nz]) @ W
         if noise_ma is None:
             p2["scores"] = _LagSums(ny * n, hac_lags)
         else:
@@ -637,8 +682,8 @@ class RegressionAccumulator:
         for s0 in range(0, rows, _PASS_BLOCK):
             s1 = min(rows, s0 + _PASS_BLOCK)
             Yb = y[0][s0:s1] if len(y) == 1 else np.hstack([a[s0:s1] for a in y])
-            eps = Yb - product(phi, theta, s0, s1)
-            psi = product(z, W, s0, s1)
+            eps = Yb - product(phi, theta, s0, s1) - p2["eps0"]
+            psi = product(z, W, s0, s1) - p2["psi0"]
             out[s0:s1] = eps
             p2["sum_e2"] += np.einsum("ij,ij->j", eps, eps)
             if "scores" in p2:
@@ -694,6 +739,8 @@ class RegressionAccumulator:
             noise_covariance=sigma_w,
             residual_sum_of_squares=p2["sum_e2"],
             n_rows=N,
+            intercept=p2.get("intercept"),
+            regressor_means=p2.get("regressor_means"),
         )
 
 
@@ -724,6 +771,7 @@ def solve_linear_regression(
     labels: Sequence[str] | None = None,
     min_norm: bool = False,
     noise_ma: Callable[[np.ndarray], Sequence[np.ndarray]] | None = None,
+    intercept: bool = False,
 ) -> LinearFit:
     """Least-squares or instrumental-variable solution of ``Y(k) = Theta phi(k) + eps(k)``.
 
@@ -754,6 +802,10 @@ def solve_linear_regression(
         Only for demonstrations of non-identifiability (e.g. OKID with
         redundant lags); the covariance is then that of the minimum-norm
         estimator.
+    intercept : bool
+        Estimate a constant too (:class:`RegressionAccumulator`): the slopes
+        are then invariant to constant offsets in ``Y``, ``Phi`` and the
+        instruments, and the constant is ``LinearFit.intercept``.
 
     Returns
     -------
@@ -792,7 +844,9 @@ def solve_linear_regression(
     if N <= n:
         raise DataError(f"`Phi` has {N} rows for {n} regressors; need more rows than regressors")
     Z = None if instruments is None else _as_regression_input(instruments, "instruments", N)
-    acc = RegressionAccumulator(n, Y.shape[1], nz=None if Z is None else Z.shape[1], labels=labels)
+    acc = RegressionAccumulator(
+        n, Y.shape[1], nz=None if Z is None else Z.shape[1], labels=labels, intercept=intercept
+    )
     acc.update(Y, Phi, Z, check=False)
     acc.solve(min_norm=min_norm, hac_lags=hac_lags, kernel=kernel, noise_ma=noise_ma)
     residuals = acc.update_residuals(Y, Phi, Z)
@@ -808,6 +862,7 @@ def solve_regression_blocks(
     kernel: str = "truncated",
     labels: Sequence[str] | None = None,
     noise_ma: Callable[[np.ndarray], Sequence[np.ndarray]] | None = None,
+    intercept: bool = False,
 ) -> LinearFit:
     """:func:`solve_linear_regression` with the regressors given as column blocks.
 
@@ -823,7 +878,7 @@ def solve_regression_blocks(
     nz = None
     if instruments is not None:
         nz = sum(np.shape(a)[1] if np.ndim(a) == 2 else 1 for a in instruments)
-    acc = RegressionAccumulator(n, ny, nz=nz, labels=labels)
+    acc = RegressionAccumulator(n, ny, nz=nz, labels=labels, intercept=intercept)
     acc.update(Y, list(Phi), None if instruments is None else list(instruments), check=False)
     acc.solve(hac_lags=hac_lags, kernel=kernel, noise_ma=noise_ma)
     return acc.finish(

@@ -294,7 +294,7 @@ def _integrator_block_residual(
         return 0.0
     # z = P^-1 yu (eq. 46) sample by sample; its mean square is the diagonal of
     # P^-1 (yu^T yu / N) P^-T, so only the small second-moment matrix is needed.
-    y, u_f = yu
+    y, u_f = (a - a.mean(axis=0) for a in yu)  # deviations from the operating point
     G = np.block([[y.T @ y, y.T @ u_f], [u_f.T @ y, u_f.T @ u_f]]) / y.shape[0]
     M = sla.solve(P, sla.solve(P, G).T)
     sz = np.sqrt(np.maximum(np.diag(M), 0.0))
@@ -448,7 +448,8 @@ def fit_deadbeat(
     lhs, phi = deadbeat_regression_blocks(y, u, u_f, E=E, Fe=Fe, start=start)
     Z = None
     if used_instruments == "loop":
-        sim = simulate_loop_signals(data.loop, data.r, dt=data.dt)
+        r = np.asarray(data.r)
+        sim = simulate_loop_signals(data.loop, r - r[0], dt=data.dt)  # offset-free (physical.py)
         Z = [sim[k][start : N - 1] for k in ("y", "u_f", "u")]
     elif used_instruments == "lags":
         r = np.asarray(data.r)
@@ -463,7 +464,9 @@ def fit_deadbeat(
         + [f"{n}(k)" for n in names_u]
     )
     noise_ma = _noise_model(covariance, data, P, C, mats, notes)
-    fit = solve_regression_blocks(lhs, phi, Z, hac_lags=hac_lags, labels=labels, noise_ma=noise_ma)
+    fit = solve_regression_blocks(
+        lhs, phi, Z, hac_lags=hac_lags, labels=labels, noise_ma=noise_ma, intercept=True
+    )
 
     def to_discrete(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return plant_from_observer_controller(theta, P, nx=nx, ny=ny, nu=nu)

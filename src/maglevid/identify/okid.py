@@ -193,15 +193,16 @@ def fit_okid_era(
     # Order 1 is the deadbeat regression shifted by one sample: same noise model.
     noise_ma = _noise_model(covariance, data, P, C, mats, notes) if order == 1 else None
     fit = solve_linear_regression(
-        lhs, phi, hac_lags=hac_lags, min_norm=order > 1, noise_ma=noise_ma
+        lhs, phi, hac_lags=hac_lags, min_norm=order > 1, noise_ma=noise_ma, intercept=True
     )
     b0 = np.zeros((ny + nu, nu + ny))
     b0[ny:, nu:] = -Fe @ E
     Et = np.zeros((nz, nu + ny))
     Et[nx:, nu:] = -E  # [0; Etilde]
     PG = P @ np.vstack([mats.get("G", np.zeros((nx, ny))), np.zeros((ne, ny))])
-    out_scale = np.sqrt(np.mean(lhs**2, axis=0))
-    in_scale = np.sqrt(np.mean(np.hstack([u, y]) ** 2, axis=0))
+    # scales of the deviations from the operating point (offset-invariant)
+    out_scale = np.std(lhs, axis=0)
+    in_scale = np.std(np.hstack([u, y]), axis=0)
 
     def markov(theta: np.ndarray) -> np.ndarray:
         return observer_controller_markov(

@@ -77,6 +77,23 @@ See :mod:`maglevid.identify.iv`: ``"loop"`` simulates the known controller and
 observer around the nominal (observer) model driven by the recorded ``r`` and
 uses the same regressors built from those noise-free signals (basic IV);
 ``"lags"`` uses lags of ``r`` (two-stage least squares).
+
+5. The operating point
+----------------------
+A recording holds the deviations from the point the bearing *settled* at, plus
+constants: a faulty bearing under the nominal bias settles away from the
+nominal point (:func:`maglevid.physics.amb.settled_operating_point`), and a rig
+may log absolute currents or voltages. With ``y = y_0 + dy``, ``u = u_0 + du``
+the plant ARX reads ``y(k+1) = Theta phi(k) + c`` with ``c = (I - Theta_y) y_0 -
+theta_h x_0 - (Theta_u0 + Theta_u1) u_0``; the regression estimates ``c`` with
+``Theta`` (``intercept=True`` of :class:`~maglevid.identify.arx.RegressionAccumulator`,
+a constant regressor that is also an instrument), so ``Theta``, its covariance
+and everything derived from them are the same, to rounding, whatever constants
+``y``, ``u`` and ``r`` carry. The realization scales of section 2 are standard
+deviations, and the ``"loop"`` instruments are simulated from rest at ``r(0)``
+(a constant offset of ``r`` then shifts them by a constant only). Without the
+constant, an offset of the size of the signals is read as dynamics: a noise-free
+``R2 +5 %`` record with the nominal bias gave ``R2 = -17 ohm`` (issue 12).
 """
 
 from __future__ import annotations
@@ -269,7 +286,11 @@ def to_physical_coordinates(model: StateSpace) -> tuple[StateSpace, StateSpace]:
 def realization_scales(
     sum_y2: np.ndarray, sum_u2: np.ndarray, n_samples: int
 ) -> tuple[np.ndarray, np.ndarray]:
-    """RMS of the outputs and of ``[x_pos, u]`` (row and column scales of ``H``, section 2)."""
+    """RMS of the outputs and of ``[x_pos, u]`` (row and column scales of ``H``, section 2).
+
+    Given the *centred* sums of squares these are standard deviations, which do
+    not depend on the recording's operating point (section 5).
+    """
     y_scale = np.sqrt(np.asarray(sum_y2, dtype=float) / n_samples)
     h_scale = np.concatenate([y_scale[POSITION : POSITION + 1], np.sqrt(sum_u2 / n_samples)])
     return y_scale, h_scale
@@ -375,7 +396,10 @@ def fit_physical(
     lhs, phi = plant_regression_blocks(y, u, start=start)
     Z = None
     if kind == "loop":
-        sim = simulate_loop_signals(data.loop, data.r, dt=data.dt)
+        r = np.asarray(data.r)
+        # from rest at the first excitation level: a constant offset of r changes
+        # the instruments by a constant only (absorbed by the intercept)
+        sim = simulate_loop_signals(data.loop, r - r[0], dt=data.dt)
         _, Z = plant_regression_blocks(sim["y"], sim["u"], start=start)
     elif kind == "lags":
         r = np.asarray(data.r)
@@ -389,9 +413,11 @@ def fit_physical(
         hac_lags=hac_lags,
         labels=physical_labels(data.channel_names("y"), data.channel_names("u")),
         noise_ma=physical_noise_ma(ny) if covariance == "white-noise" else None,
+        intercept=True,
     )
+    yc, uc = y - y.mean(axis=0), u - u.mean(axis=0)
     y_scale, h_scale = realization_scales(
-        np.einsum("ij,ij->j", y, y), np.einsum("ij,ij->j", u, u), N
+        np.einsum("ij,ij->j", yc, yc), np.einsum("ij,ij->j", uc, uc), N
     )
     return physical_result(
         fit,

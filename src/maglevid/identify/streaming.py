@@ -6,10 +6,12 @@ methods here read such a record chunk by chunk and keep only statistics whose
 size does not depend on its length, so the peak memory is that of one chunk
 (plus small fixed arrays) whatever the record length.
 
-Subspace (``moesp``, ``n4sid``): one pass
-    The block-Hankel statistics of
+Subspace (``moesp``, ``n4sid``): two passes
+    Pass 1 the means of ``y`` and ``u`` (the recording's operating point), pass 2
+    the block-Hankel statistics of
     :class:`~maglevid.identify.subspace.SubspaceAccumulator` (lagged products
-    of ``z = [u, y]`` and the first and last samples; ``docs/subspace.md``).
+    of the deviations ``z = [u, y] - mean`` and the first and last samples;
+    ``docs/subspace.md``), as the in-memory registry methods do.
 
 The physical AMB method (``physical``, least squares or IV): two passes
     The plant ARX of :mod:`maglevid.identify.physical` is a linear regression
@@ -67,7 +69,7 @@ from maglevid.identify.physical import (
     realization_scales,
 )
 from maglevid.identify.result import IdentificationResult
-from maglevid.identify.subspace import DEFAULT_MAX_HORIZON, SubspaceAccumulator
+from maglevid.identify.subspace import DEFAULT_MAX_HORIZON, SubspaceAccumulator, centred_result
 from maglevid.identify.uncertainty import one_step_fit_percent
 from maglevid.lti import StateSpace
 from maglevid.simulate.kernel import simulate_lti
@@ -176,6 +178,7 @@ class _PhysicalRows:
         self.g = 0  # index of the first sample of the next chunk
         self.next_k = self.start
         self.carry: dict[str, np.ndarray] = {}
+        self.r0: np.ndarray | None = None
 
     def rows(
         self, y: np.ndarray, u: np.ndarray, r: np.ndarray | None
@@ -187,10 +190,13 @@ class _PhysicalRows:
         elif self.kind == "loop":
             assert self.system is not None and r is not None
             ny = y.shape[1]
-            w = np.hstack([r, np.zeros((nc, ny))])
+            if self.r0 is None:
+                self.r0 = np.array(r[0])  # the loop starts at rest at r(0), as fit_physical's
+            rd = r - self.r0
+            w = np.hstack([rd, np.zeros((nc, ny))])
             out, self.state = simulate_lti(self.system, w, x0=self.state)
             sig["sy"] = out[:, :ny]
-            sig["su"] = out[:, ny:] + r  # u = u_f + r
+            sig["su"] = out[:, ny:] + rd  # u = u_f + r
         ext = {k: np.concatenate([self.carry[k], v]) if self.carry else v for k, v in sig.items()}
         offset = self.g - (ext["y"].shape[0] - nc)  # sample index of ext[0]
         k0, k1 = self.next_k, self.g + nc - 1  # rows k0 .. k1 - 1
@@ -281,8 +287,7 @@ def fit_physical_streamed(
     loop: Mapping[str, Any] = {}
     names: tuple[str, ...] = ()
     n_chunks = 0
-    sum_y2 = np.zeros(3)
-    sum_u2 = np.zeros(2)
+    moments_y, moments_u = _Moments(3), _Moments(2)
     moments = _Moments(3)
     for chunk in _chunks(opener, progress):
         y, u = _plant_signals(chunk)
@@ -307,6 +312,7 @@ def fit_physical_streamed(
                 3,
                 nz=nz[plan["instruments"]],
                 labels=physical_labels(names, chunk.channel_names("u")),
+                intercept=True,
             )
             first = False
         elif abs(chunk.dt - dt) > 1e-12 * dt:
@@ -314,8 +320,8 @@ def fit_physical_streamed(
         if plan["instruments"] is not None and chunk.r is None:
             raise DataError(f"chunk {n_chunks} lacks the excitation r that the instruments need")
         assert rows is not None and acc is not None
-        sum_y2 += np.einsum("ij,ij->j", y, y)
-        sum_u2 += np.einsum("ij,ij->j", u, u)
+        moments_y.update(y)
+        moments_u.update(u)
         got = rows.rows(y, u, None if chunk.r is None else np.asarray(chunk.r))
         if got is not None:
             lhs, phi, Z = got
@@ -351,7 +357,7 @@ def fit_physical_streamed(
             "streamed fit reads the record twice and needs the same data both times"
         )
     fit = acc.finish()
-    y_scale, h_scale = realization_scales(sum_y2, sum_u2, N)
+    y_scale, h_scale = realization_scales(moments_y.m2, moments_u.m2, N)
     assert fit.residual_sum_of_squares is not None
     logger.info("physical: %d samples streamed in %d chunks, two passes", N, n_chunks)
     return physical_result(
@@ -388,7 +394,7 @@ def fit_subspace_streamed(
     factorization: str = "gram",
     progress: Progress | None = None,
 ) -> IdentificationResult:
-    """MOESP or N4SID of a record streamed in chunks (one pass).
+    """MOESP or N4SID of a record streamed in chunks (two passes: means, then statistics).
 
     The plant input ``u`` (or ``u_f + r``) and the outputs at the control
     instants, as the in-memory registry methods ``moesp``/``n4sid`` use them;
@@ -416,13 +422,23 @@ def fit_subspace_streamed(
     acc: SubspaceAccumulator | None = None
     dt = 0.0
     n_chunks = 0
+    # Pass 1: the means (the recording's operating point), removed in pass 2 as
+    # the in-memory registry methods remove them.
+    mom_y: _Moments | None = None
+    mom_u: _Moments | None = None
     for chunk in _chunks(opener, progress):
-        data = chunk.with_plant_input() if chunk.u is None else chunk
-        if data.u is None:
-            raise DataError(
-                f"method {algorithm!r} needs the plant input `u` (or `u_f` and `r`); chunk "
-                f"{n_chunks} has neither"
-            )
+        data = _subspace_chunk(chunk, algorithm, n_chunks)
+        if mom_y is None:
+            mom_y, mom_u = _Moments(data.ny), _Moments(data.nu)
+        assert mom_u is not None
+        mom_y.update(np.asarray(data.y_control))
+        mom_u.update(np.asarray(data.u))
+        n_chunks += 1
+    if mom_y is None or mom_u is None:
+        raise DataError("the source gave no chunks")
+    n_chunks = 0
+    for chunk in _chunks(opener, progress):
+        data = _subspace_chunk(chunk, algorithm, n_chunks)
         if acc is None:
             dt = data.dt
             acc = SubspaceAccumulator(
@@ -434,10 +450,13 @@ def fit_subspace_streamed(
             )
         elif abs(data.dt - dt) > 1e-12 * dt:
             raise DataError(f"chunk {n_chunks} has dt={data.dt:g} s; the first had {dt:g} s")
-        acc.update(data.y_control, data.u)
+        acc.update(np.asarray(data.y_control) - mom_y.mean, np.asarray(data.u) - mom_u.mean)
         n_chunks += 1
-    if acc is None:
-        raise DataError("the source gave no chunks")
+    if acc is None or acc.n_samples != mom_y.n:
+        raise DataError(
+            "the source gave different data on its two passes; a streamed subspace fit reads "
+            "the record twice (means, then statistics) and needs the same data both times"
+        )
     res = acc.fit(
         algorithm=algorithm,
         order=order,
@@ -447,9 +466,20 @@ def fit_subspace_streamed(
         variant=variant,
         rank_tol=rank_tol,
     )
-    note = f"streamed: {acc.n_samples} samples in {n_chunks} chunk(s), one pass"
+    note = f"streamed: {acc.n_samples} samples in {n_chunks} chunk(s), two passes"
     logger.info("%s: %s", algorithm, note)
+    res = centred_result(res, mom_y.mean, mom_u.mean)
     return replace(res, notes=(*res.notes, note))
+
+
+def _subspace_chunk(chunk: ClosedLoopData, algorithm: str, index: int) -> ClosedLoopData:
+    data = chunk.with_plant_input() if chunk.u is None else chunk
+    if data.u is None:
+        raise DataError(
+            f"method {algorithm!r} needs the plant input `u` (or `u_f` and `r`); chunk "
+            f"{index} has neither"
+        )
+    return data
 
 
 def _moesp(source: ChunkSource, **options: Any) -> IdentificationResult:

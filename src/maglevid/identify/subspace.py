@@ -35,7 +35,7 @@ from __future__ import annotations
 import logging
 import math
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -1419,6 +1419,16 @@ class SubspaceAccumulator:
 
 
 # --------------------------------------------------------------- registry
+def centred_result(
+    res: IdentificationResult, y_mean: np.ndarray, u_mean: np.ndarray
+) -> IdentificationResult:
+    """``res`` of a fit on deviations from the means, with the means recorded in ``extras``."""
+    extras = dict(res.extras)
+    extras["operating_point_means"] = {"y": np.asarray(y_mean), "u": np.asarray(u_mean)}
+    note = "identified on deviations from the recording's means (its operating point)"
+    return replace(res, extras=extras, notes=(*res.notes, note))
+
+
 def _method(algorithm: str):  # type: ignore[no-untyped-def]
     fit = fit_moesp if algorithm == "moesp" else fit_n4sid
 
@@ -1429,10 +1439,17 @@ def _method(algorithm: str):  # type: ignore[no-untyped-def]
                 "when it holds `u_f` and `r`, use data.with_plant_input()"
             )
         options.setdefault("dt", data.dt)
-        return fit(data.y_control, data.u, **options)
+        y, u = np.asarray(data.y_control), np.asarray(data.u)
+        # Deviations from the recording's own operating point (issue 12): the
+        # model is then the same whatever constant levels the channels carry.
+        y_mean, u_mean = y.mean(axis=0), u.mean(axis=0)
+        res = fit(y - y_mean, u - u_mean, **options)
+        return centred_result(res, y_mean, u_mean)
 
     run.__name__ = f"identify_{algorithm}"
-    run.__doc__ = f"``{algorithm}`` on a ClosedLoopData: y_control and u, dt from the data."
+    run.__doc__ = (
+        f"``{algorithm}`` on a ClosedLoopData: y_control and u less their means, dt from the data."
+    )
     return run
 
 
