@@ -7,10 +7,10 @@ from datetime import datetime, timedelta, timezone
 import numpy as np
 import pytest
 
+from maglevid.diagnose.diagnosis import Diagnosis
 from maglevid.diagnose.drift import detect_step
 from maglevid.diagnose.history import open_history
 from maglevid.diagnose.pipeline import _drifts
-from maglevid.diagnose.diagnosis import Diagnosis
 from maglevid.exceptions import DataError
 
 T0 = datetime(2026, 1, 1, tzinfo=timezone.utc)
