@@ -18,4 +18,5 @@ def test_python_example_runs_and_finds_the_fault(capsys):
     code = re.search(r"```python\n(.*?)```", README.read_text(), re.S).group(1)
     exec(compile(code, "README.md", "exec"), {})
     out = capsys.readouterr().out
-    assert out.startswith("VERDICT: Fault: coil 1 resistance R1")
+    # The headline now says its number is the constrained fit (issue 12, one number per fault).
+    assert out.startswith("VERDICT: Fault (fit with only R1 changed): coil 1 resistance R1")
