@@ -125,7 +125,7 @@ def machine_drifts(
         ``tolerance_percent``, ``projected_crossing`` (ISO date or ``None``),
         ``first``, ``last`` (ISO times), ``notes``.
     """
-    from maglevid.diagnose.drift import detect_drift
+    from maglevid.diagnose.drift import detect_drift, detect_step
     from maglevid.diagnose.history import NotFoundError
     from maglevid.exceptions import DataError
 
@@ -171,9 +171,19 @@ def machine_drifts(
             continue
         crossing = None
         notes = list(r.notes)
-        if r.projected_crossing_time is not None and math.isfinite(r.projected_crossing_time):
+        step = detect_step((t - t0) / _DAY, y, se, alpha=level)
+        if step.is_step:  # a dated step, not a trend: nothing to project
+            ts = np.sort(t)
+            notes.append(
+                f"a step of {100 * step.size / baseline if baseline else float('nan'):+.3g} % "
+                f"between {_iso(float(ts[step.index - 1]))[:10]} and "
+                f"{_iso(float(ts[step.index]))[:10]} (change-point test p = {step.p_value:.2g})"
+            )
+        elif r.projected_crossing_time is not None and math.isfinite(r.projected_crossing_time):
             when = t0 + r.projected_crossing_time * _DAY
-            if _MIN_TIME <= when <= _MAX_TIME:
+            if when <= float(t.max()):  # never project a crossing already past
+                notes.append("the fitted trend is already beyond the tolerance")
+            elif _MIN_TIME <= when <= _MAX_TIME:
                 crossing = _iso(when)
             else:  # a nearly flat trend meets its limit beyond any calendar
                 notes.append("the projected crossing is beyond the years 1-9999")
@@ -190,6 +200,7 @@ def machine_drifts(
                 "baseline": baseline,
                 "tolerance_percent": 100.0 * tol,
                 "projected_crossing": crossing,
+                "kind": "step" if step.is_step else "drift",
                 "first": _iso(t0),
                 "last": _iso(float(t.max())),
                 "notes": notes,
