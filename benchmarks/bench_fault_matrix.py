@@ -242,7 +242,8 @@ def markdown_section(res: Mapping[str, Any]) -> list[str]:
         f"{res['wall_s']:.0f} s on {res['workers']} worker(s), {res['machine']}, load "
         f"{res['load'][0][0]:.1f} -> {res['load'][1][0]:.1f}.",
         "",
-        "| recordings | n | right cause | wrong cause | unexplained | inconclusive | missed "
+        "| recordings | n | right cause (healthy: no alarm) | wrong cause "
+        "| unexplained (healthy: false alarm) | inconclusive | missed "
         "| cannot diagnose | loop lost the rotor |",
         "|---|---|---|---|---|---|---|---|---|",
     ]
@@ -250,7 +251,7 @@ def markdown_section(res: Mapping[str, Any]) -> list[str]:
         if key not in r:
             continue
         g, q = r[key], r[key]["rates"]
-        first = "ok (no alarm)" if key == "healthy" else "right"
+        first = "ok" if key == "healthy" else "right"
         lines.append(
             f"| {key} | {g['n']} | {_pct(q.get(first, 0.0))} | {_pct(q.get('wrong', 0.0))} | "
             f"{_pct(q.get('unexplained', q.get('false_alarm', 0.0)))} | "
@@ -277,6 +278,17 @@ def markdown_section(res: Mapping[str, Any]) -> list[str]:
             acc[0] += row["outcome"] == "right"
             acc[1] += 1
     lines.append(", ".join(f"{k}: {a}/{n}" for k, (a, n) in sorted(per.items())))
+    lost = Counter(
+        f"{next(iter(row['fault']))} {row['level']:g}x" for row in res["rows"]
+        if row["outcome"] == "lost"
+    )  # fmt: skip
+    if lost:
+        lines += [
+            "",
+            "The loop lost the rotor (not in the rates: the bearing would trip, no recording): "
+            + ", ".join(f"{k} ({n})" for k, n in sorted(lost.items()))
+            + ".",
+        ]
     return lines
 
 
@@ -307,6 +319,12 @@ def main(argv: list[str] | None = None) -> int:
             json.dump(res, fh, indent=1, default=str)
     print("\n".join(markdown_section(res)))
     return 0
+
+
+def markdown_from_json(path: str) -> list[str]:
+    """The section again from a saved ``--out`` file (no re-run)."""
+    with open(path, encoding="utf-8") as fh:
+        return markdown_section(json.load(fh))
 
 
 if __name__ == "__main__":
