@@ -72,6 +72,7 @@ def _task(spec: dict[str, Any]) -> dict[str, Any]:
         noise_std=spec["noise"],
         observer_model=spec["observer_model"],
         rng=spec["seed"],
+        plant_model="linear",
     )
     vt = np.asarray(data.metadata["truth_v"])
     out: dict[str, Any] = {"n": spec["n"], "seed": spec["seed"], "err": {}, "z": {}, "t": {}}

@@ -77,6 +77,7 @@ def bearing_case(
         rng=seed,
         observer_model=spec["observer_model"],
         **kw,
+        plant_model="linear",
     )
     poles = amb_state_space(plant, data.dt).poles()
     z = float(np.max(poles[np.abs(poles.imag) < 1e-12].real))

@@ -75,7 +75,9 @@ def make_fleet(root: Path, n: int, *, seed: int = 20261122) -> dict[str, str]:
             if i % 2:
                 path.write_bytes(b"not a recording\n" * 64)
             else:  # a truncated copy of a good one
-                good = simulate_amb_loop(nominal, n_samples=2000, rng=int(rng.integers(2**62)))
+                good = simulate_amb_loop(
+                    nominal, n_samples=2000, rng=int(rng.integers(2**62)), plant_model="linear"
+                )
                 write_recording(good, path)
                 data = path.read_bytes()
                 path.write_bytes(data[: len(data) // 2])
@@ -86,6 +88,7 @@ def make_fleet(root: Path, n: int, *, seed: int = 20261122) -> dict[str, str]:
             nominal=nominal,
             n_samples=int(rng.integers(2000, 4001)),
             rng=int(rng.integers(2**62)),
+            plant_model="linear",
         )
         meta = dict(data.metadata)
         meta["recorded_at"] = (T0 + timedelta(days=k)).isoformat()

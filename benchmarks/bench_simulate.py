@@ -84,7 +84,7 @@ def main(argv: list[str] | None = None) -> int:
         return simulate_lti(cl, w)[0]
 
     def run_full() -> Any:
-        return simulate_amb_loop(plant, nominal=nom, n_samples=N, rng=0)
+        return simulate_amb_loop(plant, nominal=nom, n_samples=N, rng=0, plant_model="linear")
 
     t_dl, y_dl = _time(run_dlsim, args.repeats)
     t_k, y_k = _time(run_kernel, args.repeats)

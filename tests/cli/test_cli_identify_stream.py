@@ -20,7 +20,12 @@ def parquet(tmp_path_factory):
 
     nom = AMBParameters.nominal()
     data = simulate_amb_loop(
-        nom.with_fault(R1=1.2), nominal=nom, n_samples=12_000, rng=7, noise_std=(1e-10, 3e-6, 3e-6)
+        nom.with_fault(R1=1.2),
+        nominal=nom,
+        n_samples=12_000,
+        rng=7,
+        noise_std=(1e-10, 3e-6, 3e-6),
+        plant_model="linear",
     )
     path = tmp_path_factory.mktemp("stream") / "rec.parquet"
     write_recording(data, path)
@@ -39,10 +44,9 @@ def test_streamed_identify_equals_whole_file(parquet, capsys, method):
     streamed = _run(
         capsys, str(parquet), "--method", method, "--stream", "--chunk-size", "2500", *extra
     )
-    assert streamed["streamed"] == {
-        "chunk_size": 2500,
-        "passes": 2 if method == "physical" else 1,
-    }
+    # two passes for both: physical (coefficients, then residuals) and subspace
+    # (the means, the record's operating point, then the statistics; issue 12)
+    assert streamed["streamed"] == {"chunk_size": 2500, "passes": 2}
     assert "streamed" not in whole
     for name, value in whole["parameters"].items():
         # Same rows, summed in another order (tests/identify/test_streaming.py): rounding.

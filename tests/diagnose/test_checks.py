@@ -21,7 +21,9 @@ NOMINAL = AMBParameters.nominal()
 
 @pytest.fixture(scope="module")
 def clean():
-    return simulate_amb_loop(NOMINAL, dt=1e-4, n_samples=4000, nominal=NOMINAL, rng=3)
+    return simulate_amb_loop(
+        NOMINAL, dt=1e-4, n_samples=4000, nominal=NOMINAL, rng=3, plant_model="linear"
+    )
 
 
 def test_clean_recording_passes_every_check(clean):
@@ -37,9 +39,8 @@ def test_too_short(clean):
 
 
 def test_too_little_excitation():
-    rec = simulate_amb_loop(
-        NOMINAL, dt=1e-4, n_samples=3000, nominal=NOMINAL, excitation_std=1e-4, rng=4
-    )
+    rec = simulate_amb_loop(NOMINAL, dt=1e-4, n_samples=3000, nominal=NOMINAL, excitation_std=1e-4,
+                            rng=4, plant_model="linear")  # fmt: skip
     c = check_excitation(rec)
     assert not c.passed and "too little excitation" in c.message
     assert not check_excitation(rec.replace(r=None, u=rec.u)).passed

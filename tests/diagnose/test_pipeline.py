@@ -22,7 +22,13 @@ NOISE = (5e-9, 1e-5, 1e-5)
 def _rec(n=30_000, seed=1, **fault):
     plant = NOMINAL.with_fault(**fault) if fault else NOMINAL
     return simulate_amb_loop(
-        plant, dt=1e-4, n_samples=n, nominal=NOMINAL, noise_std=NOISE, rng=seed
+        plant,
+        dt=1e-4,
+        n_samples=n,
+        nominal=NOMINAL,
+        noise_std=NOISE,
+        rng=seed,
+        plant_model="linear",
     )
 
 
@@ -89,9 +95,8 @@ def test_bad_data_cannot_be_diagnosed(make, reason):
 
 
 def test_too_little_excitation_cannot_be_diagnosed():
-    rec = simulate_amb_loop(
-        NOMINAL, dt=1e-4, n_samples=8000, nominal=NOMINAL, excitation_std=1e-4, rng=5
-    )
+    rec = simulate_amb_loop(NOMINAL, dt=1e-4, n_samples=8000, nominal=NOMINAL, excitation_std=1e-4,
+                            rng=5, plant_model="linear")  # fmt: skip
     d = diagnose(rec, baseline="nominal")
     assert d.verdict_code == "cannot_diagnose" and "too little excitation" in d.verdict
 

@@ -94,7 +94,11 @@ def write_sim(
 ) -> Path:
     """One simulated AMB recording (fault factors on the nominal bearing) written to ``path``."""
     data = simulate_amb_loop(
-        NOMINAL.with_fault(**(fault or {})), nominal=NOMINAL, n_samples=n_samples, rng=seed
+        NOMINAL.with_fault(**(fault or {})),
+        nominal=NOMINAL,
+        n_samples=n_samples,
+        rng=seed,
+        plant_model="linear",
     )
     if recorded_at is not None:
         meta = dict(data.metadata)

@@ -55,6 +55,7 @@ def make_loop(
         n_samples=n_samples,
         noise_std=noise_std,
         rng=seed,
+        plant_model="linear",
     )
 
 

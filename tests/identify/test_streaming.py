@@ -46,7 +46,12 @@ NOISE = (1e-10, 3e-6, 3e-6)
 def record() -> ClosedLoopData:
     nom = AMBParameters.nominal()
     return simulate_amb_loop(
-        nom.with_fault(R1=1.2, kw1=1.2), nominal=nom, n_samples=30_000, rng=3, noise_std=NOISE
+        nom.with_fault(R1=1.2, kw1=1.2),
+        nominal=nom,
+        n_samples=30_000,
+        rng=3,
+        noise_std=NOISE,
+        plant_model="linear",
     )
 
 
@@ -99,7 +104,7 @@ def test_chunks_shorter_than_the_lags_and_the_skip():
     # Chunks of 7 samples: shorter than skip=10 and than the 12 instrument lags, so
     # rows straddle several chunk joins and the first chunks give no rows at all.
     nom = AMBParameters.nominal()
-    d = simulate_amb_loop(nom, n_samples=1_500, rng=5, noise_std=NOISE)
+    d = simulate_amb_loop(nom, n_samples=1_500, rng=5, noise_std=NOISE, plant_model="linear")
     for options in ({"estimator": "ls"}, {"instruments": "lags", "instrument_lags": 12}):
         ref = fit_physical(d, **options)
         got = fit_physical_streamed(d, chunk_size=7, **options)

@@ -120,3 +120,28 @@ def test_bad_loop_and_unreachable_fault():
         # 1 kN towards coil 2 (the rotor weighs 18 N): the loop's rest point
         # would need a negative current
         settled_operating_point(NOM, NOM, LOOP, force=-1e3)
+
+
+def test_simulator_refuses_a_bearing_unstable_at_its_settled_point():
+    # K2 -8 %: the default controller raises both currents (I2/I1 = sqrt(K1/K2)),
+    # the negative stiffness grows and the loop around the settled point has a
+    # pole at |z| = 1.0007; the simulation would run into the pole face.
+    from maglevid.exceptions import DesignError
+    from maglevid.simulate.amb import simulate_amb_loop
+
+    with pytest.raises(DesignError, match="settles at"):
+        simulate_amb_loop(NOM.with_fault(K2=0.92), nominal=NOM, n_samples=100, rng=1)
+
+
+def test_a_recordings_loop_predicts_its_settled_point():
+    # What the diagnosis uses: the hypothesis' parameters + the logged loop (its
+    # controller, observer and bias inputs) give the point the recording settled at.
+    from maglevid.simulate.amb import simulate_amb_loop
+
+    plant = NOM.with_fault(R1=1.1, K2=0.97)
+    d = simulate_amb_loop(plant, nominal=NOM, n_samples=200, rng=2)
+    op = settled_operating_point(plant, NOM, d.loop)
+    truth = d.metadata["operating_point_true"]
+    np.testing.assert_allclose(op.v, truth["v"], rtol=1e-12)
+    np.testing.assert_allclose(op.u_bias, d.loop["operating_point"]["u_bias"], rtol=0)
+    assert op.to_dict()["I1"] == pytest.approx(truth["I1"], rel=1e-12)

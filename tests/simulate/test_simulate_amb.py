@@ -53,7 +53,7 @@ def test_recording_satisfies_eqs_42_43(plant_model, observer_model):
 
 
 def test_recording_contents():
-    d = simulate_amb_loop(FAULTY, nominal=NOM, n_samples=1000, rng=3)
+    d = simulate_amb_loop(FAULTY, nominal=NOM, n_samples=1000, rng=3, plant_model="linear")
     assert isinstance(d, ClosedLoopData)
     assert d.y.shape == (1000, 3) and d.u.shape == d.r.shape == d.u_f.shape == (1000, 2)
     assert d.dt == DEFAULT_DT and d.p == 1
@@ -85,62 +85,89 @@ def test_recording_contents():
 
 
 def test_defaults_design_on_the_plant_when_no_nominal():
-    d = simulate_amb_loop(NOM, n_samples=200, rng=1)
+    d = simulate_amb_loop(NOM, n_samples=200, rng=1, plant_model="linear")
     ctrl = default_amb_controller(NOM, DEFAULT_DT)
     np.testing.assert_array_equal(d.loop["controller"]["F"], ctrl.F)
     np.testing.assert_array_equal(d.loop["observer"]["G"], default_amb_observer(NOM, DEFAULT_DT).G)
 
 
 def test_deterministic_for_a_seed():
-    a = simulate_amb_loop(FAULTY, nominal=NOM, n_samples=2000, rng=11)
-    b = simulate_amb_loop(FAULTY, nominal=NOM, n_samples=2000, rng=11)
-    c = simulate_amb_loop(FAULTY, nominal=NOM, n_samples=2000, rng=12)
+    a = simulate_amb_loop(FAULTY, nominal=NOM, n_samples=2000, rng=11, plant_model="linear")
+    b = simulate_amb_loop(FAULTY, nominal=NOM, n_samples=2000, rng=11, plant_model="linear")
+    c = simulate_amb_loop(FAULTY, nominal=NOM, n_samples=2000, rng=12, plant_model="linear")
     for sig in ("y", "u", "r", "u_f"):
         np.testing.assert_array_equal(getattr(a, sig), getattr(b, sig))
     assert not np.array_equal(a.r, c.r)
-    g = simulate_amb_loop(FAULTY, nominal=NOM, n_samples=2000, rng=np.random.default_rng(11))
+    g = simulate_amb_loop(
+        FAULTY, nominal=NOM, n_samples=2000, rng=np.random.default_rng(11), plant_model="linear"
+    )
     np.testing.assert_array_equal(g.y, a.y)  # a Generator seeded alike gives the same record
     assert g.metadata["seed"] is None
-    fresh = simulate_amb_loop(FAULTY, nominal=NOM, n_samples=500)
-    again = simulate_amb_loop(FAULTY, nominal=NOM, n_samples=500, rng=fresh.metadata["seed"])
+    fresh = simulate_amb_loop(FAULTY, nominal=NOM, n_samples=500, plant_model="linear")
+    again = simulate_amb_loop(
+        FAULTY, nominal=NOM, n_samples=500, rng=fresh.metadata["seed"], plant_model="linear"
+    )
     np.testing.assert_array_equal(fresh.y, again.y)  # the recorded seed reproduces it
 
 
 def test_excitation_and_noise_options():
     d = simulate_amb_loop(
-        NOM, n_samples=4000, rng=2, excitation="prbs", excitation_std=(0.5, 0.25)
+        NOM,
+        n_samples=4000,
+        rng=2,
+        excitation="prbs",
+        excitation_std=(0.5, 0.25),
+        plant_model="linear",
     )
     np.testing.assert_array_equal(np.unique(np.abs(d.r[:, 0])), [0.5])
     np.testing.assert_array_equal(np.unique(np.abs(d.r[:, 1])), [0.25])
-    quiet = simulate_amb_loop(NOM, n_samples=4000, rng=2, noise_std=(0, 0, 0), excitation_std=0)
+    quiet = simulate_amb_loop(
+        NOM, n_samples=4000, rng=2, noise_std=(0, 0, 0), excitation_std=0, plant_model="linear"
+    )
     assert np.all(quiet.y == 0) and np.all(quiet.u == 0)  # rest at the operating point
-    noisy = simulate_amb_loop(NOM, n_samples=4000, rng=2, noise_std=(1e-7, 1e-4, 1e-4))
-    clean = simulate_amb_loop(NOM, n_samples=4000, rng=2, noise_std=(0, 0, 0))
+    noisy = simulate_amb_loop(
+        NOM, n_samples=4000, rng=2, noise_std=(1e-7, 1e-4, 1e-4), plant_model="linear"
+    )
+    clean = simulate_amb_loop(
+        NOM, n_samples=4000, rng=2, noise_std=(0, 0, 0), plant_model="linear"
+    )
     assert np.array_equal(noisy.r, clean.r)  # excitation drawn first: same r
     assert not np.array_equal(noisy.y, clean.y)
 
 
 def test_input_validation():
     with pytest.raises(DataError, match="noise_std"):
-        simulate_amb_loop(NOM, n_samples=100, noise_std=(1e-7, 1e-4))
+        simulate_amb_loop(NOM, n_samples=100, noise_std=(1e-7, 1e-4), plant_model="linear")
     with pytest.raises(DataError, match="plant_model"):
         simulate_amb_loop(NOM, n_samples=100, plant_model="exact")
     with pytest.raises(DataError, match="n_samples"):
-        simulate_amb_loop(NOM, n_samples=1)
+        simulate_amb_loop(NOM, n_samples=1, plant_model="linear")
     with pytest.raises(DataError, match="rng"):
-        simulate_amb_loop(NOM, n_samples=100, rng="seed")
+        simulate_amb_loop(NOM, n_samples=100, rng="seed", plant_model="linear")
     with pytest.raises(DataError, match="observer_model"):
-        simulate_amb_loop(NOM, n_samples=100, observer_model="true")
+        simulate_amb_loop(NOM, n_samples=100, observer_model="true", plant_model="linear")
     with pytest.raises(DataError, match="dt="):
-        simulate_amb_loop(NOM, n_samples=100, dt=2e-4, observer=default_amb_observer(NOM, 1e-4))
+        simulate_amb_loop(
+            NOM,
+            n_samples=100,
+            dt=2e-4,
+            observer=default_amb_observer(NOM, 1e-4),
+            plant_model="linear",
+        )
 
 
 def test_unstable_plant_is_reported():
     plant = NOM.with_fault(x0=0.9)  # negative stiffness beyond what the design holds
     with pytest.raises(DesignError, match="unstable"):
-        simulate_amb_loop(plant, nominal=NOM, n_samples=100, rng=1)
-    with pytest.raises(ModelError, match="pole face"):
+        simulate_amb_loop(plant, nominal=NOM, n_samples=100, rng=1, plant_model="linear")
+    # The nonlinear plant is now refused before it runs (issue 12): the loop is
+    # unstable around the point the bearing settles at; it used to run into the
+    # pole face (ModelError) after thousands of samples.
+    with pytest.raises(DesignError, match="settles at"):
         simulate_amb_loop(plant, nominal=NOM, n_samples=20000, rng=1, plant_model="nonlinear")
+    # A stable bearing driven too hard still reaches the pole face (60 V rms: at sample 705).
+    with pytest.raises(ModelError, match="pole face"):
+        simulate_amb_loop(NOM, nominal=NOM, n_samples=3000, rng=1, excitation_std=60.0)
 
 
 def _eq47_residual(d: ClosedLoopData, start: int = 10) -> float:
@@ -164,13 +191,13 @@ def _eq47_residual(d: ClosedLoopData, start: int = 10) -> float:
 def test_paper_arx_model_is_exact_when_the_observer_model_is_the_plant():
     kw = dict(nominal=NOM, n_samples=3000, rng=5, noise_std=(0, 0, 0))
     # No fault: the nominal deadbeat observer is exact after 2 steps -> eq. (47) to round-off.
-    assert _eq47_residual(simulate_amb_loop(NOM, **kw)) < 1e-11
+    assert _eq47_residual(simulate_amb_loop(NOM, **kw, plant_model="linear")) < 1e-11
     # Fault, observer_model="plant" (the paper's examples): still exact, with the real A, B.
-    d = simulate_amb_loop(FAULTY, observer_model="plant", **kw)
+    d = simulate_amb_loop(FAULTY, observer_model="plant", **kw, plant_model="linear")
     np.testing.assert_allclose(d.loop["observer"]["A"], amb_state_space(FAULTY, DEFAULT_DT).A)
     np.testing.assert_array_equal(d.loop["observer"]["G"], default_amb_observer(NOM, DEFAULT_DT).G)
     assert d.metadata["observer_model"] == "plant"
     assert _eq47_residual(d) < 1e-11
     # Fault, realistic nominal observer: x̂ != x, so the one-lag ARX is only approximate
     # (documented; observed ~3e-4 relative on u_f for this fault).
-    assert _eq47_residual(simulate_amb_loop(FAULTY, **kw)) > 1e-6
+    assert _eq47_residual(simulate_amb_loop(FAULTY, **kw, plant_model="linear")) > 1e-6

@@ -78,7 +78,7 @@ def test_equilibrium_with_fault_is_held_by_the_integral():
 def test_nonlinear_record_starts_at_rest():
     d = simulate_amb_loop(
         FAULTY, nominal=NOM, n_samples=300, rng=1, plant_model="nonlinear",
-        excitation_std=0.0, noise_std=(0, 0, 0),
+        excitation_std=0.0, noise_std=(0, 0, 0), force_std=0.0,
     )  # fmt: skip
     op = d.metadata["operating_point_true"]
     # no excitation, no noise: the loop stays at its rest point (round-off drift only)
@@ -87,7 +87,9 @@ def test_nonlinear_record_starts_at_rest():
 
 
 def _difference(plant, a, n=4000):
-    kw = dict(nominal=NOM, n_samples=n, rng=3, excitation_std=a, noise_std=(0, 0, 0))
+    kw = dict(
+        nominal=NOM, n_samples=n, rng=3, excitation_std=a, noise_std=(0, 0, 0), force_std=0.0
+    )
     dn = simulate_amb_loop(plant, plant_model="nonlinear", **kw)
     op = dn.metadata["operating_point_true"]
     # The linear loop around the nonlinear rest point: eq. (4) with v at that point.

@@ -15,9 +15,16 @@ SQLite history ``OUT/history.sqlite``; the bearings whose latest verdict is a
 fault or a drift get an HTML report ``OUT/<machine>.html``; ``OUT/signals.png``
 shows the signals of the last recording.
 
-Sensor noise (5 nm on the displacement, 10 µA on the currents) and 3 s records
-at 10 kHz give the resistance to about 1.2 % (one standard error), enough to
-see the heating coil drift well before it crosses its tolerance. Recordings
+The bearings are the realistic ones (:func:`maglevid.simulate.simulate_amb_loop`
+defaults): eq. (1) under the *nominal* bias voltages, so a fault moves the
+operating point, with a 0.1 N broadband force disturbance on the rotor. The
+sensors are quieter than the simulator's default (5 nm on the displacement, a
+capacitive or high-end eddy-current sensor; 10 µA on the currents, an 18-bit
+converter over +-2 A; against 0.1 µm and 0.1 mA): with 3 s records at
+10 kHz that gives the resistance to about 1 % (one standard error), enough to
+see the heating coil drift well before it crosses its tolerance. At the
+default noise the present estimator gives it to ~15 %, wider than the 10 %
+tolerance (issue 13). Recordings
 are deterministic (seeded per machine and day), so running the demo again
 adds nothing to the history: the store is idempotent on the recording's
 content.
@@ -34,12 +41,15 @@ from typing import Any
 
 from maglevid.physics.amb import AMBParameters
 
-__all__ = ["DEMO_TOLERANCES", "DemoBearing", "demo_fleet", "run_demo"]
+__all__ = ["DEMO_NOISE_STD", "DEMO_TOLERANCES", "DemoBearing", "demo_fleet", "run_demo"]
 
 logger = logging.getLogger(__name__)
 
 #: Engineering tolerances of the demo (relative): 10 % on every parameter.
 DEMO_TOLERANCES = 0.10
+
+#: Sensor noise of the demo's rig [m, A, A] (module notes).
+DEMO_NOISE_STD = (5e-9, 1e-5, 1e-5)
 
 #: Start of the demo's "weeks".
 START = datetime(2026, 9, 1, 8, 0, tzinfo=timezone.utc)
@@ -122,7 +132,8 @@ def run_demo(
                 dt=1e-4,
                 n_samples=n_samples,
                 nominal=nominal,
-                noise_std=(5e-9, 1e-5, 1e-5),
+                noise_std=DEMO_NOISE_STD,
+                plant_model="nonlinear",  # the realistic bearing (nominal bias, force)
                 rng=job_seed,
             )
             when = START + timedelta(days=day)

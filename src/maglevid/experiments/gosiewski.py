@@ -167,6 +167,7 @@ def _record(
     observer_model: str = "plant",
     **kw: Any,
 ) -> Any:
+    kw.setdefault("plant_model", "linear")  # the paper's simulation, unless asked otherwise
     return simulate_amb_loop(
         plant,
         nominal=nominal,
@@ -553,6 +554,7 @@ def _nonlinear_check(
         dt=dt,
         exc=exc,
         plant_model="nonlinear",
+        force_std=0.0,  # noise-free: no force disturbance either
     )
     y0 = np.asarray(data.metadata["operating_point_true"]["y"], float)
     uf0 = np.asarray(data.metadata["operating_point_true"]["u_f"], float)

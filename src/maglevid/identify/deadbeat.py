@@ -81,7 +81,7 @@ from maglevid.exceptions import DataError, IdentificationError
 from maglevid.identify.arx import solve_regression_blocks
 from maglevid.identify.iv import simulate_loop_signals
 from maglevid.identify.result import IdentificationResult
-from maglevid.identify.uncertainty import amb_result
+from maglevid.identify.uncertainty import DCLevels, amb_result, with_dc_levels
 from maglevid.physics.amb import C_AMB
 
 __all__ = [
@@ -500,7 +500,7 @@ def fit_deadbeat(
         "m": m,
         "i0": i0,
     }
-    return amb_result(
+    res = amb_result(
         method=method,
         to_discrete=to_discrete,
         fit=fit,
@@ -524,6 +524,9 @@ def fit_deadbeat(
         m=m,
         i0=i0,
     )
+    dc = DCLevels(data.dt, y.shape[1], u.shape[1])
+    dc.update(y, u)
+    return with_dc_levels(res, dc, data.loop)
 
 
 def fit_deadbeat_arx(data: ClosedLoopData, **options: Any) -> IdentificationResult:

@@ -61,7 +61,7 @@ from maglevid.identify.deadbeat import (
 )
 from maglevid.identify.era import realize_era
 from maglevid.identify.result import IdentificationResult
-from maglevid.identify.uncertainty import amb_result
+from maglevid.identify.uncertainty import DCLevels, amb_result, with_dc_levels
 
 __all__ = ["METHODS", "case_one_transformation", "fit_okid_era", "observer_controller_markov"]
 
@@ -221,7 +221,7 @@ def fit_okid_era(
 
     Y = markov(fit.coefficients.ravel())
     _, s = era(Y)
-    return amb_result(
+    res = amb_result(
         method="okid-era",
         to_discrete=to_discrete,
         fit=fit,
@@ -247,6 +247,9 @@ def fit_okid_era(
         i0=i0,
         singular_values=s,
     )
+    dc = DCLevels(data.dt, y.shape[1], u.shape[1])
+    dc.update(y, u)
+    return with_dc_levels(res, dc, data.loop)
 
 
 #: Registered with ``maglevid identify --method``.

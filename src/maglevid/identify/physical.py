@@ -109,7 +109,7 @@ from maglevid.exceptions import DataError, IdentificationError, ModelError
 from maglevid.identify.arx import LinearFit, solve_regression_blocks
 from maglevid.identify.iv import simulate_loop_signals
 from maglevid.identify.result import IdentificationResult
-from maglevid.identify.uncertainty import amb_result
+from maglevid.identify.uncertainty import DCLevels, amb_result, with_dc_levels
 from maglevid.lti import StateSpace, undiscretize
 from maglevid.physics.amb import C_AMB, INPUT_NAMES, OUTPUT_NAMES, STATE_NAMES
 
@@ -419,7 +419,9 @@ def fit_physical(
     y_scale, h_scale = realization_scales(
         np.einsum("ij,ij->j", yc, yc), np.einsum("ij,ij->j", uc, uc), N
     )
-    return physical_result(
+    dc = DCLevels(data.dt, ny, u.shape[1])
+    dc.update(y, u)
+    res = physical_result(
         fit,
         Y=lhs,
         y_scale=y_scale,
@@ -432,6 +434,7 @@ def fit_physical(
         m=m,
         i0=i0,
     )
+    return with_dc_levels(res, dc, data.loop)
 
 
 # The stages of fit_physical, shared with the streamed fit of records larger than

@@ -70,7 +70,7 @@ from maglevid.identify.physical import (
 )
 from maglevid.identify.result import IdentificationResult
 from maglevid.identify.subspace import DEFAULT_MAX_HORIZON, SubspaceAccumulator, centred_result
-from maglevid.identify.uncertainty import one_step_fit_percent
+from maglevid.identify.uncertainty import DCLevels, one_step_fit_percent, with_dc_levels
 from maglevid.lti import StateSpace
 from maglevid.simulate.kernel import simulate_lti
 
@@ -288,6 +288,7 @@ def fit_physical_streamed(
     names: tuple[str, ...] = ()
     n_chunks = 0
     moments_y, moments_u = _Moments(3), _Moments(2)
+    dc: DCLevels | None = None
     moments = _Moments(3)
     for chunk in _chunks(opener, progress):
         y, u = _plant_signals(chunk)
@@ -322,6 +323,9 @@ def fit_physical_streamed(
         assert rows is not None and acc is not None
         moments_y.update(y)
         moments_u.update(u)
+        if dc is None:
+            dc = DCLevels(dt, 3, 2)
+        dc.update(y, u)
         got = rows.rows(y, u, None if chunk.r is None else np.asarray(chunk.r))
         if got is not None:
             lhs, phi, Z = got
@@ -360,7 +364,7 @@ def fit_physical_streamed(
     y_scale, h_scale = realization_scales(moments_y.m2, moments_u.m2, N)
     assert fit.residual_sum_of_squares is not None
     logger.info("physical: %d samples streamed in %d chunks, two passes", N, n_chunks)
-    return physical_result(
+    res = physical_result(
         fit,
         Y=None,
         y_scale=y_scale,
@@ -377,6 +381,8 @@ def fit_physical_streamed(
             f"streamed: {N} samples in {n_chunks} chunk(s), two passes; residuals not kept",
         ),
     )
+    assert dc is not None
+    return with_dc_levels(res, dc, loop)
 
 
 def fit_subspace_streamed(

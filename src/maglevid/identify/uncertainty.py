@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable, Mapping, Sequence
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -49,12 +50,16 @@ from maglevid.physics.amb import (
 )
 
 __all__ = [
+    "DC_BATCH_SECONDS",
     "PHYSICAL_NAMES",
     "RATIO_NAMES",
+    "DCLevels",
     "amb_result",
+    "dc_level_note",
     "one_step_fit_percent",
     "operating_point",
     "v_from_discrete",
+    "with_dc_levels",
 ]
 
 logger = logging.getLogger(__name__)
@@ -351,3 +356,140 @@ def amb_result(
         notes=tuple(notes),
         extras=ex,
     )
+
+
+# ---------------------------------------------------------------- DC levels
+#: Length of the batches whose means give the standard errors of the DC levels [s].
+DC_BATCH_SECONDS = 0.2
+
+#: Fewest complete batches for an interval (Student t with ``nb - 1`` dof).
+_DC_MIN_BATCHES = 5
+
+
+class DCLevels:
+    """Means of ``y`` and ``u`` in batches of fixed length, fed in chunks (streamable).
+
+    The DC levels of a recording are evidence of their own (issue 12): with the
+    loop's bias current ``i0`` and bias inputs ``u_bias`` they give the settled
+    coil currents and amplifier inputs, and the coil equation of eq. (1)
+    averaged over the record, ``kw_j mean(u_j) = R_j mean(I_j) + (flux_end -
+    flux_start) / T``, a static estimate of ``R_j / kw_j`` that needs no model
+    of the dynamics (the flux term is bounded, so it vanishes as ``1/T``).
+    Standard errors come from the means of consecutive batches of
+    :data:`DC_BATCH_SECONDS` (longer than the loop's slowest time constant, so
+    the batch means are nearly independent), with Student-t intervals.
+    """
+
+    def __init__(self, dt: float, ny: int, nu: int) -> None:
+        self.B = max(1, round(DC_BATCH_SECONDS / dt))
+        self.ny, self.nu = ny, nu
+        self.n = 0
+        self.total = np.zeros(ny + nu)
+        self.batches: list[np.ndarray] = []
+        self._acc = np.zeros(ny + nu)
+        self._fill = 0
+
+    def update(self, y: np.ndarray, u: np.ndarray) -> None:
+        z = np.hstack([np.asarray(y, float), np.asarray(u, float)])
+        self.n += z.shape[0]
+        self.total += z.sum(axis=0)
+        i = 0
+        while i < z.shape[0]:
+            take = min(self.B - self._fill, z.shape[0] - i)
+            self._acc += z[i : i + take].sum(axis=0)
+            self._fill += take
+            i += take
+            if self._fill == self.B:
+                self.batches.append(self._acc / self.B)
+                self._acc = np.zeros_like(self._acc)
+                self._fill = 0
+
+    def evidence(
+        self,
+        loop: Mapping[str, Any],
+        parameters: Mapping[str, float],
+        std_errors: Mapping[str, float],
+    ) -> dict[str, dict[str, Any]]:
+        """Settled levels and static coil estimates, each ``{value, std_error, ci95}``.
+
+        Always ``x`` (mean displacement). With ``loop["operating_point"]["i0"]``:
+        the settled currents ``I1, I2``; with ``u_bias`` too: the amplifier inputs
+        ``u1, u2`` and the static current gains ``g_j = I_j / u_j = kw_j / R_j``
+        [A/V]; then ``kw_j = R_j g_j`` with ``R_j`` of the dynamic fit
+        (``kwj_static``), and, with the nominal amplifier gain of
+        ``loop["nominal"]`` taken as known, ``R_j = kw_j,nom / g_j``
+        (``Rj_static``) and the coil voltage ``U_j = kw_j,nom u_j``.
+        """
+        from scipy import stats
+
+        nb = len(self.batches)
+        mean = self.total / max(self.n, 1)
+        M = np.array(self.batches) if nb else np.full((1, mean.size), np.nan)
+        t = float(stats.t.ppf(0.975, nb - 1)) if nb >= _DC_MIN_BATCHES else float("nan")
+
+        def item(value: float, dev: np.ndarray) -> dict[str, Any]:
+            ok = nb >= _DC_MIN_BATCHES
+            se = float(np.std(dev, ddof=1) / np.sqrt(nb)) if ok else float("nan")
+            return _level(value, se, t)
+
+        out = {"x": item(mean[0], M[:, 0])}
+        op = loop.get("operating_point") if isinstance(loop, Mapping) else None
+        op = op if isinstance(op, Mapping) else {}
+        if op.get("i0") is None or (self.ny, self.nu) != (3, 2):
+            return out
+        i0 = float(op["i0"])
+        I, Ib = i0 + mean[1:3], i0 + M[:, 1:3]
+        out.update({f"I{j + 1}": item(I[j], Ib[:, j]) for j in range(2)})
+        if op.get("u_bias") is None:
+            return out
+        ub = np.asarray(op["u_bias"], float).reshape(2)
+        U, Ub = ub + mean[3:5], ub + M[:, 3:5]
+        nominal = loop.get("nominal") if isinstance(loop.get("nominal"), Mapping) else {}
+        for j, c in enumerate("12"):
+            g = I[j] / U[j]
+            dg = (Ib[:, j] - g * Ub[:, j]) / U[j]  # ratio estimator, linearised per batch
+            out[f"u{c}"] = item(U[j], Ub[:, j])
+            out[f"g{c}"] = item(g, dg)
+            R, se_R = parameters.get(f"R{c}"), std_errors.get(f"R{c}")
+            if R is not None and se_R is not None:
+                se_kw = float(np.hypot(g * se_R, R * out[f"g{c}"]["std_error"]))
+                out[f"kw{c}_static"] = _level(R * g, se_kw, 1.96)
+            kw_nom = nominal.get(f"kw{c}")
+            if kw_nom is not None:
+                out[f"R{c}_static"] = item(kw_nom / g, -kw_nom / g**2 * dg)
+                out[f"U{c}"] = item(kw_nom * U[j], kw_nom * Ub[:, j])
+        return out
+
+
+def _level(value: float, se: float, t: float) -> dict[str, Any]:
+    v, se = float(value), float(se)
+    return {"value": v, "std_error": se, "ci95": [v - t * se, v + t * se]}
+
+
+def dc_level_note(ev: Mapping[str, Mapping[str, Any]]) -> str | None:
+    """One line of the settled levels and the static coil estimates, or None."""
+    labels = {
+        "I{j}": ("I{j}", "A"),
+        "R{j}_static": ("R{j} (static, nominal kw{j})", "ohm"),
+        "kw{j}_static": ("kw{j} (static, with the dynamic R{j})", ""),
+    }
+    parts = []
+    for j in "12":
+        for key, (label, unit) in labels.items():
+            e = ev.get(key.format(j=j))
+            if e is not None:
+                text = f"{label.format(j=j)} = {e['value']:.5g} ± {e['std_error']:.2g}"
+                parts.append(f"{text} {unit}".rstrip())
+    if not parts:
+        return None
+    return "DC levels (settled operating point; ± one standard error): " + "; ".join(parts)
+
+
+def with_dc_levels(
+    res: IdentificationResult, dc: DCLevels, loop: Mapping[str, Any]
+) -> IdentificationResult:
+    """``res`` with the DC-level evidence in ``extras["dc_levels"]`` and a note."""
+    ev = dc.evidence(loop, res.parameters, res.std_errors())
+    note = dc_level_note(ev)
+    extras = {**res.extras, "dc_levels": ev}
+    return replace(res, extras=extras, notes=res.notes if note is None else (*res.notes, note))

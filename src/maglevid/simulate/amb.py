@@ -16,11 +16,14 @@ Two plant models:
 * ``"linear"``: the ZOH-sampled linearisation of eqs. (3)-(4) of the real
   (possibly faulty) bearing, at ``x = 0, i1 = i2 = i0`` -- the paper's
   simulation; the true discrete model is exactly ``amb_state_space(plant, dt)``.
-* ``"nonlinear"``: eq. (1) with absolute currents, integrated between samples
-  under the zero-order hold by fixed-step RK4. A fault moves the equilibrium
+* ``"nonlinear"`` (default, the realistic bearing): eq. (1) with absolute
+  currents under the *nominal* bias voltages, a white force disturbance on the
+  rotor (:data:`DEFAULT_FORCE_STD`), integrated between samples under the
+  zero-order hold by fixed-step RK4. A fault moves the equilibrium
   (e.g. a weaker coil needs more current); the integral action brings the rotor
   back to ``x = 0`` and the simulation starts at the loop's equilibrium (found
-  by :func:`nonlinear_equilibrium`), so the record has no start-up transient.
+  by :func:`~maglevid.physics.amb.settled_operating_point`), so the record has
+  no start-up transient; a loop unstable around that point is refused.
   The true linear model is then the linearisation at *that* point, recorded in
   ``metadata["operating_point_true"]``.
 
@@ -51,23 +54,26 @@ from maglevid.control import (
     loop_matrix_condition,
 )
 from maglevid.data import ClosedLoopData
-from maglevid.exceptions import DataError, ModelError
+from maglevid.exceptions import DataError, DesignError, ModelError
 from maglevid.physics.amb import (
     C_AMB,
     INPUT_NAMES,
     OUTPUT_NAMES,
     AMBParameters,
+    OperatingPoint,
+    amb_matrices,
     amb_state_space,
     bias_voltages,
     linearized_v,
     settled_operating_point,
 )
 from maglevid.simulate.excitation import EXCITATION_KINDS, make_excitation
-from maglevid.simulate.loop import simulate_linear_loop
+from maglevid.simulate.loop import closed_loop_system, simulate_linear_loop
 
 __all__ = [
     "DEFAULT_DT",
     "DEFAULT_EXCITATION_STD",
+    "DEFAULT_FORCE_STD",
     "DEFAULT_NOISE_STD",
     "DEFAULT_N_SAMPLES",
     "DEFAULT_POLES_S",
@@ -103,8 +109,19 @@ DEFAULT_N_SAMPLES = 20_000
 DEFAULT_EXCITATION_STD = 1.0
 
 #: Measurement noise standard deviations of ``[x, i1, i2]`` [m, A, A]: 0.1 um
-#: (a good eddy-current sensor at 10 kHz) and 0.1 mA (a Hall/shunt current sensor).
+#: (a good eddy-current displacement sensor: dynamic resolution ~0.01 % of a
+#: 1 mm range at 10 kHz bandwidth) and 0.1 mA (a Hall-effect or shunt current
+#: sensor read by a 16-bit converter over +-3 A: 1 LSB = 0.09 mA; Hall sensors
+#: of that range are specified at 0.1-0.5 mA rms noise). See
+#: ``docs/control-and-simulation.md``.
 DEFAULT_NOISE_STD = (1e-7, 1e-4, 1e-4)
+
+#: Standard deviation of the broadband force disturbance on the rotor [N],
+#: white and held over each control period (nonlinear plant): 0.1 N, 0.6 % of
+#: the rotor's weight and about a tenth of the force the default excitation
+#: makes (``ki`` 490 N/A x ~2 mA rms); of the order of the unmodelled
+#: aerodynamic, coupling and base-vibration forces on a small rotor.
+DEFAULT_FORCE_STD = 0.1
 
 #: s-plane poles [rad/s] of the default pole placement on the extended model
 #: (eq. (41)): five real poles. The design is deliberately *not* mirror-symmetric
@@ -220,9 +237,9 @@ def _rk4_stepper(p: AMBParameters, h: float) -> Callable[..., tuple[float, float
     hh, h6 = 0.5 * h, h / 6.0
 
     def step(
-        x: float, dx: float, I1: float, I2: float, u1: float, u2: float
+        x: float, dx: float, I1: float, I2: float, u1: float, u2: float, fz: float = 0.0
     ) -> tuple[float, float, float, float]:
-        # eq. (1): m x'' = K1/4 (I1/g1)^2 - K2/4 (I2/g2)^2,
+        # eq. (1): m x'' = K1/4 (I1/g1)^2 - K2/4 (I2/g2)^2 + F_z,
         # (Ls_j + K_j/(2 g_j)) I_j' = kw_j u_j - R_j I_j -+ K_j I_j x' / (2 g_j^2)
         a1 = kw1 * u1
         a2 = kw2 * u2
@@ -232,7 +249,7 @@ def _rk4_stepper(p: AMBParameters, h: float) -> Callable[..., tuple[float, float
         f1 = I1 / g1
         f2 = I2 / g2
         k1x = dx
-        k1v = (q1 * f1 * f1 - q2 * f2 * f2) / m
+        k1v = (q1 * f1 * f1 - q2 * f2 * f2 + fz) / m
         k1a = (a1 - R1 * I1 - h1 * f1 * dx / g1) / (Ls1 + h1 / g1)
         k1b = (a2 - R2 * I2 + h2 * f2 * dx / g2) / (Ls2 + h2 / g2)
         # stage 2
@@ -242,7 +259,7 @@ def _rk4_stepper(p: AMBParameters, h: float) -> Callable[..., tuple[float, float
         f1 = i1s / g1
         f2 = i2s / g2
         k2x = vs
-        k2v = (q1 * f1 * f1 - q2 * f2 * f2) / m
+        k2v = (q1 * f1 * f1 - q2 * f2 * f2 + fz) / m
         k2a = (a1 - R1 * i1s - h1 * f1 * vs / g1) / (Ls1 + h1 / g1)
         k2b = (a2 - R2 * i2s + h2 * f2 * vs / g2) / (Ls2 + h2 / g2)
         # stage 3
@@ -252,7 +269,7 @@ def _rk4_stepper(p: AMBParameters, h: float) -> Callable[..., tuple[float, float
         f1 = i1s / g1
         f2 = i2s / g2
         k3x = vs
-        k3v = (q1 * f1 * f1 - q2 * f2 * f2) / m
+        k3v = (q1 * f1 * f1 - q2 * f2 * f2 + fz) / m
         k3a = (a1 - R1 * i1s - h1 * f1 * vs / g1) / (Ls1 + h1 / g1)
         k3b = (a2 - R2 * i2s + h2 * f2 * vs / g2) / (Ls2 + h2 / g2)
         # stage 4
@@ -261,7 +278,7 @@ def _rk4_stepper(p: AMBParameters, h: float) -> Callable[..., tuple[float, float
         g2 = x0 + xs
         f1 = i1s / g1
         f2 = i2s / g2
-        k4v = (q1 * f1 * f1 - q2 * f2 * f2) / m
+        k4v = (q1 * f1 * f1 - q2 * f2 * f2 + fz) / m
         k4a = (a1 - R1 * i1s - h1 * f1 * vs / g1) / (Ls1 + h1 / g1)
         k4b = (a2 - R2 * i2s + h2 * f2 * vs / g2) / (Ls2 + h2 / g2)
         return (
@@ -286,8 +303,12 @@ def _simulate_nonlinear(
     substeps: int,
     eq: dict[str, Any],
     progress: Callable[[Iterable[int]], Iterable[int]] | None,
+    force: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Sample-by-sample loop with eq. (1) integrated by RK4 under ZOH. Returns y, u_f."""
+    """Sample-by-sample loop with eq. (1) integrated by RK4 under ZOH. Returns y, u_f.
+
+    ``force`` (N,): external force on the rotor [N], held over each period.
+    """
     N = r.shape[0]
     i0, x0 = nominal.i0, plant.x0
     ub1, ub2 = (float(b) for b in bias_voltages(nominal))
@@ -318,10 +339,11 @@ def _simulate_nonlinear(
     starts: Iterable[int] = range(0, N, chunk)
     if progress is not None:
         starts = progress(starts)
+    fzs = np.zeros(N) if force is None else np.asarray(force, float).reshape(N)
     # Python floats throughout the inner loop: numpy scalars are several times slower.
     for start in starts:
         stop = min(start + chunk, N)
-        vl, rl = v[start:stop].tolist(), r[start:stop].tolist()
+        vl, rl, fl = v[start:stop].tolist(), r[start:stop].tolist(), fzs[start:stop].tolist()
         ys, ufs = [], []
         for j in range(stop - start):
             (v0, v1, v2), (r0, r1) = vl[j], rl[j]
@@ -332,8 +354,9 @@ def _simulate_nonlinear(
             ys.append(yk)
             ufs.append((uf1, uf2))
             u1, u2 = ub1 + uf1 + r0, ub2 + uf2 + r1  # eq. (16), on the bias voltage
+            fz = fl[j]
             for _ in range(substeps):  # RK4 under zero-order hold
-                x, dx, I1, I2 = step(x, dx, I1, I2, u1, u2)
+                x, dx, I1, I2 = step(x, dx, I1, I2, u1, u2, fz)
             if not (abs(x) < x0 and math.isfinite(I1) and math.isfinite(I2)):
                 raise ModelError(
                     f"the rotor reached the pole face at sample {start + j + 1} (x = {x:.3g} m, "
@@ -361,6 +384,51 @@ def _make_rng(rng: Any) -> tuple[np.random.Generator, int | None]:
     )
 
 
+def _check_settled_loop(
+    eq: dict[str, Any], observer: Observer, controller: IntegralStateFeedback, dt: float
+) -> None:
+    """DesignError when the loop is unstable around the settled point (it would diverge)."""
+    lin = amb_state_space(np.asarray(eq["v"]), dt)
+    rho = float(np.max(np.abs(closed_loop_system(lin, observer, controller).poles())))
+    if rho >= 1.0:
+        raise DesignError(
+            f"the closed loop is unstable at the point this bearing settles at (I1 = "
+            f"{eq['I1']:.4g} A, I2 = {eq['I2']:.4g} A; largest pole magnitude {rho:.6f}): the "
+            "controller designed on the nominal bearing cannot hold it"
+        )
+
+
+def _force_std(force_std: Any, plant_model: str) -> float:
+    if force_std is None:
+        return DEFAULT_FORCE_STD if plant_model == "nonlinear" else 0.0
+    f = float(force_std)
+    if not (math.isfinite(f) and f >= 0):
+        raise DataError(f"`force_std` must be a non-negative number [N]; got {force_std!r}")
+    if f > 0 and plant_model != "nonlinear":
+        raise DataError(
+            "a force disturbance needs the nonlinear plant (plant_model='nonlinear'); the "
+            "linear plant of eqs. (3)-(4) has no force input"
+        )
+    return f
+
+
+def _linear_operating_point(
+    plant: AMBParameters,
+    nominal: AMBParameters,
+    controller: IntegralStateFeedback,
+    observer: Observer,
+) -> dict[str, Any]:
+    """The linear plant's operating point: ``x = 0, i = i0``, ``v = plant.v()``."""
+    Ac, Bc = amb_matrices(plant)
+    zero2 = np.zeros(2)
+    ub = bias_voltages(nominal)
+    return OperatingPoint(
+        x=0.0, I1=plant.i0, I2=plant.i0, U1=plant.R1 * plant.i0, U2=plant.R2 * plant.i0,
+        u=ub, u_bias=ub, u_f=zero2, y=np.zeros(3), x_hat=np.zeros(observer.nx),
+        e=np.zeros(controller.ne), v=plant.v(), A_c=Ac, B_c=Bc,
+    ).to_dict()  # fmt: skip
+
+
 def _noise_std(noise_std: Any) -> np.ndarray:
     s = np.asarray(noise_std, dtype=float).reshape(-1)
     if s.size != 3 or not np.all(np.isfinite(s)) or np.any(s < 0):
@@ -382,7 +450,8 @@ def simulate_amb_loop(
     excitation_std: float | Sequence[float] = DEFAULT_EXCITATION_STD,
     excitation: str = "gaussian",
     noise_std: Sequence[float] = DEFAULT_NOISE_STD,
-    plant_model: str = "linear",
+    plant_model: str = "nonlinear",
+    force_std: float | None = None,
     substeps: int = DEFAULT_SUBSTEPS,
     rng: Any = None,
     observer_model: str = "nominal",
@@ -416,8 +485,15 @@ def simulate_amb_loop(
         White Gaussian or random binary (``+-excitation_std``) excitation.
     noise_std : (3,) sequence
         Measurement noise standard deviation of ``[x, i1, i2]`` [m, A, A].
-    plant_model : {"linear", "nonlinear"}
-        See the module notes.
+    plant_model : {"nonlinear", "linear"}
+        See the module notes. Default ``"nonlinear"``: the realistic bearing
+        (eq. (1) under the nominal bias voltages, so a fault moves the
+        operating point).
+    force_std : float, optional
+        Standard deviation [N] of a white force disturbance on the rotor, held
+        over each period, drawn after the noise (nonlinear plant only). Default
+        :data:`DEFAULT_FORCE_STD` for the nonlinear plant, 0 for the linear one
+        (which has no force input).
     substeps : int
         RK4 steps per control period (nonlinear plant only).
     rng : numpy.random.Generator, int or None
@@ -449,7 +525,8 @@ def simulate_amb_loop(
     Raises
     ------
     DesignError
-        When the loop with this plant is unstable.
+        When the loop with this plant is unstable (nonlinear plant: around the
+        point it settles at; e.g. ``K2 -8 %`` with the default design).
     ModelError
         Nonlinear plant: no rest point, or the rotor reaches the pole face.
 
@@ -478,6 +555,7 @@ def simulate_amb_loop(
         raise DataError(f"`substeps` must be an integer >= 1; got {substeps!r}")
     substeps = int(substeps)
     noise = _noise_std(noise_std)
+    fstd = _force_std(force_std, plant_model)
     gen, seed = _make_rng(rng)
 
     if controller is None:
@@ -516,6 +594,7 @@ def simulate_amb_loop(
     r = make_excitation(n_samples, 2, std=excitation_std, kind=excitation, rng=gen)  # eq. (16)
     # Noise drawn after the excitation, so r does not depend on noise_std.
     v = gen.standard_normal((n_samples, 3)) * noise if np.any(noise) else np.zeros((n_samples, 3))
+    force = gen.standard_normal(n_samples) * fstd if fstd > 0 else None  # after the noise
 
     meta: dict[str, Any] = {
         "simulated": True,
@@ -525,6 +604,7 @@ def simulate_amb_loop(
         "plant_model": plant_model,
         "excitation": {"kind": excitation, "std": np.broadcast_to(excitation_std, (2,)).tolist()},
         "noise_std": noise.tolist(),
+        "force_std": fstd,
         "observer_model": observer_model,
     }
     if plant_model == "linear":
@@ -533,8 +613,13 @@ def simulate_amb_loop(
         )
         y, u_f, u = sig.y, sig.u_f, sig.u
         x_hat0, e0 = sig.x_hat0, sig.e0
+        # the linear plant runs at the nominal point x = 0, i = i0 of the real bearing
+        meta["operating_point_true"] = _linear_operating_point(
+            plant, nominal, controller, observer
+        )
     else:
         eq = nonlinear_equilibrium(plant, nominal, observer, controller)
+        _check_settled_loop(eq, observer, controller, dt)
         y, u_f = _simulate_nonlinear(
             plant,
             nominal,
@@ -546,6 +631,7 @@ def simulate_amb_loop(
             substeps=substeps,
             eq=eq,
             progress=progress,
+            force=force,
         )
         u = u_f + r
         x_hat0, e0 = eq["x_hat"], eq["e"]
@@ -656,7 +742,19 @@ def add_scenario_arguments(parser: argparse.ArgumentParser) -> None:
         "--seed", type=int, default=None, help="random seed (default: fresh, recorded)"
     )
     parser.add_argument(
-        "--plant", choices=PLANT_MODELS, default="linear", help="plant model (default %(default)s)"
+        "--plant",
+        choices=PLANT_MODELS,
+        default="nonlinear",
+        help="plant model: nonlinear (eq. (1) under the nominal bias voltages, the realistic "
+        "bearing; default) or linear (eq. (4) at the nominal point, the paper's simulation)",
+    )
+    parser.add_argument(
+        "--force-std",
+        type=float,
+        default=None,
+        metavar="N",
+        help=f"white force disturbance on the rotor [N rms] (nonlinear plant; default "
+        f"{DEFAULT_FORCE_STD} N, 0 for the linear plant)",
     )
     parser.add_argument(
         "--substeps",
@@ -697,6 +795,7 @@ def run_scenario(args: argparse.Namespace) -> ClosedLoopData:
         plant_model=args.plant,
         substeps=args.substeps,
         observer_model=args.observer_model,
+        force_std=args.force_std,
         rng=args.seed,
         progress=progress,
     )
