@@ -88,10 +88,11 @@ def simulator_options(record_s: float = RECORD_S, noise_std: Sequence[float] = N
         "n_samples": round(record_s / 1e-4),
         "dt": 1e-4,
     }
-    params = inspect.signature(simulate_amb_loop).parameters
-    for name in ("force_std", "disturbance_std", "force_disturbance_std"):
-        if name in params:  # the realistic default of the simulator, when it has one
-            opts[name] = params[name].default
+    if "force_std" in inspect.signature(simulate_amb_loop).parameters:
+        # The simulator's realistic force disturbance on the rotor [N rms].
+        from maglevid.simulate import amb
+
+        opts["force_std"] = float(amb.DEFAULT_FORCE_STD)
     return opts
 
 
