@@ -795,9 +795,9 @@ def _drifts(
     ``alpha`` is the family-wise level over the parameters: each of the
     ``len(DIAGNOSED_PARAMETERS)`` tests runs at ``alpha / len(...)`` (Bonferroni),
     so a healthy machine raises a false drift alarm with probability <= alpha
-    per diagnosis rather than ~13 alpha.
+    per diagnosis rather than ~13 alpha; the step test adds at most alpha / 10.
     """
-    from maglevid.diagnose.drift import detect_drift, detect_step
+    from maglevid.diagnose.drift import STEP_SHARE, detect_drift, detect_step
 
     alpha_each = alpha / len(DIAGNOSED_PARAMETERS)
     out = []
@@ -820,7 +820,14 @@ def _drifts(
             tolerance=float(t) * abs(b),
             baseline=b,
         )
-        step = detect_step(tr.time[ok] / 86400.0, tr.value[ok], tr.std_error[ok], alpha=alpha_each)
+        # A step (change-point test): the line's t-test rarely sees one (its residuals are
+        # the step), so it is a detector too, at a tenth of the level: the false-alarm
+        # rate per diagnosis stays <= 1.1 alpha, and a real step has p ~ 1e-9.
+        step = detect_step(
+            tr.time[ok] / 86400.0, tr.value[ok], tr.std_error[ok], alpha=alpha_each / STEP_SHARE
+        )
+        if not (res.drifting or step.is_step):
+            continue
         entry = {
             "parameter": k,
             "slope_percent_per_day": 100.0 * res.slope / b if b else float("nan"),
@@ -841,8 +848,6 @@ def _drifts(
                 step_before=_iso_day(times[step.index]),
             )
             out.append(entry)
-            continue
-        if not res.drifting:
             continue
         crossing = res.projected_crossing_time
         if crossing is not None and np.isfinite(crossing):

@@ -125,7 +125,7 @@ def machine_drifts(
         ``tolerance_percent``, ``projected_crossing`` (ISO date or ``None``),
         ``first``, ``last`` (ISO times), ``notes``.
     """
-    from maglevid.diagnose.drift import detect_drift, detect_step
+    from maglevid.diagnose.drift import STEP_SHARE, detect_drift, detect_step
     from maglevid.diagnose.history import NotFoundError
     from maglevid.exceptions import DataError
 
@@ -171,7 +171,8 @@ def machine_drifts(
             continue
         crossing = None
         notes = list(r.notes)
-        step = detect_step((t - t0) / _DAY, y, se, alpha=level)
+        # A step (change-point test) at a tenth of the level: see diagnose.pipeline.
+        step = detect_step((t - t0) / _DAY, y, se, alpha=level / STEP_SHARE)
         if step.is_step:  # a dated step, not a trend: nothing to project
             ts = np.sort(t)
             notes.append(
@@ -192,7 +193,6 @@ def machine_drifts(
                 "parameter": name,
                 "method": meth,
                 "n": r.n,
-                "drifting": r.drifting,
                 "alpha": level,
                 "p_value": _num(r.p_value),
                 "slope_per_day": _num(r.slope),
@@ -201,6 +201,7 @@ def machine_drifts(
                 "tolerance_percent": 100.0 * tol,
                 "projected_crossing": crossing,
                 "kind": "step" if step.is_step else "drift",
+                "drifting": r.drifting or step.is_step,
                 "first": _iso(t0),
                 "last": _iso(float(t.max())),
                 "notes": notes,
