@@ -233,9 +233,9 @@ def markdown_section(res: Mapping[str, Any]) -> list[str]:
         f"designed on the nominal bearing, sensor noise {res['noise_std']} [m, A, A] "
         f"({_noise_words(res['noise_std'])}), "
         + (
-            f"force disturbance ({', '.join(disturbance)}), "
+            f"force disturbance {sim[disturbance[0]]:g} N rms on the rotor, "
             if disturbance
-            else "no force disturbance (the simulator offers none at this commit), "
+            else "no force disturbance, "
         )
         + f"{res['record_s']:g} s records at 10 kHz; each single-cause fault at 1.5x and 3x "
         f"the default ±{100 * DEFAULT_TOLERANCE:.0f} % tolerance, {res['seeds']} seeds each, "
