@@ -800,6 +800,7 @@ def _drifts(
     from maglevid.diagnose.drift import STEP_SHARE, detect_drift, detect_step
 
     alpha_each = alpha / len(DIAGNOSED_PARAMETERS)
+    model_error = {c.name: c.model_error for c in diag.changes}
     out = []
     base = diag.baseline.get("parameters", {}) if diag.baseline else {}
     for k in DIAGNOSED_PARAMETERS:
@@ -826,7 +827,12 @@ def _drifts(
         step = detect_step(
             tr.time[ok] / 86400.0, tr.value[ok], tr.std_error[ok], alpha=alpha_each / STEP_SHARE
         )
-        if not (res.drifting or step.is_step):
+        # Significant twice over, as a comparison: a trend whose change over the
+        # observed span stays within this recording's model error of the parameter is
+        # not evidence of a physical change (different excursions, not wear).
+        days = tr.time[ok] / 86400.0
+        relevant = abs(res.slope) * float(np.ptp(days)) > model_error.get(k, 0.0)
+        if not ((res.drifting and relevant) or step.is_step):
             continue
         entry = {
             "parameter": k,
