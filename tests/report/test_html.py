@@ -299,3 +299,14 @@ def test_identified_model_falls_back_to_the_identification(fault_diagnosis):
     v5 = fault_diagnosis.percentage_index["A_p"][2, 2]
     assert f'<span class="vtag">v5</span>{v5:+.4f}' in html
     assert html.count("<img ") == 3
+
+
+def test_inconclusive_banner_is_amber_and_says_what_would_resolve_it():
+    # Issue 12: an interval wider than its tolerance is never shown green.
+    advice = "R1 ±27 % (tolerance ±5 %): record about 58 s more of the same excitation"
+    d = _minimal("inconclusive", resolution=({"parameter": "R1", "advice": advice},))
+    html = render_report(d)
+    banner = html.split('id="verdict-banner"')[1].split("</div></div>")[0]
+    assert VERDICT_STYLE["inconclusive"][0] in banner and "Inconclusive" in banner
+    assert VERDICT_STYLE["no_change"][0] not in banner
+    assert "58 s more of the same excitation" in html
