@@ -302,7 +302,8 @@ def _verdict(
         0,
         f"only {names} changed fits all nine v_i: chi2 = {best.chi2:.3g} with {best.dof} dof "
         f"(p = {best.p_value:.2g}); 'nothing changed' is rejected (chi2 = {none.chi2:.3g}, "
-        f"{none.dof} dof){me}",
+        f"{none.dof} dof, p = {none.p_value:.2g}; against the best single cause "
+        f"p = {iso.single_cause_p_value:.2g}){me}",
     )
     for h in iso.indistinguishable:
         reasons.append(f"cannot be told apart from: {h.describe()} (chi2 = {h.chi2:.3g})")
