@@ -20,7 +20,8 @@ def test_python_example_runs_and_finds_the_fault(capsys):
     code = re.search(r"```python\n(.*?)```", README.read_text(), re.S).group(1)
     exec(compile(code, "README.md", "exec"), {})
     out = capsys.readouterr().out
-    assert out.startswith("VERDICT: Fault: coil 1 resistance R1")
+    # The headline now says its number is the constrained fit (issue 12, one number per fault).
+    assert out.startswith("VERDICT: Fault (fit with only R1 changed): coil 1 resistance R1")
 
 
 # --------------------------------------------------------- issue 18's promises
@@ -111,5 +112,5 @@ def test_own_mat_file_recipe_runs_as_written(tmp_path, monkeypatch, capsys):
     for argv in commands:
         assert main(argv) == 0, argv
     out = capsys.readouterr().out
-    assert "VERDICT: Fault: amplifier 1 gain kw1" in out
+    assert "VERDICT: Fault (fit with only kw1 changed): amplifier 1 gain kw1" in out
     assert (tmp_path / "bearing7.html").is_file()

@@ -128,3 +128,23 @@ def test_page_in_a_browser(tmp_path: Path) -> None:
     assert res.values["rows"] == 3
     assert res.values["states"] == "changed,drifting,undiagnosed"  # worst first
     assert all(u.startswith(("file:", "data:")) for u in res.requests)  # nothing fetched
+
+
+def test_inconclusive_machine_is_amber_never_ok() -> None:
+    # Issue 12: a diagnosis that cannot resolve the tolerance is not "OK".
+    latest = {
+        "recording": "/data/m/r1.npz", "recorded_at": "2026-02-27T08:00:00+00:00",
+        "verdict_code": "inconclusive",
+        "verdict": "Inconclusive: no change detected, but the data cannot resolve the "
+        "tolerance of R1: R1 ±27 % (tolerance ±5 %): record about 58 s more",
+        "cause": None, "changes": [], "reasons": [], "method": "physical", "in_this_run": True,
+    }  # fmt: skip
+    m = MachineSummary("m", 1, {"diagnosed": 1}, latest)
+    assert m.state == "inconclusive"
+    summary = FleetSummary("fleet.sqlite", (m,), (), {}).to_dict()
+    assert summary["inconclusive"] == ["m"]
+    html = render_fleet_summary(summary, generated_at=WHEN)
+    assert "1 inconclusive" in html and "58 s more" in html
+    assert 'data-state="inconclusive"' in html
+    banner = re.search(r'id="fleet-banner"[^>]*style="background:([^"]+)"', html).group(1)
+    assert banner == VERDICT_STYLE["inconclusive"][0] != VERDICT_STYLE["no_change"][0]

@@ -350,3 +350,14 @@ def test_trend_panels_changed_first_and_v_in_their_own_group(fault_diagnosis):
     assert section.index("<h3>Physical parameters</h3>") < section.index(
         "<h3>Model elements v1..v9"
     )
+
+
+def test_inconclusive_banner_is_amber_and_says_what_would_resolve_it():
+    # Issue 12: an interval wider than its tolerance is never shown green.
+    advice = "R1 ±27 % (tolerance ±5 %): record about 58 s more of the same excitation"
+    d = _minimal("inconclusive", resolution=({"parameter": "R1", "advice": advice},))
+    html = render_report(d)
+    banner = html.split('id="verdict-banner"')[1].split("</div></div>")[0]
+    assert VERDICT_STYLE["inconclusive"][0] in banner and "Inconclusive" in banner
+    assert VERDICT_STYLE["no_change"][0] not in banner
+    assert "58 s more of the same excitation" in html

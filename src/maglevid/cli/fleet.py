@@ -36,7 +36,7 @@ $MAGLEVID_HISTORY, else maglevid-history.sqlite in the current folder; workers
 on other hosts need a PostgreSQL store.
 """
 
-_STATE_ORDER = {"changed": 0, "drifting": 1, "undiagnosed": 2, "ok": 3}
+_STATE_ORDER = {"changed": 0, "drifting": 1, "inconclusive": 2, "undiagnosed": 3, "ok": 4}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -11,6 +11,13 @@ A change is reported only when it is significant twice over (issue 5):
 A change that passes only the first test is "detectable but within tolerance",
 one that passes only the second is "not resolved by the data" (the record is
 too short or too noisy to tell).
+
+**Model error.** The standard error of an estimate covers the noise only; a
+noise-free record of the nonlinear magnet has standard errors of ~1e-13 and
+still departs from the linearisation by a fraction of its excursion.
+``model_errors`` (absolute standard deviations per parameter, estimated by the
+caller) enter the combined interval in quadrature:
+``sqrt(se^2 + se_b^2 + me^2)``.
 """
 
 from __future__ import annotations
@@ -45,6 +52,7 @@ class ParameterChange:
     tolerance: float
     statistically_significant: bool
     exceeds_tolerance: bool
+    model_error: float = 0.0
 
     @property
     def significant(self) -> bool:
@@ -81,6 +89,7 @@ def compare_parameters(
     *,
     tolerances: Mapping[str, float] | float = DEFAULT_TOLERANCE,
     level: float = 0.95,
+    model_errors: Mapping[str, float] | None = None,
 ) -> list[ParameterChange]:
     """Compare each parameter present in both mappings.
 
@@ -93,6 +102,8 @@ def compare_parameters(
         the mapping get :data:`DEFAULT_TOLERANCE`.
     level : float
         Confidence level of the combined interval.
+    model_errors : mapping of name -> float, optional
+        Model-error standard deviation per parameter (absolute units; default 0).
 
     Returns
     -------
@@ -114,7 +125,8 @@ def compare_parameters(
         )
         if tol < 0:
             raise DataError(f"tolerance for {name!r} must be >= 0; got {tol}")
-        se_c = float(np.hypot(se if np.isfinite(se) else np.inf, se_b))
+        me = float((model_errors or {}).get(name, 0.0))
+        se_c = float(np.hypot(np.hypot(se if np.isfinite(se) else np.inf, se_b), me))
         d = v - b
         stat = bool(np.isfinite(se_c) and abs(d) > z * se_c)
         exceeds = bool(abs(d) > tol * abs(b))
@@ -131,6 +143,7 @@ def compare_parameters(
                 tolerance=tol,
                 statistically_significant=stat,
                 exceeds_tolerance=exceeds,
+                model_error=me,
             )
         )
     return out

@@ -24,6 +24,7 @@ DIAGNOSIS_VERSION = 1
 VERDICT_CODES = (
     "no_change",  # nothing significant twice over
     "within_tolerance",  # statistically detectable, below the engineering tolerance
+    "inconclusive",  # an interval is wider than its tolerance: the data cannot tell
     "drift",  # no fault yet, but a parameter trends towards its tolerance (history)
     "fault",  # a change explained by one (or two) physical causes
     "unexplained_change",  # significant changes no hypothesis explains
@@ -93,6 +94,10 @@ class Diagnosis:
         Parameters whose history shows a significant trend (with a history
         store): ``{"parameter", "slope_percent_per_day", "p_value",
         "projected_crossing", "method", ...}``.
+    resolution : tuple of mapping
+        The parameters whose interval is wider than their tolerance, each with
+        what would resolve it (:class:`maglevid.diagnose.resolve.Unresolved`
+        as a dict: ``parameter``, ``more_seconds``, ``excitation_rms``, ``advice``).
     percentage_index : mapping or None
         ``{"A_p": array, "B_p": array}`` (NaN where the baseline element is zero).
     machine, recording, recording_hash : str or None
@@ -120,11 +125,12 @@ class Diagnosis:
     created_at: str | None = None
     notes: tuple[str, ...] = ()
     drifts: tuple[Mapping[str, Any], ...] = ()
+    resolution: tuple[Mapping[str, Any], ...] = ()
 
     def __post_init__(self) -> None:
         if self.verdict_code not in VERDICT_CODES:
             raise ValueError(f"verdict_code {self.verdict_code!r} not in {VERDICT_CODES}")
-        for name in ("reasons", "changes", "quality", "notes", "drifts"):
+        for name in ("reasons", "changes", "quality", "notes", "drifts", "resolution"):
             object.__setattr__(self, name, tuple(getattr(self, name)))
 
     @property
@@ -150,6 +156,9 @@ class Diagnosis:
         if self.recording:
             lines.append(f"recording: {self.recording}")
         lines.extend(f"  - {r}" for r in self.reasons)
+        if self.resolution:
+            lines.append("to resolve the tolerance:")
+            lines.extend(f"  - {u['advice']}" for u in self.resolution)
         if self.method:
             lines.append(f"method: {self.method} ({self.method_reason})")
         failed = [q for q in self.quality if not q.passed]
@@ -158,6 +167,10 @@ class Diagnosis:
             + ("all checks passed" if not failed else "; ".join(q.message for q in failed))
         )
         if self.changes:
+            lines.append(
+                "free estimates (every parameter fitted; the verdict's number is the "
+                "constrained fit of its cause):"
+            )
             lines.append(
                 f"{'parameter':>10} {'baseline':>12} {'estimate':>12} {'change %':>10} "
                 f"{'95% CI of change %':>22}  status"
@@ -263,4 +276,5 @@ class Diagnosis:
             "dt": self.dt,
             "notes": list(self.notes),
             "drifts": [_jsonable(dict(d)) for d in self.drifts],
+            "resolution": [_jsonable(dict(u)) for u in self.resolution],
         }

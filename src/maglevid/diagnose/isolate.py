@@ -28,6 +28,30 @@ factor ``c_k`` and judged by its chi-square statistic
     chi2_k = min_c (v_hat - v(theta_b; k -> c theta_b,k))^T W (...),  W = (S + S_b)^-1
 
 with 8 degrees of freedom (9 elements, 1 fitted factor); "no change" has 9.
+"No change" is rejected when either its own chi-square (9 dof) or the likelihood
+ratio against the best single cause (``chi2_none - chi2_k``, 1 dof, Bonferroni over
+the causes) is significant at ``alpha / 2`` (two tests, Bonferroni: the false-alarm
+rate stays <= alpha); the ratio test sees a change that one physical cause spreads
+over several v_i, which the 9-dof test dilutes.
+
+**The operating point.** A real controller applies the *nominal* bias voltages
+and its integral action holds the rotor at ``x = 0``; a fault therefore moves the
+coil currents the bearing settles at (a coil-2 K -8 % needs more current in coil
+2 and, by force balance ``K1 I1^2 = K2 I2^2``, changes coil 1's too; a higher
+resistance with the nominal bias voltage carries less current). The identified
+``v`` is the linearisation at *that* point, so each hypothesis predicts ``v``
+there (:class:`MeasuredOperatingPoint`, :func:`maglevid.physics.amb.linearized_v`):
+the measured displacement and coil-current levels of the recording, the
+currents taken relative to the hypothesis's own bias ``i0`` (so "only i0
+changed" stays a hypothesis). Without an operating point the design point
+``x = 0, I1 = I2 = i0`` is used (the linearised plant of the paper).
+
+**Model error.** ``S`` alone is the noise's covariance; a noise-free record
+of the nonlinear magnet has ``S`` ~ 0 but ``v`` still departs from the
+linearisation by a fraction of the excursion. Every test therefore uses
+``S + S_b + diag((epsilon v_b)^2)`` with the relative model error
+``epsilon`` (estimated by the caller from the recording, see
+:func:`maglevid.diagnose.pipeline.diagnose`).
 Pairs of simultaneous faults (7 dof) are tried when no single hypothesis fits.
 A hypothesis is accepted when its p-value exceeds ``alpha``; among accepted
 ones the smallest chi-square wins, and hypotheses within a chi-square
@@ -46,12 +70,13 @@ import numpy as np
 from scipy import optimize, special
 
 from maglevid.exceptions import DataError
-from maglevid.physics.amb import AMBParameters, v_from_parameters
+from maglevid.physics.amb import AMBParameters, linearized_v, v_from_parameters
 
 __all__ = [
     "HYPOTHESES",
     "FaultHypothesis",
     "IsolationResult",
+    "MeasuredOperatingPoint",
     "isolate_fault",
     "v_with_sensor_gains",
 ]
@@ -135,8 +160,35 @@ HYPOTHESES: dict[str, tuple[str, str, str]] = {
 }
 
 
+@dataclass(frozen=True)
+class MeasuredOperatingPoint:
+    """Where the bearing sat during a recording, relative to the design point.
+
+    ``x`` [m] the settled displacement, ``dI1``, ``dI2`` [A] the settled coil
+    currents minus the design bias ``i0`` (what a log of deviations carries as
+    its mean), ``source`` how they were found.
+    """
+
+    x: float = 0.0
+    dI1: float = 0.0
+    dI2: float = 0.0
+    source: str = "design point"
+
+    def v(self, p: AMBParameters) -> np.ndarray:
+        """v1..v9 of the bearing ``p`` linearised here (its own bias ``p.i0``)."""
+        return linearized_v(p, x=self.x, I1=p.i0 + self.dI1, I2=p.i0 + self.dI2)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"x": self.x, "dI1": self.dI1, "dI2": self.dI2, "source": self.source}
+
+
 def v_with_sensor_gains(
-    p: AMBParameters, gx: float = 1.0, gi1: float = 1.0, gi2: float = 1.0
+    p: AMBParameters,
+    gx: float = 1.0,
+    gi1: float = 1.0,
+    gi2: float = 1.0,
+    *,
+    operating_point: MeasuredOperatingPoint | None = None,
 ) -> np.ndarray:
     """v1..v9 as identified through sensors with gains ``gx``, ``gi1``, ``gi2``.
 
@@ -145,14 +197,17 @@ def v_with_sensor_gains(
     ``v2 -> v2 gx/gi1``, ``v3 -> v3 gx/gi2``, ``v4 -> v4 gi1/gx``, ``v6 -> v6 gi2/gx``,
     ``v8 -> v8 gi1``, ``v9 -> v9 gi2`` (v1, v5, v7 unchanged).
     """
-    v = v_from_parameters(p)
+    v = v_from_parameters(p) if operating_point is None else operating_point.v(p)
     return v * np.array([1.0, gx / gi1, gx / gi2, gi1 / gx, 1.0, gi2 / gx, 1.0, gi1, gi2])
 
 
-def _v_of(theta: Mapping[str, float], base: AMBParameters) -> np.ndarray:
+def _v_of(
+    theta: Mapping[str, float], base: AMBParameters, op: MeasuredOperatingPoint | None
+) -> np.ndarray:
     phys = {k: v for k, v in theta.items() if k not in SENSOR_GAINS}
     gains = {k: v for k, v in theta.items() if k in SENSOR_GAINS}
-    return v_with_sensor_gains(replace(base, **phys) if phys else base, **gains)
+    p = replace(base, **phys) if phys else base
+    return v_with_sensor_gains(p, **gains, operating_point=op)
 
 
 @dataclass(frozen=True)
@@ -165,6 +220,10 @@ class FaultHypothesis:
     chi2: float
     dof: int
     p_value: float
+    #: Standard errors of the factors from the noise alone and from the model
+    #: error alone (what more data can and cannot shrink); empty when not computed.
+    noise_std_errors: tuple[float, ...] = ()
+    floor_std_errors: tuple[float, ...] = ()
 
     @property
     def changes_percent(self) -> dict[str, float]:
@@ -191,6 +250,8 @@ class FaultHypothesis:
             "chi2": self.chi2,
             "dof": self.dof,
             "p_value": self.p_value,
+            "noise_std_errors": list(self.noise_std_errors),
+            "floor_std_errors": list(self.floor_std_errors),
             "description": self.describe(),
         }
 
@@ -205,9 +266,22 @@ class IsolationResult:
     alpha: float
     explained: bool
     indistinguishable: tuple[FaultHypothesis, ...] = field(default=())
+    model_error: float = 0.0
+    operating_point: MeasuredOperatingPoint | None = None
+    single_cause_p_value: float = 1.0
+
+    @property
+    def singles(self) -> tuple[FaultHypothesis, ...]:
+        """The single-cause fits ("only k changed"), best first."""
+        return tuple(h for h in self.candidates if len(h.parameters) == 1)
 
     def to_dict(self) -> dict[str, Any]:
         return {
+            "model_error": self.model_error,
+            "single_cause_p_value": self.single_cause_p_value,
+            "operating_point": (
+                None if self.operating_point is None else self.operating_point.to_dict()
+            ),
             "best": self.best.to_dict(),
             "no_change": self.no_change.to_dict(),
             "explained": self.explained,
@@ -217,19 +291,39 @@ class IsolationResult:
         }
 
 
+@dataclass(frozen=True)
+class _Weights:
+    """The covariances a fit is judged against: total = noise + model error."""
+
+    L: np.ndarray  # L L^T = (S_noise + S_floor)^-1
+    S_noise: np.ndarray
+    S_floor: np.ndarray
+
+
+def _std_error(g: np.ndarray, S: np.ndarray) -> float:
+    """Standard error of one log-factor with sensitivity ``g = dv/dlog c`` under ``S``."""
+    info = float(g @ np.linalg.lstsq(S, g, rcond=None)[0]) if np.any(S) else np.inf
+    return 1.0 / math.sqrt(info) if info > 0 else math.inf
+
+
 def _fit(
     names: Sequence[str],
     base: AMBParameters,
     v_hat: np.ndarray,
-    L: np.ndarray,
+    w: _Weights,
+    op: MeasuredOperatingPoint | None,
 ) -> FaultHypothesis:
     # Whitened residual: L^T (v_hat - v(theta)), with W = L L^T.
     b0 = {k: (1.0 if k in SENSOR_GAINS else getattr(base, k)) for k in names}
 
-    def resid(logc: np.ndarray) -> np.ndarray:
-        theta = {k: b0[k] * math.exp(c) for k, c in zip(names, logc)}
-        return L.T @ (v_hat - _v_of(theta, base))
+    def v_at(logc: np.ndarray) -> np.ndarray:
+        return _v_of({k: b0[k] * math.exp(c) for k, c in zip(names, logc)}, base, op)
 
+    def resid(logc: np.ndarray) -> np.ndarray:
+        return w.L.T @ (v_hat - v_at(logc))
+
+    noise_se: tuple[float, ...] = ()
+    floor_se: tuple[float, ...] = ()
     if names:
         sol = optimize.least_squares(
             resid, np.zeros(len(names)), method="lm", xtol=1e-14, ftol=1e-14
@@ -242,6 +336,14 @@ def _fit(
             se_log = np.sqrt(np.clip(np.diag(cov), 0, None))
         except np.linalg.LinAlgError:  # pragma: no cover - pinv rarely fails
             se_log = np.full(len(names), np.nan)
+        if len(names) == 1:
+            # The two parts of the uncertainty: noise (shrinks as 1/N and 1/amplitude^2)
+            # and model error (does not shrink with more of the same data).
+            h = 1e-6
+            g = (v_at(logc + h) - v_at(logc - h)) / (2 * h)
+            f = math.exp(logc[0])
+            noise_se = (f * _std_error(g, w.S_noise),)
+            floor_se = (f * _std_error(g, w.S_floor),)
     else:
         logc, r, se_log = np.zeros(0), resid(np.zeros(0)), np.zeros(0)
     chi2 = float(r @ r)
@@ -254,7 +356,22 @@ def _fit(
         chi2=chi2,
         dof=dof,
         p_value=float(special.chdtrc(dof, chi2)),
+        noise_std_errors=noise_se,
+        floor_std_errors=floor_se,
     )
+
+
+def _single_cause_p_value(none: FaultHypothesis, singles: Sequence[FaultHypothesis]) -> float:
+    """p-value of "nothing changed" against the best single cause (Bonferroni over causes).
+
+    Likelihood ratio ``chi2_none - chi2_k`` ~ chi2(1) under "nothing changed" for each
+    single cause ``k``; the best of ``n`` is judged at ``n`` times its p-value. More
+    powerful than the 9-dof test when one physical cause moved several v_i together.
+    """
+    if not singles:
+        return 1.0
+    lr = max(none.chi2 - singles[0].chi2, 0.0)
+    return float(min(1.0, len(singles) * special.chdtrc(1, lr)))
 
 
 def isolate_fault(
@@ -266,6 +383,8 @@ def isolate_fault(
     hypotheses: Sequence[str] | None = None,
     alpha: float = 0.01,
     try_pairs: bool = True,
+    operating_point: MeasuredOperatingPoint | None = None,
+    model_error: float = 0.0,
 ) -> IsolationResult:
     """Find the physical change that explains an identified ``v`` (see module docs).
 
@@ -285,6 +404,12 @@ def isolate_fault(
         Significance level of the chi-square tests.
     try_pairs : bool
         Also fit pairs of simultaneous changes when no single one fits.
+    operating_point : MeasuredOperatingPoint, optional
+        Where the bearing settled in the recording; each hypothesis predicts
+        ``v`` there (default: the design point).
+    model_error : float
+        Relative model error ``epsilon`` of each ``v_i`` (adds
+        ``diag((epsilon v_b)^2)`` to the covariance; 0 = none).
 
     Returns
     -------
@@ -307,14 +432,18 @@ def isolate_fault(
         raise DataError(f"`covariance` must be 9x9; got {S.shape}")
     if baseline_covariance is not None:
         S = S + np.asarray(baseline_covariance, dtype=float)
+    if not (np.isfinite(model_error) and model_error >= 0):
+        raise DataError(f"`model_error` must be >= 0; got {model_error}")
+    v_b = _v_of({}, baseline, operating_point)
+    S_floor = np.diag((model_error * v_b) ** 2)
     # W = S^-1 = L L^T via the Cholesky factor of S (no explicit inverse).
     try:
-        Ls = np.linalg.cholesky(S)
+        Ls = np.linalg.cholesky(S + S_floor)
     except np.linalg.LinAlgError:
         raise DataError(
             "`covariance` is not positive definite; cannot weigh the evidence"
         ) from None
-    L = np.linalg.solve(Ls, np.eye(9)).T  # L L^T = S^-1
+    w = _Weights(np.linalg.solve(Ls, np.eye(9)).T, S, S_floor)  # L L^T = (S + S_floor)^-1
     names = list(hypotheses) if hypotheses is not None else list(HYPOTHESES)
     unknown = [n for n in names if n not in HYPOTHESES]
     if unknown:
@@ -322,21 +451,33 @@ def isolate_fault(
     valid = {f.name for f in fields(AMBParameters)} | set(SENSOR_GAINS)
     names = [n for n in names if n in valid]
 
-    none = _fit((), baseline, v_hat, L)
-    singles = sorted((_fit((n,), baseline, v_hat, L) for n in names), key=lambda h: h.chi2)
+    op = operating_point
+
+    def fit(names: Sequence[str]) -> FaultHypothesis:
+        return _fit(names, baseline, v_hat, w, op)
+
+    none = fit(())
+    singles = sorted((fit((n,)) for n in names), key=lambda h: h.chi2)
     cands = list(singles)
-    if try_pairs and none.p_value < alpha and singles[0].p_value < alpha:
-        pairs = [_fit(pair, baseline, v_hat, L) for pair in itertools.combinations(names, 2)]
+    p_lr = _single_cause_p_value(none, singles)
+    changed = min(none.p_value, p_lr) < alpha / 2  # two tests, Bonferroni
+    if try_pairs and changed and singles[0].p_value < alpha:
+        pairs = [fit(pair) for pair in itertools.combinations(names, 2)]
         cands = sorted(
             cands + pairs, key=lambda h: (h.p_value < alpha, h.chi2 + 4 * len(h.parameters))
         )
-    if none.p_value >= alpha:
-        return IsolationResult(none, tuple(cands), none, alpha, True, ())
+    extra = {
+        "model_error": float(model_error),
+        "operating_point": op,
+        "single_cause_p_value": p_lr,
+    }
+    if not changed:
+        return IsolationResult(none, tuple(cands), none, alpha, True, (), **extra)
     accepted = [h for h in cands if h.p_value >= alpha]
     if not accepted:
-        return IsolationResult(cands[0], tuple(cands), none, alpha, False, ())
+        return IsolationResult(cands[0], tuple(cands), none, alpha, False, (), **extra)
     k = min(len(h.parameters) for h in accepted)
     same_size = sorted((h for h in accepted if len(h.parameters) == k), key=lambda h: h.chi2)
     best = same_size[0]
     tie = tuple(h for h in same_size[1:] if h.chi2 - best.chi2 < 1.0)
-    return IsolationResult(best, tuple(cands), none, alpha, True, tie)
+    return IsolationResult(best, tuple(cands), none, alpha, True, tie, **extra)

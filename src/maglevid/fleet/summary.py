@@ -128,7 +128,7 @@ def machine_drifts(
         ``tolerance_percent``, ``projected_crossing`` (ISO date or ``None``),
         ``first``, ``last`` (ISO times), ``notes``.
     """
-    from maglevid.diagnose.drift import detect_drift
+    from maglevid.diagnose.drift import STEP_SHARE, detect_drift, detect_step
     from maglevid.diagnose.history import NotFoundError
     from maglevid.exceptions import DataError
 
@@ -174,9 +174,20 @@ def machine_drifts(
             continue
         crossing = None
         notes = list(r.notes)
-        if r.projected_crossing_time is not None and math.isfinite(r.projected_crossing_time):
+        # A step (change-point test) at a tenth of the level: see diagnose.pipeline.
+        step = detect_step((t - t0) / _DAY, y, se, alpha=level / STEP_SHARE)
+        if step.is_step:  # a dated step, not a trend: nothing to project
+            ts = np.sort(t)
+            notes.append(
+                f"a step of {100 * step.size / baseline if baseline else float('nan'):+.3g} % "
+                f"between {_iso(float(ts[step.index - 1]))[:10]} and "
+                f"{_iso(float(ts[step.index]))[:10]} (change-point test p = {step.p_value:.2g})"
+            )
+        elif r.projected_crossing_time is not None and math.isfinite(r.projected_crossing_time):
             when = t0 + r.projected_crossing_time * _DAY
-            if _MIN_TIME <= when <= _MAX_TIME:
+            if when <= float(t.max()):  # never project a crossing already past
+                notes.append("the fitted trend is already beyond the tolerance")
+            elif _MIN_TIME <= when <= _MAX_TIME:
                 crossing = _iso(when)
             else:  # a nearly flat trend meets its limit beyond any calendar
                 notes.append("the projected crossing is beyond the years 1-9999")
@@ -185,7 +196,6 @@ def machine_drifts(
                 "parameter": name,
                 "method": meth,
                 "n": r.n,
-                "drifting": r.drifting,
                 "alpha": level,
                 "p_value": _num(r.p_value),
                 "slope_per_day": _num(r.slope),
@@ -193,6 +203,8 @@ def machine_drifts(
                 "baseline": baseline,
                 "tolerance_percent": 100.0 * tol,
                 "projected_crossing": crossing,
+                "kind": "step" if step.is_step else "drift",
+                "drifting": r.drifting or step.is_step,
                 "first": _iso(t0),
                 "last": _iso(float(t.max())),
                 "notes": notes,
@@ -300,14 +312,21 @@ class MachineSummary:
         return tuple(d for d in self.drifts if d.get("drifting"))
 
     @property
+    def inconclusive(self) -> bool:
+        """The latest diagnosis could not resolve the tolerance (never shown as ok)."""
+        return self.latest is not None and self.latest.get("verdict_code") == "inconclusive"
+
+    @property
     def state(self) -> str:
-        """``changed``, ``drifting``, ``ok``, or ``undiagnosed`` (no usable diagnosis)."""
+        """``changed``, ``drifting``, ``inconclusive``, ``ok``, or ``undiagnosed``."""
         if self.changed:
             return "changed"
         if self.drifting:
             return "drifting"
         if self.latest is None:
             return "undiagnosed"
+        if self.inconclusive:
+            return "inconclusive"
         return "ok"
 
     def to_dict(self) -> dict[str, Any]:
@@ -356,6 +375,10 @@ class FleetSummary:
         return tuple(m for m in self.machines if m.drifting)
 
     @property
+    def inconclusive(self) -> tuple[MachineSummary, ...]:
+        return tuple(m for m in self.machines if m.state == "inconclusive")
+
+    @property
     def problems(self) -> tuple[RecordingOutcome, ...]:
         return tuple(o for o in self.outcomes if o.problem is not None)
 
@@ -375,6 +398,7 @@ class FleetSummary:
             "verdicts": self.verdicts,
             "changed": [m.name for m in self.changed],
             "drifting": [m.name for m in self.drifting],
+            "inconclusive": [m.name for m in self.inconclusive],
             "n_problems": len(self.problems),
             "machines": [m.to_dict() for m in self.machines],
             "recordings": [o.to_dict() for o in self.outcomes],

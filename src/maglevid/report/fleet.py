@@ -38,10 +38,11 @@ logger = logging.getLogger(__name__)
 _STATE_STYLE = {
     "changed": ("#b91c1c", "Changed"),
     "drifting": ("#b45309", "Drifting"),
+    "inconclusive": VERDICT_STYLE["inconclusive"],
     "undiagnosed": ("#475569", "No diagnosis"),
     "ok": ("#15803d", "OK"),
 }
-_STATE_ORDER = {"changed": 0, "drifting": 1, "undiagnosed": 2, "ok": 3}
+_STATE_ORDER = {"changed": 0, "drifting": 1, "inconclusive": 2, "undiagnosed": 3, "ok": 4}
 
 _STATUS_LABEL = {
     "diagnosed": "diagnosed",
@@ -120,6 +121,11 @@ def _facts(summary: Mapping[str, Any]) -> str:
         ("machines", str(len(machines)), f"{n_rec} recordings"),
         ("changed", str(len(summary["changed"])), "fault or unexplained change"),
         ("drifting", str(len(summary["drifting"])), "a parameter trends"),
+        (
+            "inconclusive",
+            str(len(summary.get("inconclusive", ()))),
+            "the data cannot resolve the tolerance",
+        ),
         ("not diagnosed", str(summary["n_problems"]), "recordings without a usable diagnosis"),
         (
             "diagnosed now",
@@ -287,14 +293,16 @@ def render_fleet_summary(
         len(summary["drifting"]),
         summary["n_problems"],
     )
+    n_inc = len(summary.get("inconclusive", ()))
     headline = (
         f"{n_changed} of {len(summary['machines'])} machines changed, {n_drift} drifting, "
-        f"{n_prob} recording{'' if n_prob == 1 else 's'} not diagnosed"
+        + (f"{n_inc} inconclusive, " if n_inc else "")
+        + f"{n_prob} recording{'' if n_prob == 1 else 's'} not diagnosed"
     )
     banner_color = (
         VERDICT_STYLE["fault"][0]
         if n_changed
-        else ("#b45309" if n_drift else VERDICT_STYLE["no_change"][0])
+        else ("#b45309" if n_drift or n_inc else VERDICT_STYLE["no_change"][0])
     )
     sections = [
         '<div class="verdict"><div id="fleet-banner" class="banner" '

@@ -59,6 +59,7 @@ logger = logging.getLogger(__name__)
 VERDICT_STYLE: dict[str, tuple[str, str]] = {
     "no_change": ("#15803d", "No change"),
     "within_tolerance": ("#0e7490", "Within tolerance"),
+    "inconclusive": ("#b45309", "Inconclusive"),  # amber: never green
     "drift": ("#a16207", "Drift"),
     "fault": ("#b91c1c", "Fault"),
     "unexplained_change": ("#c2410c", "Unexplained change"),
@@ -269,7 +270,18 @@ def _verdict_banner(d: Diagnosis) -> str:
         f'<div id="verdict-banner" class="banner" style="background:{color}" '
         f'data-verdict-code="{_e(d.verdict_code)}">'
         f'<div class="pill">{_e(label)}</div>'
-        f'<h1 id="verdict-text">{_e(d.verdict)}</h1></div>'
+        f'<h1 id="verdict-text">{_e(d.verdict)}</h1>{_resolution_list(d)}</div>'
+    )
+
+
+def _resolution_list(d: Diagnosis) -> str:
+    """What would resolve the tolerance (an inconclusive verdict's way forward)."""
+    if not d.resolution:
+        return ""
+    items = "".join(f"<li>{_e(u.get('advice', ''))}</li>" for u in d.resolution)
+    return (
+        '<div id="verdict-resolution"><b>The data cannot resolve the tolerance of every '
+        f"parameter. What would:</b><ul>{items}</ul></div>"
     )
 
 
@@ -288,7 +300,7 @@ def _key_facts(d: Diagnosis) -> str:
             lo, hi = min(lo, hi), max(lo, hi)
             facts.append(
                 (
-                    "Largest change",
+                    "Largest change (free estimate)",
                     f"{_e(biggest.name)} {_pct(biggest.change_percent, 1)}",
                     f"95 % CI {_pct(lo, 1)} … {_pct(hi, 1)}; {_e(biggest.status)}",
                 )
@@ -302,12 +314,17 @@ def _key_facts(d: Diagnosis) -> str:
         )
     if d.isolation is not None:
         b = d.isolation.best
-        name = ", ".join(b.parameters) if b.parameters else "no change"
+        name = (
+            ", ".join(f"{k} {_pct(v, 1)}" for k, v in b.changes_percent.items())
+            if b.parameters
+            else "no change"
+        )
+        only = f"fit with only {' and '.join(b.parameters)} changed; " if b.parameters else ""
         facts.append(
             (
                 "Best explanation" if d.isolation.explained else "Closest explanation",
                 _e(name),
-                f"χ² = {b.chi2:.3g}, {b.dof} dof, p = {_pval(b.p_value)}",
+                f"{_e(only)}χ² = {b.chi2:.3g}, {b.dof} dof, p = {_pval(b.p_value)}",
             )
         )
     n_fail = sum(not q.passed for q in d.quality)
@@ -371,7 +388,15 @@ def _isolation_table(d: Diagnosis) -> str:
     return (
         "<h3>Which physical cause explains the identified v1..v9</h3>"
         f'<p class="small">Each hypothesis "only this changed" is fitted by weighted least '
-        f"squares in v-space and judged by its χ² (accepted when p ≥ α = {iso.alpha:g}).</p>"
+        f"squares in v-space and judged by its χ² (accepted when p ≥ α = {iso.alpha:g}), "
+        f"with a model error of ±{100 * iso.model_error:.2g} % of each v_i beside the noise"
+        + (
+            f", linearised at the recording's {_e(iso.operating_point.source)}"
+            if iso.operating_point is not None
+            else ""
+        )
+        + ". Its fitted change is the verdict's number; the parameter table holds the free "
+        "estimates (every parameter fitted at once).</p>"
         '<table class="data"><thead><tr><th>hypothesis</th><th>fitted change</th>'
         '<th class="r">χ²</th><th class="r">dof</th><th class="r">p</th><th></th></tr>'
         f"</thead><tbody>{''.join(body)}</tbody></table>{tie}"
@@ -951,6 +976,8 @@ main.wrap{padding-top:20px;padding-bottom:24px}
 .verdict{overflow:hidden}
 .banner{color:#fff;padding:22px 26px 20px}
 .banner h1{margin:8px 0 0;font-size:27px;line-height:1.25;font-weight:700}
+#verdict-resolution{margin-top:10px;font-size:14px}
+#verdict-resolution ul{margin:4px 0 0 18px;padding:0}
 .pill{display:inline-block;background:rgba(255,255,255,.2);border:1px solid
  rgba(255,255,255,.55);border-radius:999px;padding:2px 12px;font-size:12.5px;
  font-weight:700;letter-spacing:.08em;text-transform:uppercase}
