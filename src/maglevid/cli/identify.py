@@ -6,6 +6,7 @@ import argparse
 import json
 from typing import Any
 
+from maglevid.exceptions import DataError
 from maglevid.identify.registry import describe_methods, get_method
 
 COMMAND = "identify"
@@ -197,7 +198,14 @@ def _run_one(path: str, args: argparse.Namespace, options: dict[str, Any]) -> di
         options["segments"] = _levitator_segments(data, method)
     fit = get_method(method)  # an unknown method is refused before the gate
     check_options(method, fit, options)
-    warnings = quality_gate(data, force=args.force)
+    try:
+        warnings = quality_gate(data, force=args.force)
+    except DataError as exc:
+        why = _unidentifiable(data) if kind == "mimo" else None
+        if why is None:
+            raise
+        msg = f"{exc}; and even with --force: the record cannot give the plant: {why}"
+        raise DataError(msg) from exc
     next(steps)
     result = fit(data, **options)
     steps.close()
@@ -207,9 +215,7 @@ def _run_one(path: str, args: argparse.Namespace, options: dict[str, Any]) -> di
     out.update(recording=path, plant_kind=kind, plant_kind_reason=kind_reason,
                method_reason=reason)  # fmt: skip
     if kind == "mimo":
-        from maglevid.plants import unidentifiable_reason
-
-        why = unidentifiable_reason(data)
+        why = _unidentifiable(data)
         if why is not None:
             out["plant_identifiable"] = False
             notes.append("the poles above are of a model of the closed-loop data, not the "
@@ -221,6 +227,12 @@ def _run_one(path: str, args: argparse.Namespace, options: dict[str, Any]) -> di
 
     warnings += [n for n in result.notes if n.startswith(UNSUPPORTED_POLE_NOTE)]
     return _with_warnings(out, warnings)
+
+
+def _unidentifiable(data: Any) -> str | None:
+    from maglevid.plants import unidentifiable_reason
+
+    return unidentifiable_reason(data)
 
 
 def _finite(v: Any) -> Any:

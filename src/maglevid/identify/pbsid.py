@@ -338,7 +338,15 @@ def _plan(N: int, m: int, ny: int, opt: _Options) -> tuple[int, int]:
         p_top = opt.past
     else:
         p_top = int(min(opt.max_past, (N + 1) // (2 + 2 * _ROWS_PER_COLUMN * m)))
-        p_top = max(p_top, _min_past(opt.order, ny))
+        need = max(2, _min_past(opt.order, ny))
+        if p_top < need:
+            # A past of one lag cannot hold a predictor of a dynamic loop: the record is
+            # too short for the VARX at the rows per coefficient it needs.
+            raise DataError(
+                f"the record has {N} samples: too few for a VARX past of {need} lags on "
+                f"{m} channels ({_ROWS_PER_COLUMN} rows per coefficient needs at least "
+                f"{need * (2 + 2 * _ROWS_PER_COLUMN * m) - 1}); record longer, or pass `past`"
+            )
     return p_top, _window(opt, p_top, _future(opt.algorithm, opt.future, p_top)) - 1
 
 
