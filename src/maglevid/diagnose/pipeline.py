@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from maglevid.data import ClosedLoopData, _thaw
+from maglevid.data import ClosedLoopData
 from maglevid.diagnose.checks import run_checks
 from maglevid.diagnose.compare import DEFAULT_TOLERANCE, compare_parameters
 from maglevid.diagnose.diagnosis import Diagnosis
@@ -40,6 +40,7 @@ from maglevid.diagnose.isolate import (
 )
 from maglevid.diagnose.resolve import tolerance_of, unresolved_parameters
 from maglevid.exceptions import DataError, MaglevidError
+from maglevid.jsonable import thaw
 from maglevid.lti import StateSpace
 from maglevid.physics.amb import V_NAMES, AMBParameters, amb_state_space, parameters_from_v
 from maglevid.physics.units import parameter_unit
@@ -646,7 +647,7 @@ def diagnose(
         baseline={
             "source": source_b,
             "parameters": {k: list(v) for k, v in base_vals.items()},
-            "loop": _thaw(data.loop),
+            "loop": thaw(data.loop),
         },
         baseline_model=base_model,
         identified_model=ident_model,
