@@ -77,6 +77,7 @@ from maglevid.diagnose._sql import (
     Tx,
     connect,
     migrate,
+    parse_target,
 )
 from maglevid.exceptions import DataError
 from maglevid.jsonable import to_json_checked
@@ -98,6 +99,7 @@ __all__ = [
     "hash_file",
     "hash_options",
     "open_history",
+    "parse_target",
 ]
 
 logger = logging.getLogger(__name__)

@@ -45,6 +45,7 @@ from maglevid.diagnose.quality import (
     split_segments,
 )
 from maglevid.exceptions import MaglevidError
+from maglevid.experiments._parallel import Progress, no_progress
 from maglevid.identify.greybox import fit_equilibrium_line, fit_greybox_levitator
 from maglevid.identify.indirect import fit_indirect
 from maglevid.identify.levitator import fit_levitator
@@ -625,16 +626,22 @@ def add_paper_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--skip-maggy", action="store_true", help="leave the Maggy record out")
 
 
-def run_reproduction(args: argparse.Namespace) -> dict[str, Any]:
-    """Compute every table of docs/real-rigs.md (takes a minute or two)."""
-    from maglevid.cli._progress import progress
+def run_reproduction(
+    args: argparse.Namespace, *, progress: Progress | None = None
+) -> dict[str, Any]:
+    """Compute every table of docs/real-rigs.md (takes a minute or two).
+
+    ``progress`` (see :data:`~maglevid.experiments._parallel.Progress`, default
+    none) reports the records read.
+    """
+    progress = progress or no_progress
 
     data_dir = Path(args.data) if args.data else default_data_dir()
     if not (data_dir / UAQ_DIR).is_dir():
         raise FileNotFoundError(f"no {UAQ_DIR}/ under {data_dir}; pass --data")
 
     def prog(it: Iterable, desc: str = "records") -> Iterable:
-        return progress(it, desc=desc, args=args)
+        return progress(it, desc=desc)
 
     out: dict[str, Any] = {
         "data": str(data_dir),
