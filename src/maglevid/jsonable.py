@@ -9,6 +9,8 @@ Three conversions, each with its users:
 - :func:`to_json_checked`: what goes into the history store, where a value
   that is not JSON-like is one clear :class:`~maglevid.exceptions.DataError`
   naming where it sits, and datetimes become ISO text.
+- :func:`to_json_nulls`: tables for people and the history's summaries, where
+  every non-finite number (NaN and +-inf alike) is ``null``.
 - :func:`thaw`: the inverse of the read-only freezing of a recording's
   ``loop`` and ``metadata`` (plain dicts, lists and floats).
 
@@ -31,7 +33,7 @@ import numpy as np
 from maglevid.exceptions import DataError
 from maglevid.lti import StateSpace
 
-__all__ = ["thaw", "to_json_checked", "to_jsonable"]
+__all__ = ["thaw", "to_json_checked", "to_json_nulls", "to_jsonable"]
 
 
 def to_jsonable(v: Any) -> Any:
@@ -86,6 +88,21 @@ def to_json_checked(v: Any, where: str) -> Any:
     if hasattr(v, "to_dict"):
         return to_json_checked(v.to_dict(), where)
     raise DataError(f"`{where}` is {type(v).__name__}; expected JSON-like data")
+
+
+def to_json_nulls(v: Any) -> Any:
+    """JSON-safe copy with every non-finite float as ``None``, complex as ``{"re", "im"}``."""
+    if isinstance(v, Mapping):
+        return {str(k): to_json_nulls(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [to_json_nulls(x) for x in v]
+    if isinstance(v, complex):
+        return {"re": v.real, "im": v.imag}
+    if isinstance(v, np.generic):
+        return to_json_nulls(v.item())
+    if isinstance(v, float) and not np.isfinite(v):
+        return None
+    return v
 
 
 def thaw(value: Any) -> Any:

@@ -51,6 +51,7 @@ from maglevid.identify.indirect import fit_indirect
 from maglevid.identify.levitator import fit_levitator
 from maglevid.identify.pem import fit_pem
 from maglevid.identify.twostage import fit_two_stage
+from maglevid.jsonable import to_json_nulls
 from maglevid.physics.levitator import (
     LevitatorParameters,
     equilibrium,
@@ -652,21 +653,7 @@ def run_reproduction(
     }
     if not args.skip_maggy and (data_dir / MAGGY_DIR).is_dir():
         out["maggy"] = maggy_results(data_dir)
-    return _jsonable(out)
-
-
-def _jsonable(v: Any) -> Any:
-    if isinstance(v, dict):
-        return {str(k): _jsonable(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [_jsonable(x) for x in v]
-    if isinstance(v, complex):
-        return {"re": v.real, "im": v.imag}
-    if isinstance(v, np.generic):
-        return _jsonable(v.item())
-    if isinstance(v, float) and not np.isfinite(v):
-        return None
-    return v
+    return to_json_nulls(out)
 
 
 def _f(v: Any, fmt: str = ".3g") -> str:
