@@ -33,6 +33,7 @@ import numpy as np
 
 from maglevid._validation import as_signal, check_positive, readonly
 from maglevid.exceptions import DataError
+from maglevid.jsonable import thaw
 
 __all__ = ["SIGNALS", "ClosedLoopData"]
 
@@ -55,19 +56,6 @@ def _freeze(value: Any) -> Any:
         except (TypeError, ValueError):
             return tuple(_freeze(v) for v in value)
         return readonly(arr)
-    return value
-
-
-def _thaw(value: Any) -> Any:
-    """Inverse of :func:`_freeze` for serialisation: plain dicts, lists and floats."""
-    if isinstance(value, Mapping):
-        return {k: _thaw(v) for k, v in value.items()}
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, tuple):
-        return [_thaw(v) for v in value]
-    if isinstance(value, np.generic):
-        return value.item()
     return value
 
 
@@ -277,8 +265,8 @@ class ClosedLoopData:
             "names": self.names,
             "units": self.units,
             "t0": self.t0,
-            "loop": _thaw(self.loop),
-            "metadata": _thaw(self.metadata),
+            "loop": thaw(self.loop),
+            "metadata": thaw(self.metadata),
         }
         kw.update(changes)
         # A signal removed by the change takes its names and units with it.
@@ -289,7 +277,7 @@ class ClosedLoopData:
 
     def with_metadata(self, **items: Any) -> ClosedLoopData:
         """Copy with metadata entries added or replaced (e.g. ``machine=``)."""
-        return self.replace(metadata={**_thaw(self.metadata), **items})
+        return self.replace(metadata={**thaw(self.metadata), **items})
 
     def segment(self, start: int, stop: int | None = None) -> ClosedLoopData:
         """Control periods ``start:stop`` as a new recording (time origin kept)."""
@@ -306,7 +294,7 @@ class ClosedLoopData:
         if extras:
             # Extra channels (e.g. a position reference) live in metadata with a rate:
             # "control" (N values) or "output" (N*p values); cut them with the signals.
-            meta = _thaw(self.metadata)
+            meta = thaw(self.metadata)
             for entry in meta["extra_signals"].values():
                 vals = entry.get("values")
                 if vals is None:
@@ -353,8 +341,8 @@ class ClosedLoopData:
                 s: {"names": list(self.channel_names(s)), "units": list(self.channel_units(s))}
                 for s in self.signals()
             },
-            "loop": _thaw(self.loop),
-            "metadata": _thaw(self.metadata),
+            "loop": thaw(self.loop),
+            "metadata": thaw(self.metadata),
         }
 
     def __repr__(self) -> str:

@@ -70,9 +70,9 @@ def test_feedback_inconsistent_with_stated_controller(clean):
     loop = clean.replace().loop
     import copy
 
-    from maglevid.data import _thaw
+    from maglevid.jsonable import thaw
 
-    bad = copy.deepcopy(_thaw(loop))
+    bad = copy.deepcopy(thaw(loop))
     bad["controller"]["F"] = (1.1 * np.asarray(bad["controller"]["F"])).tolist()
     c = check_feedback_consistency(clean.replace(loop=bad))
     assert not c.passed and "inconsistent with the stated controller" in c.message

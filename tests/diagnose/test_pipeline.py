@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 import maglevid
-from maglevid.data import _thaw
 from maglevid.diagnose.history import open_history
 from maglevid.diagnose.pipeline import choose_method, diagnose, recording_hash
+from maglevid.jsonable import thaw
 from maglevid.physics.amb import AMBParameters
 from maglevid.simulate import simulate_amb_loop
 
@@ -126,7 +126,7 @@ def test_recording_hash_depends_on_content_only():
 
 def test_nominal_baseline_needs_design_values():
     rec = _rec(n=3000)
-    bare = rec.replace(loop={k: v for k, v in _thaw(rec.loop).items() if k != "nominal"})
+    bare = rec.replace(loop={k: v for k, v in thaw(rec.loop).items() if k != "nominal"})
     with pytest.raises(maglevid.DataError, match="loop\\['nominal'\\]"):
         diagnose(bare, baseline="nominal")
 

@@ -9,7 +9,7 @@ import pytest
 
 from maglevid.diagnose.history import open_history
 from maglevid.exceptions import DataError
-from maglevid.fleet import summary as fleet_summary
+from maglevid.fleet import trends as fleet_trends
 from maglevid.report.html import render_report
 
 
@@ -29,7 +29,7 @@ def test_failed_drift_test_is_reported(tmp_path, monkeypatch, caplog):
         import maglevid.diagnose.drift as drift
 
         monkeypatch.setattr(drift, "detect_drift", broken)
-        trends = fleet_summary.report_trends(st, "M", method="physical")
+        trends = fleet_trends.report_trends(st, "M", method="physical")
     entry = trends["R1"]
     assert entry["drift"]["verdict"] == "drift test failed: the weights are singular"
     assert "drift test of R1 failed" in caplog.text

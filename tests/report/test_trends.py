@@ -86,7 +86,7 @@ def test_report_shows_the_history(history):
 def test_a_step_travels_from_the_history_to_the_report(tmp_path):
     # The history judged a step (amplifier 1 loses 20 % between two recordings):
     # the report draws the two means and says "step at ...", not a drift line.
-    from maglevid.cli.history import history_summary
+    from maglevid.diagnose.trend_summary import history_summary
 
     t0 = datetime(2026, 1, 5, tzinfo=timezone.utc)
     rng = np.random.default_rng(5)

@@ -158,7 +158,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
 
         trends = None
         if store is not None and diag.machine:
-            from maglevid.cli.history import history_summary
+            from maglevid.diagnose.trend_summary import history_summary
             from maglevid.report import trends_from_history
 
             hist = history_summary(store, diag.machine, parameters=None, method=diag.method)

@@ -2,7 +2,9 @@
 
 Reproductions are modules of :mod:`maglevid.experiments` that define ``PAPER``
 (name), ``PAPER_HELP``, ``add_paper_arguments(parser)`` and
-``run_reproduction(args) -> dict`` (which also writes figures under ``--out``).
+``run_reproduction(args, *, progress=None) -> dict`` (which also writes figures
+under ``--out``; ``progress``: the CLI's progress bar, a callable wrapping an
+iterable).
 """
 
 from __future__ import annotations
@@ -31,4 +33,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
-    return args._reproduce(args)
+    from functools import partial
+
+    from maglevid.cli._progress import progress
+
+    return args._reproduce(args, progress=partial(progress, args=args))

@@ -2,7 +2,8 @@
 
 Scenarios are modules of :mod:`maglevid.simulate` that define ``SCENARIO``
 (name), ``SCENARIO_HELP``, ``add_scenario_arguments(parser)`` and
-``run_scenario(args) -> ClosedLoopData``.
+``run_scenario(args, *, progress=None) -> ClosedLoopData`` (``progress``: the
+CLI's progress bar, a callable wrapping an iterable).
 """
 
 from __future__ import annotations
@@ -38,12 +39,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
-    from maglevid.cli._progress import stages
+    from functools import partial
+
+    from maglevid.cli._progress import progress, stages
     from maglevid.io import write_recording
 
     steps = stages(("simulating", "writing"), desc=f"simulate {args.scenario}", args=args)
     next(steps)
-    data = args._scenario(args)
+    data = args._scenario(args, progress=partial(progress, args=args))
     next(steps)
     path = write_recording(data, args.out, overwrite=args.overwrite)
     steps.close()

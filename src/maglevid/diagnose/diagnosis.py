@@ -12,7 +12,8 @@ import numpy as np
 from maglevid._tables import html_table, number
 from maglevid.diagnose.compare import ParameterChange
 from maglevid.diagnose.isolate import IsolationResult
-from maglevid.identify.result import IdentificationResult, _jsonable
+from maglevid.identify.result import IdentificationResult
+from maglevid.jsonable import to_jsonable
 from maglevid.lti import StateSpace
 from maglevid.physics.units import parameter_unit as _unit
 
@@ -59,8 +60,8 @@ class QualityCheck:
         return {
             "name": self.name,
             "passed": self.passed,
-            "value": _jsonable(float(self.value)),
-            "threshold": _jsonable(float(self.threshold)),
+            "value": to_jsonable(float(self.value)),
+            "threshold": to_jsonable(float(self.threshold)),
             "message": self.message,
             "blocking": self.blocking,
         }
@@ -246,7 +247,7 @@ class Diagnosis:
         """JSON-safe, versioned: the same content as the report, for machines."""
         pi = None
         if self.percentage_index is not None:
-            pi = {k: _jsonable(np.asarray(v)) for k, v in self.percentage_index.items()}
+            pi = {k: to_jsonable(np.asarray(v)) for k, v in self.percentage_index.items()}
         return {
             "format": "maglevid-diagnosis",
             "version": DIAGNOSIS_VERSION,
@@ -262,7 +263,7 @@ class Diagnosis:
             "quality": [q.to_dict() for q in self.quality],
             "changes": [c.to_dict() for c in self.changes],
             "isolation": None if self.isolation is None else self.isolation.to_dict(),
-            "baseline": _jsonable(dict(self.baseline)),
+            "baseline": to_jsonable(dict(self.baseline)),
             "identification": None
             if self.identification is None
             else self.identification.to_dict(),
@@ -275,6 +276,6 @@ class Diagnosis:
             "percentage_index": pi,
             "dt": self.dt,
             "notes": list(self.notes),
-            "drifts": [_jsonable(dict(d)) for d in self.drifts],
-            "resolution": [_jsonable(dict(u)) for u in self.resolution],
+            "drifts": [to_jsonable(dict(d)) for d in self.drifts],
+            "resolution": [to_jsonable(dict(u)) for u in self.resolution],
         }

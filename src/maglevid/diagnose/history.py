@@ -77,8 +77,10 @@ from maglevid.diagnose._sql import (
     Tx,
     connect,
     migrate,
+    parse_target,
 )
 from maglevid.exceptions import DataError
+from maglevid.jsonable import to_json_checked
 
 __all__ = [
     "DEFAULT_STORE",
@@ -97,6 +99,7 @@ __all__ = [
     "hash_file",
     "hash_options",
     "open_history",
+    "parse_target",
 ]
 
 logger = logging.getLogger(__name__)
@@ -377,35 +380,8 @@ def _as_estimate(name: str, v: Any) -> Estimate:
     )
 
 
-def _jsonable(v: Any, where: str) -> Any:
-    """JSON-safe copy: NumPy to Python, NaN to None, +-inf to "inf"/"-inf", complex to re/im."""
-    if isinstance(v, np.ndarray):
-        return _jsonable(v.tolist(), where)
-    if isinstance(v, np.generic):
-        return _jsonable(v.item(), where)
-    if isinstance(v, float):
-        if math.isnan(v):
-            return None
-        if math.isinf(v):
-            return "inf" if v > 0 else "-inf"
-        return v
-    if v is None or isinstance(v, (bool, int, str)):
-        return v
-    if isinstance(v, complex):
-        return {"re": _jsonable(v.real, where), "im": _jsonable(v.imag, where)}
-    if isinstance(v, datetime):
-        return v.isoformat()
-    if isinstance(v, Mapping):
-        return {str(k): _jsonable(x, f"{where}[{k!r}]") for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [_jsonable(x, f"{where}[{i}]") for i, x in enumerate(v)]
-    if hasattr(v, "to_dict"):
-        return _jsonable(v.to_dict(), where)
-    raise DataError(f"`{where}` is {type(v).__name__}; expected JSON-like data")
-
-
 def _dumps(v: Any, where: str) -> str:
-    return json.dumps(_jsonable(v, where), sort_keys=True, separators=(",", ":"))
+    return json.dumps(to_json_checked(v, where), sort_keys=True, separators=(",", ":"))
 
 
 def _loads(v: Any) -> dict[str, Any]:

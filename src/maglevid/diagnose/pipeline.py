@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from maglevid.data import ClosedLoopData, _thaw
+from maglevid.data import ClosedLoopData
 from maglevid.diagnose.checks import run_checks
 from maglevid.diagnose.compare import DEFAULT_TOLERANCE, compare_parameters
 from maglevid.diagnose.diagnosis import Diagnosis
@@ -40,6 +40,7 @@ from maglevid.diagnose.isolate import (
 )
 from maglevid.diagnose.resolve import tolerance_of, unresolved_parameters
 from maglevid.exceptions import DataError, MaglevidError
+from maglevid.jsonable import thaw, to_json_nulls
 from maglevid.lti import StateSpace
 from maglevid.physics.amb import V_NAMES, AMBParameters, amb_state_space, parameters_from_v
 from maglevid.physics.units import parameter_unit
@@ -646,7 +647,7 @@ def diagnose(
         baseline={
             "source": source_b,
             "parameters": {k: list(v) for k, v in base_vals.items()},
-            "loop": _thaw(data.loop),
+            "loop": thaw(data.loop),
         },
         baseline_model=base_model,
         identified_model=ident_model,
@@ -722,7 +723,7 @@ def _record(
         verdict=diag.verdict,
         verdict_code=diag.verdict_code,
         estimates=estimates,
-        summary=_clean_json(json.loads(json.dumps(summary, default=str))),
+        summary=to_json_nulls(json.loads(json.dumps(summary, default=str))),
         options=options,
         options_hash=hash_options(options),
         recording_path=diag.recording,
@@ -737,19 +738,6 @@ def _record(
         f"before (diagnosis {stored.id} in the store); nothing was written"
     )
     return _replace_diagnosis(diag, notes=(*diag.notes, note))
-
-
-def _clean_json(obj: Any) -> Any:
-    """JSON-safe copy with non-finite floats as null (the store's JSON has no NaN)."""
-    if isinstance(obj, Mapping):
-        return {str(k): _clean_json(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_clean_json(v) for v in obj]
-    if isinstance(obj, float) and not np.isfinite(obj):
-        return None
-    if isinstance(obj, (np.floating, np.integer)):
-        return _clean_json(obj.item())
-    return obj
 
 
 #: Fewest diagnoses in a machine's history before a drift test is made.

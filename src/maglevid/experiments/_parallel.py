@@ -23,9 +23,21 @@ import resource
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from typing import Any
+
+#: Progress reporting passed in by the caller: ``progress(iterable, *, desc, total=None)``
+#: returns an iterable over the same items (the CLI passes a tqdm bar).
+Progress = Callable[..., Iterable[Any]]
+
+
+def no_progress(
+    iterable: Iterable[Any], *, desc: str = "", total: int | None = None
+) -> Iterable[Any]:
+    """The default :data:`Progress`: the items, unreported."""
+    return iterable
+
 
 _BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 
@@ -67,11 +79,13 @@ def run_parallel(
     args: argparse.Namespace,
     *,
     desc: str = "Monte Carlo",
+    progress: Progress | None = None,
 ) -> tuple[list[Any], dict[str, Any]]:
     """``[task(s) for s in specs]`` on ``args.workers`` processes (default: all cores).
 
     ``task`` must be a module-level function (it is pickled). Results keep the
     order of ``specs``, so they do not depend on the number of workers.
+    ``progress`` (a :data:`Progress`, default none) reports the tasks done.
 
     Returns
     -------
@@ -82,22 +96,20 @@ def run_parallel(
         workers) and ``cores_obtained = cpu_s / wall_s``: how many cores the phase
         actually had, which tells a busy machine apart from poor scaling.
     """
-    from maglevid.cli._progress import progress
+    progress = progress or no_progress
 
     workers = max(1, int(getattr(args, "workers", None) or os.cpu_count() or 1))
     workers = min(workers, max(1, len(specs)))
     t0, c0 = time.perf_counter(), _cpu_seconds()
     method = "serial"
     if workers == 1:
-        results = [task(s) for s in progress(specs, desc=desc, args=args)]
+        results = [task(s) for s in progress(specs, desc=desc, total=len(specs))]
     else:
         method = start_method()
         with one_blas_thread():
             ctx = multiprocessing.get_context(method)
             with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
-                results = list(
-                    progress(pool.map(task, specs), desc=desc, total=len(specs), args=args)
-                )
+                results = list(progress(pool.map(task, specs), desc=desc, total=len(specs)))
     wall = time.perf_counter() - t0
     cpu = _cpu_seconds() - c0
     timing = {

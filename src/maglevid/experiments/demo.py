@@ -174,7 +174,7 @@ def run_demo(
         reports = {}
         for name, diag in latest.items():
             if diag.verdict_code in ("fault", "drift", "unexplained_change"):
-                from maglevid.cli.history import history_summary
+                from maglevid.diagnose.trend_summary import history_summary
                 from maglevid.report import trends_from_history, write_report
 
                 hist = history_summary(store, name, method=diag.method)

@@ -43,7 +43,7 @@ import numpy as np
 
 from maglevid.control import IntegralStateFeedback, Observer, design_lqr
 from maglevid.exceptions import MaglevidError
-from maglevid.experiments._parallel import run_parallel
+from maglevid.experiments._parallel import Progress, no_progress, run_parallel
 from maglevid.identify.deadbeat import fit_deadbeat_arx, fit_deadbeat_iv
 from maglevid.identify.physical import fit_physical, format_percentage_index, percentage_index
 from maglevid.lti import StateSpace
@@ -229,7 +229,7 @@ def _mc_task(spec: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def _monte_carlo(args: argparse.Namespace, noise: Any) -> dict[str, Any]:
+def _monte_carlo(args: argparse.Namespace, noise: Any, progress: Progress) -> dict[str, Any]:
     specs = [
         {
             "example": ex,
@@ -243,7 +243,7 @@ def _monte_carlo(args: argparse.Namespace, noise: Any) -> dict[str, Any]:
         for i, ex in enumerate(EXAMPLES)
         for run in range(args.runs)
     ]
-    runs, timing = run_parallel(_mc_task, specs, args)
+    runs, timing = run_parallel(_mc_task, specs, args, progress=progress)
     nominal = AMBParameters.nominal()
     out: dict[str, Any] = {}
     for ex in EXAMPLES:
@@ -395,8 +395,15 @@ def add_paper_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-figures", action="store_true", help="do not write Figs. 3-4")
 
 
-def run_reproduction(args: argparse.Namespace) -> dict[str, Any]:
-    """Run the reproduction; returns a JSON-safe dict (and writes the figures)."""
+def run_reproduction(
+    args: argparse.Namespace, *, progress: Progress | None = None
+) -> dict[str, Any]:
+    """Run the reproduction; returns a JSON-safe dict (and writes the figures).
+
+    ``progress`` (see :data:`~maglevid.experiments._parallel.Progress`, default
+    none) reports the examples, cases and Monte Carlo runs done.
+    """
+    progress = progress or no_progress
     nominal = AMBParameters.nominal()
     dt = float(args.dt)
     noise = tuple(float(x) for x in args.noise)
@@ -434,10 +441,8 @@ def run_reproduction(args: argparse.Namespace) -> dict[str, Any]:
     }
     fig_fits: dict[str, Any] = {}
     fig_data = None
-    from maglevid.cli._progress import progress
-
     examples = progress(
-        list(enumerate(EXAMPLES.items())), desc="examples I-III", total=len(EXAMPLES), args=args
+        list(enumerate(EXAMPLES.items())), desc="examples I-III", total=len(EXAMPLES)
     )
     for i, (ex, fault) in examples:
         plant = nominal.with_fault(**fault) if fault else nominal
@@ -480,7 +485,7 @@ def run_reproduction(args: argparse.Namespace) -> dict[str, Any]:
 
     # The diagnostic case: observer on the nominal model, noise free.
     diag: dict[str, Any] = {}
-    cases = progress(list(enumerate(DIAGNOSTIC_FAULTS.items())), desc="diagnostic case", args=args)
+    cases = progress(list(enumerate(DIAGNOSTIC_FAULTS.items())), desc="diagnostic case")
     for j, (label, fault) in cases:
         plant = nominal.with_fault(**fault)
         data = _record(
@@ -519,14 +524,14 @@ def run_reproduction(args: argparse.Namespace) -> dict[str, Any]:
     result["diagnostic_case"] = diag
 
     if int(args.nonlinear_samples) > 0:
-        for _ in progress([None], desc="nonlinear plant", args=args):
+        for _ in progress([None], desc="nonlinear plant"):
             result["nonlinear_plant"] = _nonlinear_check(args, nominal, dt, exc)
     if int(args.runs) > 0:
-        result["monte_carlo"] = _monte_carlo(args, noise)
+        result["monte_carlo"] = _monte_carlo(args, noise, progress)
     if not args.no_figures and fig_data is not None:
         out_dir = Path(args.out)
         out_dir.mkdir(parents=True, exist_ok=True)
-        for _ in progress([None], desc="figures", args=args):
+        for _ in progress([None], desc="figures"):
             result["figures"] = _impulse_figures(
                 fig_data,
                 fig_fits,

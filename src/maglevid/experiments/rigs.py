@@ -45,11 +45,13 @@ from maglevid.diagnose.quality import (
     split_segments,
 )
 from maglevid.exceptions import MaglevidError
+from maglevid.experiments._parallel import Progress, no_progress
 from maglevid.identify.greybox import fit_equilibrium_line, fit_greybox_levitator
 from maglevid.identify.indirect import fit_indirect
 from maglevid.identify.levitator import fit_levitator
 from maglevid.identify.pem import fit_pem
 from maglevid.identify.twostage import fit_two_stage
+from maglevid.jsonable import to_json_nulls
 from maglevid.physics.levitator import (
     LevitatorParameters,
     equilibrium,
@@ -625,16 +627,22 @@ def add_paper_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--skip-maggy", action="store_true", help="leave the Maggy record out")
 
 
-def run_reproduction(args: argparse.Namespace) -> dict[str, Any]:
-    """Compute every table of docs/real-rigs.md (takes a minute or two)."""
-    from maglevid.cli._progress import progress
+def run_reproduction(
+    args: argparse.Namespace, *, progress: Progress | None = None
+) -> dict[str, Any]:
+    """Compute every table of docs/real-rigs.md (takes a minute or two).
+
+    ``progress`` (see :data:`~maglevid.experiments._parallel.Progress`, default
+    none) reports the records read.
+    """
+    progress = progress or no_progress
 
     data_dir = Path(args.data) if args.data else default_data_dir()
     if not (data_dir / UAQ_DIR).is_dir():
         raise FileNotFoundError(f"no {UAQ_DIR}/ under {data_dir}; pass --data")
 
     def prog(it: Iterable, desc: str = "records") -> Iterable:
-        return progress(it, desc=desc, args=args)
+        return progress(it, desc=desc)
 
     out: dict[str, Any] = {
         "data": str(data_dir),
@@ -645,21 +653,7 @@ def run_reproduction(args: argparse.Namespace) -> dict[str, Any]:
     }
     if not args.skip_maggy and (data_dir / MAGGY_DIR).is_dir():
         out["maggy"] = maggy_results(data_dir)
-    return _jsonable(out)
-
-
-def _jsonable(v: Any) -> Any:
-    if isinstance(v, dict):
-        return {str(k): _jsonable(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [_jsonable(x) for x in v]
-    if isinstance(v, complex):
-        return {"re": v.real, "im": v.imag}
-    if isinstance(v, np.generic):
-        return _jsonable(v.item())
-    if isinstance(v, float) and not np.isfinite(v):
-        return None
-    return v
+    return to_json_nulls(out)
 
 
 def _f(v: Any, fmt: str = ".3g") -> str:

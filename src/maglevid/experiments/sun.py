@@ -36,7 +36,7 @@ import numpy as np
 
 from maglevid.control.pid import loop_margins, noise_gain
 from maglevid.exceptions import MaglevidError
-from maglevid.experiments._parallel import run_parallel
+from maglevid.experiments._parallel import Progress, run_parallel
 from maglevid.identify.intersample import (
     data_matrix_singular_values,
     fit_conventional_direct,
@@ -241,8 +241,14 @@ def _floats(text: str, name: str) -> list[float]:
         raise argparse.ArgumentTypeError(f"{name}: expected numbers like 3,4,6") from None
 
 
-def run_reproduction(args: argparse.Namespace) -> dict[str, Any]:
-    """Run the reproduction; returns a JSON-safe dict (and writes the figures)."""
+def run_reproduction(
+    args: argparse.Namespace, *, progress: Progress | None = None
+) -> dict[str, Any]:
+    """Run the reproduction; returns a JSON-safe dict (and writes the figures).
+
+    ``progress`` (see :data:`~maglevid.experiments._parallel.Progress`, default
+    none) reports the Monte Carlo runs done.
+    """
     p_values = _ints(args.p_values, "--p-values")
     Y_values = _floats(args.table2_Y, "--table2-Y")
     runs = int(args.runs)
@@ -271,7 +277,7 @@ def run_reproduction(args: argparse.Namespace) -> dict[str, Any]:
             {**base, "p": t2p, "Y": Y, "run": r, "seed": _seed(args.seed, round(Y * 1000), t2p, r)}
             for r in range(runs)
         ]
-    results, timing = run_parallel(_task, specs, args)
+    results, timing = run_parallel(_task, specs, args, progress=progress)
     workers = timing["workers"]
 
     table1 = {}

@@ -204,7 +204,7 @@ def _shared_location(location: str) -> str:
     Workers may run in another folder; an in-memory SQLite store would be one
     private store per process, so it is refused.
     """
-    from maglevid.diagnose._sql import parse_target
+    from maglevid.diagnose.history import parse_target
 
     dialect, target = parse_target(location)
     if dialect != "sqlite":
@@ -219,7 +219,7 @@ def _shared_location(location: str) -> str:
 
 def _check_store_reachable(location: str, client: Any, local: bool) -> None:
     """An SQLite store is a file on this host: workers elsewhere cannot write to it."""
-    from maglevid.diagnose._sql import parse_target
+    from maglevid.diagnose.history import parse_target
 
     dialect, _ = parse_target(location)
     if dialect != "sqlite" or local:

@@ -26,18 +26,16 @@ from typing import Any
 
 import numpy as np
 
-from maglevid.exceptions import MaglevidError
+from maglevid.fleet.trends import MIN_DRIFT_POINTS, diagnosed_parameters, iso_time
 from maglevid.fleet.worker import UNREADABLE_METHOD, RecordingOutcome
 
 __all__ = [
     "CHANGED_VERDICTS",
-    "MIN_DRIFT_POINTS",
     "SUMMARY_VERSION",
     "FleetSummary",
     "MachineSummary",
     "machine_drifts",
     "machines_drifts",
-    "report_trends",
     "summarize_fleet",
 ]
 
@@ -48,17 +46,9 @@ SUMMARY_VERSION = 1
 #: Verdicts that make a machine "changed".
 CHANGED_VERDICTS: tuple[str, ...] = ("fault", "unexplained_change")
 
-#: Fewest usable points (finite value, standard error > 0) for a drift test
-#: (the pipeline's own threshold: with 3 points the t-test has 1 degree of freedom).
-MIN_DRIFT_POINTS = 4
-
 _DAY = 86400.0
 #: Seconds since 1970 of 0001-01-02 and 9999-12-30: what a datetime can show.
 _MIN_TIME, _MAX_TIME = -62135510400.0, 253402128000.0
-
-
-def _iso(t: float) -> str:
-    return datetime.fromtimestamp(t, tz=timezone.utc).isoformat(timespec="seconds")
 
 
 def _num(x: Any) -> Any:
@@ -80,12 +70,6 @@ def _tolerance(tolerances: Any, parameter: str) -> float:
     if isinstance(tolerances, Mapping):
         return float(tolerances.get(parameter, DEFAULT_TOLERANCE))
     return float(tolerances)
-
-
-def _parameters() -> tuple[str, ...]:
-    from maglevid.diagnose.pipeline import DIAGNOSED_PARAMETERS
-
-    return DIAGNOSED_PARAMETERS
 
 
 def machine_drifts(
@@ -132,7 +116,7 @@ def machine_drifts(
     from maglevid.diagnose.history import NotFoundError
     from maglevid.exceptions import DataError
 
-    names = tuple(parameters) if parameters is not None else _parameters()
+    names = tuple(parameters) if parameters is not None else diagnosed_parameters()
     try:
         table = store.estimates_table(machine, parameters=list(names))
     except NotFoundError:
@@ -180,15 +164,16 @@ def machine_drifts(
             ts = np.sort(t)
             notes.append(
                 f"a step of {100 * step.size / baseline if baseline else float('nan'):+.3g} % "
-                f"between {_iso(float(ts[step.index - 1]))[:10]} and "
-                f"{_iso(float(ts[step.index]))[:10]} (change-point test p = {step.p_value:.2g})"
+                f"between {iso_time(float(ts[step.index - 1]))[:10]} and "
+                f"{iso_time(float(ts[step.index]))[:10]} "
+                f"(change-point test p = {step.p_value:.2g})"
             )
         elif r.projected_crossing_time is not None and math.isfinite(r.projected_crossing_time):
             when = t0 + r.projected_crossing_time * _DAY
             if when <= float(t.max()):  # never project a crossing already past
                 notes.append("the fitted trend is already beyond the tolerance")
             elif _MIN_TIME <= when <= _MAX_TIME:
-                crossing = _iso(when)
+                crossing = iso_time(when)
             else:  # a nearly flat trend meets its limit beyond any calendar
                 notes.append("the projected crossing is beyond the years 1-9999")
         out.append(
@@ -205,8 +190,8 @@ def machine_drifts(
                 "projected_crossing": crossing,
                 "kind": "step" if step.is_step else "drift",
                 "drifting": r.drifting or step.is_step,
-                "first": _iso(t0),
-                "last": _iso(float(t.max())),
+                "first": iso_time(t0),
+                "last": iso_time(float(t.max())),
                 "notes": notes,
             }
         )
@@ -231,44 +216,6 @@ def machines_drifts(
 
     st = _store(store, schema)
     return {m: machine_drifts(st, m, alpha=alpha, tolerances=tolerances.get(m)) for m in machines}
-
-
-def report_trends(store: Any, machine: str, *, method: str | None) -> dict[str, dict[str, Any]]:
-    """Parameter histories of ``machine`` in the form :func:`~maglevid.report.render_report` takes.
-
-    Only the diagnosed parameters of ``method``; each with its drift test (times
-    in seconds since 1970 UTC, as the report's trend plot expects) when it has
-    enough points.
-    """
-    from maglevid.diagnose.drift import detect_drift
-
-    out: dict[str, dict[str, Any]] = {}
-    for name in _parameters():
-        try:
-            tr = store.trend(machine, name, method=method)
-        except MaglevidError:
-            continue
-        entry: dict[str, Any] = {
-            "time": [_iso(float(x)) for x in tr.time],
-            "value": tr.value.tolist(),
-            "std_error": tr.std_error.tolist(),
-            "unit": tr.unit,
-        }
-        ok = np.isfinite(tr.value) & np.isfinite(tr.std_error) & (tr.std_error > 0)
-        if ok.sum() >= MIN_DRIFT_POINTS and np.ptp(tr.time[ok]) > 0:
-            try:
-                entry["drift"] = detect_drift(
-                    tr.time[ok], tr.value[ok], tr.std_error[ok]
-                ).to_dict()
-            except MaglevidError as exc:
-                # Said, not dropped: the report's drift column shows why there is no test.
-                logger.warning("%s: drift test of %s failed: %s", machine, name, exc)
-                entry["drift"] = {"verdict": f"drift test failed: {exc}", "error": str(exc)}
-        base = tr.baseline[np.isfinite(tr.baseline)]
-        if base.size and base[-1] != 0:
-            entry["baseline"] = float(base[-1])
-        out[name] = entry
-    return out
 
 
 @dataclass(frozen=True)

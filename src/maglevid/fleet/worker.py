@@ -385,7 +385,7 @@ def write_kept_report(
     or ``None`` when this worker no longer holds that diagnosis (it restarted,
     or kept a later one). The report includes the machine's parameter trends.
     """
-    from maglevid.fleet.summary import report_trends
+    from maglevid.fleet.trends import report_trends
     from maglevid.report import write_report
 
     with _KEPT_LOCK:

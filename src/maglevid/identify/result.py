@@ -13,6 +13,7 @@ from scipy import special  # not scipy.stats: 0.6 s to import for one quantile
 
 from maglevid._tables import html_table, number
 from maglevid.exceptions import DataError
+from maglevid.jsonable import to_jsonable
 from maglevid.lti import StateSpace
 from maglevid.physics.units import PARAMETER_INFO, parameter_unit
 
@@ -20,26 +21,6 @@ __all__ = ["RESULT_VERSION", "IdentificationResult", "propagate_covariance"]
 
 #: Version of the ``to_dict`` layout; bump on incompatible change.
 RESULT_VERSION = 1
-
-
-def _jsonable(v: Any) -> Any:
-    if isinstance(v, StateSpace):
-        return v.to_dict()
-    if isinstance(v, np.ndarray):
-        if np.iscomplexobj(v):
-            return {"re": v.real.tolist(), "im": v.imag.tolist()}
-        return v.tolist()
-    if isinstance(v, (np.generic,)):
-        return v.item()
-    if isinstance(v, complex):
-        return {"re": v.real, "im": v.imag}
-    if isinstance(v, Mapping):
-        return {str(k): _jsonable(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [_jsonable(x) for x in v]
-    if isinstance(v, float) and not np.isfinite(v):
-        return None if np.isnan(v) else ("inf" if v > 0 else "-inf")
-    return v
 
 
 @dataclass(frozen=True, eq=False)
@@ -214,16 +195,16 @@ class IdentificationResult:
             "version": RESULT_VERSION,
             "method": self.method,
             "n_samples": self.n_samples,
-            "options": _jsonable(self.options),
+            "options": to_jsonable(self.options),
             "parameters": dict(self.parameters),
-            "std_errors": _jsonable(self.std_errors()),
-            "ci95": _jsonable({k: list(v) for k, v in self.confidence_intervals(0.95).items()}),
+            "std_errors": to_jsonable(self.std_errors()),
+            "ci95": to_jsonable({k: list(v) for k, v in self.confidence_intervals(0.95).items()}),
             "covariance": None if self.covariance is None else self.covariance.tolist(),
             "model": None if self.model is None else self.model.to_dict(),
             "continuous_model": None
             if self.continuous_model is None
             else self.continuous_model.to_dict(),
-            "poles": None if self.model is None else _jsonable(self.model.poles()),
+            "poles": None if self.model is None else to_jsonable(self.model.poles()),
             "fit": dict(self.fit),
             "singular_values": None
             if self.singular_values is None

@@ -35,15 +35,17 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from scipy import special
 
 from maglevid.data import ClosedLoopData
 from maglevid.exceptions import DataError, MaglevidError
-from maglevid.identify.result import IdentificationResult
 from maglevid.lti import StateSpace
+
+if TYPE_CHECKING:  # result.py calls into this module (IdentificationResult.resid)
+    from maglevid.identify.result import IdentificationResult
 
 __all__ = ["Comparison", "ResidualAnalysis", "compare", "resid", "residual_tests"]
 

@@ -771,19 +771,24 @@ def add_scenario_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def run_scenario(args: argparse.Namespace) -> ClosedLoopData:
-    """Build the recording for ``maglevid simulate amb``."""
+def run_scenario(
+    args: argparse.Namespace, *, progress: Callable[..., Iterable[int]] | None = None
+) -> ClosedLoopData:
+    """Build the recording for ``maglevid simulate amb``.
+
+    ``progress`` (default none), passed in by the caller (the CLI passes its
+    bar): ``progress(iterable, desc=..., total=...)`` returns an iterable over
+    the same items; it reports the nonlinear plant's chunks simulated.
+    """
     nominal = AMBParameters.nominal()
     plant = nominal.with_fault(**dict(args.fault)) if args.fault else nominal
     exc = args.excitation_std
-    progress = None
-    if args.plant == "nonlinear":
+    chunks = None
+    if args.plant == "nonlinear" and progress is not None:
         from functools import partial
 
-        from maglevid.cli._progress import progress as _bar
-
         total = -(-int(args.n_samples) // 2000)
-        progress = partial(_bar, desc="simulating", total=total, args=args)
+        chunks = partial(progress, desc="simulating", total=total)
     return simulate_amb_loop(
         plant,
         dt=args.dt,
@@ -797,5 +802,5 @@ def run_scenario(args: argparse.Namespace) -> ClosedLoopData:
         observer_model=args.observer_model,
         force_std=args.force_std,
         rng=args.seed,
-        progress=progress,
+        progress=chunks,
     )

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+from collections.abc import Callable, Iterable
 from typing import Any
 
 import numpy as np
@@ -329,7 +330,14 @@ def add_scenario_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="noise seed (same seed, same record)")
 
 
-def run_scenario(args: argparse.Namespace) -> ClosedLoopData:
+def run_scenario(
+    args: argparse.Namespace, *, progress: Callable[..., Iterable[Any]] | None = None
+) -> ClosedLoopData:
+    """Build the recording for ``maglevid simulate suspension``.
+
+    ``progress`` is accepted for the scenario contract and not used: one
+    simulation call, nothing to count.
+    """
     return simulate_suspension(
         p=args.p,
         duration=args.duration,
