@@ -10,17 +10,13 @@ from maglevid.experiments.demo import DEMO_TOLERANCES, run_demo
 R1_TOLERANCE_DAY = DEMO_TOLERANCES / 0.15 * 56
 
 
-# Seed 1: the healthy AMB-3 gets a false R1 drift alarm on day 24 (p = 0.00026 against a
-# per-diagnosis level of 0.01/13). Each diagnosis re-tests the machine's whole history, so
-# over a machine's life the false-drift rate grows with the number of looks; the drift test
-# has no sequential (alpha-spending or persistence) correction yet. Known, not hidden.
-SEQUENTIAL_LOOKS = pytest.mark.xfail(
-    reason="false drift alarm from repeated looks (no sequential correction yet)", strict=True
-)
+# Seed 1 once gave the healthy AMB-3 a false R1 drift alarm on day 24 (t-test p = 0.00026,
+# scatter 0.33 of the stated errors by chance): each diagnosis re-tests the whole history.
+# The pipeline's drift test floors the scale at the stated errors (docs/history.md).
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("seed", [pytest.param(1, marks=SEQUENTIAL_LOOKS), 2])
+@pytest.mark.parametrize("seed", [1, 2])
 def test_demo_flags_the_right_bearings(tmp_path, seed):
     # Every 4 days instead of 3 keeps the test at ~15 s per seed.
     res = run_demo(tmp_path / "demo", seed=seed, every_days=4)

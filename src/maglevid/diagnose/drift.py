@@ -245,6 +245,7 @@ def detect_drift(
     alternative: str = "two-sided",
     method: str = "wls",
     absolute_sigma: bool = False,
+    scale_floor: bool = False,
     confidence: float = 0.95,
 ) -> DriftResult:
     """Test a parameter's history for a linear drift; project when it leaves a band.
@@ -273,6 +274,14 @@ def detect_drift(
     absolute_sigma : bool
         WLS only: trust ``std_errors`` as absolute (z-test, ``phi = 1``)
         instead of estimating their common scale (t-test, default).
+    scale_floor : bool
+        WLS only: use ``phi = max(phi_hat, 1)`` with the same Student-t
+        reference: the stated errors are inflated when the points scatter more
+        than they say, never shrunk when they scatter less by chance. The
+        statistic is never larger than the plain t-test's, so the level stays
+        <= ``alpha`` whatever the true scale, and when the stated errors are
+        right it is far below ``alpha``: repeated looks at a growing history
+        stay within ``alpha`` (``docs/history.md``, drift test, repeated looks).
     confidence : float
         Level of the slope and crossing-time intervals.
 
@@ -336,7 +345,17 @@ def detect_drift(
         notes.append(f"only {n} points: the test has little power against slow drift")
     if method == "wls":
         return _wls(
-            t, y, se, alpha, tolerance, baseline, alternative, absolute_sigma, confidence, notes
+            t,
+            y,
+            se,
+            alpha,
+            tolerance,
+            baseline,
+            alternative,
+            absolute_sigma,
+            confidence,
+            notes,
+            scale_floor,
         )
     return _mann_kendall(t, y, se, alpha, tolerance, baseline, alternative, confidence, notes)
 
@@ -358,6 +377,7 @@ def _wls(
     absolute_sigma: bool,
     confidence: float,
     notes: list[str],
+    scale_floor: bool = False,
 ) -> DriftResult:
     n = t.shape[0]
     if se is None:
@@ -385,6 +405,8 @@ def _wls(
         phi, dist, dof_out = 1.0, _Dist(None), None
     else:
         phi, dist, dof_out = phi_hat, _Dist(dof), float(dof)
+        if scale_floor and se is not None:
+            phi = max(phi_hat, 1.0)
     scale = math.sqrt(phi_hat) if se is not None else None
     if se is not None and dof >= 3:
         # Reduced chi-square far in the tail of chi2(dof)/dof: errors understated.

@@ -668,6 +668,10 @@ def diagnose(
             if diag.verdict_code in ("no_change", "within_tolerance"):
                 kind = "drifting" if any(d["kind"] == "drift" for d in drifts) else "a step"
                 extra["verdict"] = f"No fault yet, but {kind}: {words}"
+                if diag.verdict_code == "within_tolerance":
+                    # Keep the isolated cause: the trend may show first in a parameter the
+                    # cause moves through the operating point (x0 for a heating coil).
+                    extra["verdict"] += f". {diag.verdict}"
                 extra["verdict_code"] = "drift"
             diag = _replace_diagnosis(diag, **extra)
     return diag
@@ -785,6 +789,9 @@ def _drifts(
     ``len(DIAGNOSED_PARAMETERS)`` tests runs at ``alpha / len(...)`` (Bonferroni),
     so a healthy machine raises a false drift alarm with probability <= alpha
     per diagnosis rather than ~13 alpha; the step test adds at most alpha / 10.
+    Each diagnosis re-tests the growing history; the slope's scale is floored at the
+    stated standard errors (``scale_floor``), which keeps a healthy machine's false
+    drift alarms over 12 looks within alpha (docs/history.md, repeated looks).
     """
     from maglevid.diagnose.drift import STEP_SHARE, detect_drift, detect_step
 
@@ -809,6 +816,7 @@ def _drifts(
             alpha=alpha_each,
             tolerance=float(t) * abs(b),
             baseline=b,
+            scale_floor=True,  # repeated looks: see detect_drift and docs/history.md
         )
         # A step (change-point test): the line's t-test rarely sees one (its residuals are
         # the step), so it is a detector too, at a tenth of the level: the false-alarm
