@@ -44,6 +44,7 @@ not installed is skipped with the reason; one that runs out of memory (limit
 from __future__ import annotations
 
 import argparse
+import contextlib
 import datetime as _dt
 import gc
 import json
@@ -51,6 +52,7 @@ import math
 import os
 import platform
 import resource
+import signal
 import statistics
 import subprocess
 import sys
@@ -629,6 +631,34 @@ def _json_default(o: Any) -> Any:
 
 
 # ====================================================================== parent
+def run_in_own_group(
+    cmd: list[str], *, timeout: float, env: dict[str, str] | None = None, cwd: Any = None
+) -> subprocess.CompletedProcess[str] | None:
+    """``subprocess.run`` in a new process group; None when it timed out.
+
+    On a timeout the whole group is killed: a worker's own pool processes (the
+    Monte Carlo sections run on several) would otherwise be orphaned and go on
+    loading the cores under the next section's timings.
+    """
+    proc = subprocess.Popen(
+        cmd,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+        cwd=cwd,
+        start_new_session=True,
+    )
+    try:
+        out, err = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+        proc.communicate()
+        return None
+    return subprocess.CompletedProcess(cmd, proc.returncode, out, err)
+
+
 class Runner:
     """Runs worker tasks one at a time in fresh processes; logs progress to stderr."""
 
@@ -652,11 +682,8 @@ class Runner:
         task = {"memory_limit_gb": self.args.memory_limit_gb, **task}
         timeout = timeout or self.args.timeout
         cmd = [sys.executable, "-m", "benchmarks.run_all", "--worker", json.dumps(task)]
-        try:
-            r = subprocess.run(
-                cmd, capture_output=True, text=True, timeout=timeout, env=self.env, cwd=ROOT
-            )
-        except subprocess.TimeoutExpired:
+        r = run_in_own_group(cmd, timeout=timeout, env=self.env, cwd=ROOT)
+        if r is None:
             return {"error": f"timed out after {timeout:.0f} s"}
         lines = [x for x in r.stdout.splitlines() if x.startswith(MARK)]
         if not lines:
