@@ -389,7 +389,11 @@ def _isolation_table(d: Diagnosis) -> str:
         "<h3>Which physical cause explains the identified v1..v9</h3>"
         f'<p class="small">Each hypothesis "only this changed" is fitted by weighted least '
         f"squares in v-space and judged by its χ² (accepted when p ≥ α = {iso.alpha:g}), "
-        f"with a model error of ±{100 * iso.model_error:.2g} % of each v_i beside the noise"
+        + (
+            f"with a model error of ±{100 * iso.model_error:.2g} % of each v_i beside the noise"
+            if iso.model_error > 0
+            else "with no model-error allowance beside the noise"
+        )
         + (
             f", linearised at the recording's {_e(iso.operating_point.source)}"
             if iso.operating_point is not None
