@@ -63,6 +63,8 @@ from __future__ import annotations
 import itertools
 import logging
 import warnings
+from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -566,6 +568,68 @@ def fit_intersample(
     >>> res.parameters["pole_z"] > 1
     True
     """
+    order, prefilters = _check_options(numerator, gain_from, subspace, order, prefilters)
+    u, Y = _signals(data, output)
+    mass, resistance, g = _known_physics(data, mass, resistance, gravity)
+    p, N, dt = data.p, data.n_samples, data.dt
+    _check_record(p, N, order)
+    notes: list[str] = []
+    Yi = Y[:, 1:]  # the open-loop-like subsystem j = 1..p-1
+
+    # Steps 1 and 1b: A from the SIMO subsystem (u; y_1..y_{p-1}), Theorem 2, eq. (7)
+    step1 = _Step1(subspace, horizon, weighting, dt)
+    den = _denominator(step1, u, Yi, order, weighting, refine, prefilters, notes)
+    n, a_hat, oe = den.sub.model.nx, den.a_hat, den.oe
+    inter = _intersample_fit(oe, a_hat, p, refine)
+
+    # Step 2 / Section 4.3: the numerator B_0 of y_0
+    y0 = Y[:, 0]
+    variants = _numerator_variants(a_hat, inter.B_ls, den.B_sub, u, y0, n, dt, numerator, notes)
+    key = {"ls": "physical-ls", "subspace": "physical-subspace"}[gain_from]
+    b_hat = variants[key if numerator == "physical" else numerator]["b"]
+    theta = np.r_[a_hat[1:], b_hat]
+    cov_theta = _theta_covariance(
+        inter, a_hat, u, y0, n, p, dt, numerator, gain_from, variants, notes
+    )
+
+    # Derived parameters (largest real pole; eq. (27)'s physical parameters)
+    parameters, cov = _parameters(data, theta, cov_theta, n, dt, mass, g, resistance, notes)
+
+    # The T-model B_0/A (the SIMO model of every inter-sample is in extras)
+    a_full, b_full = np.r_[1.0, theta[:n]], np.r_[0.0, theta[n:]]
+    model = simo_polynomials_to_state_space(a_full, [b_full], dt, output_names=("y",))
+    continuous = continuous_or_note(model, notes)
+
+    options = dict(
+        order=order, subspace=subspace, horizon=horizon, weighting=weighting, refine=refine,
+        prefilters=list(prefilters), numerator=numerator, gain_from=gain_from, output=output,
+        mass=mass, resistance=resistance, gravity=g, p=p,
+    )  # fmt: skip
+    extras = _extras(a_full, b_full, inter, dt, p, den.step1_info, den.candidates, variants)
+    return IdentificationResult(
+        method="intersample",
+        model=model,
+        parameters=parameters,
+        covariance=cov,
+        n_samples=N,
+        options=options,
+        residuals=inter.R_oe * oe.sy,
+        fit=_fit_metrics(inter, oe, Yi, numerator, variants),
+        singular_values=den.sub.singular_values,
+        notes=tuple(notes),
+        continuous_model=continuous,
+        extras=extras,
+    )
+
+
+# ------------------------------------------------------ the method's steps
+def _check_options(
+    numerator: str,
+    gain_from: str,
+    subspace: str,
+    order: int | None,
+    prefilters: tuple[float | None, ...] | None,
+) -> tuple[int | None, tuple[float | None, ...]]:
     if numerator not in NUMERATORS:
         raise DataError(f"`numerator` must be one of {NUMERATORS}; got {numerator!r}")
     if gain_from not in GAIN_SOURCES:
@@ -579,17 +643,17 @@ def fit_intersample(
     for c in prefilters:
         if c is not None and not (isinstance(c, (float, int)) and 0 < c < 1):
             raise DataError(f"`prefilters` entries must be None or in (0, 1); got {c!r}")
-    u, Y = _signals(data, output)
-    mass, resistance, g = _known_physics(data, mass, resistance, gravity)
-    p, N, dt = data.p, data.n_samples, data.dt
+    return order, prefilters
+
+
+def _check_record(p: int, N: int, order: int | None) -> None:
+    """``p >= 2`` and enough control periods for the parameters of Steps 1-2."""
     if p < 2:
         raise DataError(
             "the recording has p = 1 (no inter-samples): the direct method then identifies "
             "the controller's inverse; use fit_conventional_direct to see it, or record the "
             "output p >= 2 times per control period"
         )
-    notes: list[str] = []
-    Yi = Y[:, 1:]  # the open-loop-like subsystem j = 1..p-1
     n_guess = order if order is not None else 3
     if N < MIN_PERIODS_PER_PARAMETER * (n_guess + (p - 1) * (2 * n_guess + 1)):
         raise DataError(
@@ -598,30 +662,40 @@ def fit_intersample(
             f"for order {n_guess} and p = {p}"
         )
 
-    # ---------------------------------------------------------------- step 1
-    def step1(
-        x_u: np.ndarray, x_y: np.ndarray, n: int | None, w: str | None = weighting
+
+@dataclass(frozen=True)
+class _Step1:
+    """Step 1: the subspace fit of the SIMO subsystem, with feedthrough (``y_j``, ``j >= 1``)."""
+
+    subspace: str
+    horizon: int | None
+    weighting: str | None
+    dt: float
+
+    def __call__(
+        self, x_u: np.ndarray, x_y: np.ndarray, n: int | None, w: str | None
     ) -> IdentificationResult:
         try:
             return _subspace(
-                subspace,
+                self.subspace,
                 x_y,
                 x_u,
                 order=n,
-                horizon=horizon,
+                horizon=self.horizon,
                 weighting=w,
-                dt=dt,
+                dt=self.dt,
                 feedthrough=True,
             )
         except (IdentificationError, ModelError) as exc:
-            raise IdentificationError(f"step 1 ({subspace}) failed: {exc}") from exc
+            raise IdentificationError(f"step 1 ({self.subspace}) failed: {exc}") from exc
 
-    sub = step1(u, Yi, order)
-    n = sub.model.nx
+
+def _step1_summary(sub: IdentificationResult) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
+    """``A`` and the ``B_j`` of the subspace model, and the step's record for ``extras``."""
     a_sub = np.real(np.poly(sub.model.A))
     _, B_sub = polynomials_from_state_space(sub.model)
     B_sub = np.atleast_2d(B_sub)
-    step1_info: dict[str, Any] = {
+    info: dict[str, Any] = {
         "a": a_sub[1:],
         "B": B_sub,
         "poles": np.roots(a_sub),
@@ -629,72 +703,151 @@ def fit_intersample(
         "horizon": sub.options.get("horizon"),
         "notes": list(sub.notes),
     }
+    return a_sub, B_sub, info
 
-    # --------------------------------------------------------------- step 1b
+
+@dataclass(frozen=True)
+class _Denominator:
+    """Steps 1 and 1b: the subspace fit and the (refined) denominator ``A``."""
+
+    sub: IdentificationResult  # Step 1's subspace fit
+    B_sub: np.ndarray  # its B_j, (p-1, n+1)
+    step1_info: dict[str, Any]
+    oe: _OE  # the output-error problem of Step 1b (also used given A)
+    candidates: list[dict[str, Any]]  # Step 1b's starts and where they ended
+    a_hat: np.ndarray  # [1, a_1..a_n]
+
+
+def _denominator(
+    step1: _Step1,
+    u: np.ndarray,
+    Yi: np.ndarray,
+    order: int | None,
+    weighting: str | None,
+    refine: bool,
+    prefilters: tuple[float | None, ...],
+    notes: list[str],
+) -> _Denominator:
+    """Step 1 (subspace) and Step 1b (output-error refinement, variable projection)."""
+    sub = step1(u, Yi, order, weighting)
+    n = sub.model.nx
+    a_sub, B_sub, step1_info = _step1_summary(sub)
     oe = _OE(u, Yi, n)
     candidates: list[dict[str, Any]] = []
     if refine:
-        inits = [("raw", a_sub)]
-        for cut in prefilters:
-            if cut is None:
-                continue
-            try:
-                w_lp = "pi" if subspace == "moesp" else weighting
-                # only a starting point: a weak direction in the low-passed data is
-                # expected and harmless here, so its warning becomes a log line
-                with warnings.catch_warnings(record=True) as caught:
-                    warnings.simplefilter("always", IllConditionedWarning)
-                    r = step1(_lowpass(cut, u), _lowpass(cut, Yi), n, w_lp)
-                for w in caught:
-                    if issubclass(w.category, IllConditionedWarning):
-                        log.info("start from low-passed data (%g): %s", cut, w.message)
-                    else:  # pragma: no cover
-                        warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
-                inits.append((f"lowpass {cut:g}", np.real(np.poly(r.model.A))))
-            except IdentificationError as exc:
-                notes.append(f"subspace initialisation on low-passed data ({cut:g}) failed: {exc}")
-        # Starts are grouped by how many roots lie outside the unit circle (the
-        # bilateral cost is discontinuous where a root crosses it, so each group is
-        # its own search region); the PER_GROUP starts of lowest cost in each group
-        # get a short run, and the two best after it are finished (the wrong basins
-        # of this problem are far apart in cost, docs/sun.md).
-        groups: dict[int, list[tuple[float, str, np.ndarray]]] = {}
-        for label, a0 in inits:
-            for start in _reflections(a0):
-                n_out = int(np.sum(np.abs(np.roots(start)) > 1.0))
-                try:
-                    c0 = oe.cost(start)
-                except (np.linalg.LinAlgError, ValueError):
-                    continue
-                if np.isfinite(c0):
-                    groups.setdefault(n_out, []).append((c0, label, start))
-        for members in groups.values():
-            members.sort(key=lambda m: m[0])
-            for _, label, start in members[:PER_GROUP]:
-                try:
-                    a_fit, cost, _ = oe.fit(start, max_nfev=SCREEN_NFEV)
-                except (np.linalg.LinAlgError, ValueError) as exc:
-                    log.info("output-error start from %s failed: %s", label, exc)
-                    continue
-                if np.all(np.isfinite(a_fit)) and np.isfinite(cost):
-                    candidates.append(
-                        {"init": label, "start_poles": np.roots(start), "a": a_fit, "cost": cost}
-                    )
-        if not candidates:
-            raise IdentificationError("the output-error refinement failed from every start")
-        candidates.sort(key=lambda c: c["cost"])
-        for cand in candidates[:2]:
-            try:
-                cand["a"], cand["cost"], _ = oe.fit(cand["a"])
-            except (np.linalg.LinAlgError, ValueError) as exc:  # pragma: no cover
-                log.info("finishing the start from %s failed: %s", cand["init"], exc)
-        best = min(candidates[:2], key=lambda c: c["cost"])
-        a_hat = best["a"]
-        log.info("step 1b: best start %s, cost %.6g", best["init"], best["cost"])
+        inits = _subspace_starts(step1, u, Yi, n, a_sub, prefilters, notes)
+        candidates, a_hat = _refine_denominator(oe, inits)
     else:
         a_hat = a_sub
         notes.append("refine=False: the denominator is the subspace estimate; no covariance")
+    return _Denominator(sub, B_sub, step1_info, oe, candidates, a_hat)
 
+
+def _subspace_starts(
+    step1: _Step1,
+    u: np.ndarray,
+    Yi: np.ndarray,
+    n: int,
+    a_sub: np.ndarray,
+    prefilters: tuple[float | None, ...],
+    notes: list[str],
+) -> list[tuple[str, np.ndarray]]:
+    """Step 1b's initial values: the subspace ``A`` on the raw and the low-passed data.
+
+    The same filter on ``u`` and ``y_j`` leaves ``B_j/A`` unchanged (PI-MOESP on
+    coloured noise), so each cutoff gives one more estimate of the same ``A``.
+    """
+    inits = [("raw", a_sub)]
+    for cut in prefilters:
+        if cut is None:
+            continue
+        try:
+            w_lp = "pi" if step1.subspace == "moesp" else step1.weighting
+            # only a starting point: a weak direction in the low-passed data is
+            # expected and harmless here, so its warning becomes a log line
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always", IllConditionedWarning)
+                r = step1(_lowpass(cut, u), _lowpass(cut, Yi), n, w_lp)
+            for w in caught:
+                if issubclass(w.category, IllConditionedWarning):
+                    log.info("start from low-passed data (%g): %s", cut, w.message)
+                else:  # pragma: no cover
+                    warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+            inits.append((f"lowpass {cut:g}", np.real(np.poly(r.model.A))))
+        except IdentificationError as exc:
+            notes.append(f"subspace initialisation on low-passed data ({cut:g}) failed: {exc}")
+    return inits
+
+
+def _refine_denominator(
+    oe: _OE, inits: list[tuple[str, np.ndarray]]
+) -> tuple[list[dict[str, Any]], np.ndarray]:
+    """Step 1b: output-error search for ``A`` from every start; the lowest cost wins.
+
+    Starts are grouped by how many roots lie outside the unit circle (the
+    bilateral cost is discontinuous where a root crosses it, so each group is its
+    own search region); the PER_GROUP starts of lowest cost in each group get a
+    short run, and the two best after it are finished (the wrong basins of this
+    problem are far apart in cost, docs/sun.md).
+    """
+    groups: dict[int, list[tuple[float, str, np.ndarray]]] = {}
+    for label, a0 in inits:
+        for start in _reflections(a0):
+            n_out = int(np.sum(np.abs(np.roots(start)) > 1.0))
+            try:
+                c0 = oe.cost(start)
+            except (np.linalg.LinAlgError, ValueError):
+                continue
+            if np.isfinite(c0):
+                groups.setdefault(n_out, []).append((c0, label, start))
+    candidates: list[dict[str, Any]] = []
+    for members in groups.values():
+        members.sort(key=lambda m: m[0])
+        for _, label, start in members[:PER_GROUP]:
+            try:
+                a_fit, cost, _ = oe.fit(start, max_nfev=SCREEN_NFEV)
+            except (np.linalg.LinAlgError, ValueError) as exc:
+                log.info("output-error start from %s failed: %s", label, exc)
+                continue
+            if np.all(np.isfinite(a_fit)) and np.isfinite(cost):
+                candidates.append(
+                    {"init": label, "start_poles": np.roots(start), "a": a_fit, "cost": cost}
+                )
+    if not candidates:
+        raise IdentificationError("the output-error refinement failed from every start")
+    candidates.sort(key=lambda c: c["cost"])
+    for cand in candidates[:2]:
+        try:
+            cand["a"], cand["cost"], _ = oe.fit(cand["a"])
+        except (np.linalg.LinAlgError, ValueError) as exc:  # pragma: no cover
+            log.info("finishing the start from %s failed: %s", cand["init"], exc)
+    best = min(candidates[:2], key=lambda c: c["cost"])
+    log.info("step 1b: best start %s, cost %.6g", best["init"], best["cost"])
+    return candidates, best["a"]
+
+
+@dataclass(frozen=True)
+class _InterSampleFit:
+    """The inter-samples ``y_j = B_j/A u + h_j + w_j`` given ``A`` (least squares)."""
+
+    n: int
+    theta_oe: np.ndarray  # scaled [B_j; h_j] per column j
+    R_oe: np.ndarray  # scaled residuals (N, p-1)
+    B_ls: np.ndarray  # (p-1, n+1): B_j, j = 1..p-1, in data units
+    sigma_w: float
+    cov_a_B: np.ndarray | None  # joint covariance of [a_1..a_n, B_1, ..., B_{p-1}]
+
+    def B_std_error(self) -> np.ndarray | None:
+        if self.cov_a_B is None:
+            return None
+        return np.sqrt(np.clip(np.diag(self.cov_a_B)[self.n :], 0.0, None)).reshape(
+            self.B_ls.shape
+        )
+
+
+def _intersample_fit(oe: _OE, a_hat: np.ndarray, p: int, refine: bool) -> _InterSampleFit:
+    """``B_j`` by least squares given ``A``; with a refined ``A`` their delta-method covariance."""
+    n = oe.n
     theta_oe, R_oe, _ = oe.inner(a_hat)
     nb = n + 1
     B_ls = theta_oe[:nb].T * (oe.sy / oe.su)  # (p-1, n+1): B_j, j = 1..p-1
@@ -715,9 +868,25 @@ def fit_intersample(
         cov_a_B = cov_full[np.ix_(keep, keep)]
         scale = np.r_[np.ones(n), np.full(q * nb, oe.sy / oe.su)]
         cov_a_B = cov_a_B * np.outer(scale, scale)
+    return _InterSampleFit(n, theta_oe, R_oe, B_ls, sigma_w_inter, cov_a_B)
 
-    # ---------------------------------------------------------------- step 2
-    y0 = Y[:, 0]
+
+def _numerator_variants(
+    a_hat: np.ndarray,
+    B_ls: np.ndarray,
+    B_sub: np.ndarray,
+    u: np.ndarray,
+    y0: np.ndarray,
+    n: int,
+    dt: float,
+    numerator: str,
+    notes: list[str],
+) -> dict[str, Any]:
+    """Every numerator of ``y_0``: eq. (15) with both ``B_j`` sources, and Step 2's two IVs.
+
+    The chosen one must succeed; the others are kept in ``extras`` where they can
+    be computed, with a note where not.
+    """
     variants: dict[str, Any] = {}
     try:
         lam = zoh_unit_numerator(a_hat, dt)
@@ -732,51 +901,76 @@ def fit_intersample(
         notes.append(f"eq. (15) not available: {exc}")
     for kind in ("iv", "iv-delayed"):
         try:
-            variants[kind] = _iv_numerator(a_hat, u, y0, n, kind)
+            variants[kind] = _iv_numerator(a_hat, u, y0, n, kind)  # eq. (13)
         except (IdentificationError, np.linalg.LinAlgError) as exc:
             if numerator == kind:
                 raise IdentificationError(f"step 2 ({kind}): {exc}") from exc
             notes.append(f"step 2 ({kind}) not available: {exc}")
+    return variants
 
-    if numerator == "physical":
-        key = "physical-ls" if gain_from == "ls" else "physical-subspace"
-        b_hat = variants[key]["b"]
-    else:
-        b_hat = variants[numerator]["b"]
 
-    # ------------------------------------------------------------ covariance
-    theta = np.r_[a_hat[1:], b_hat]
-    cov_theta: np.ndarray | None = None
-    if cov_a_B is not None:
-        if numerator == "physical" and gain_from == "ls":
+def _theta_covariance(
+    inter: _InterSampleFit,
+    a_hat: np.ndarray,
+    u: np.ndarray,
+    y0: np.ndarray,
+    n: int,
+    p: int,
+    dt: float,
+    numerator: str,
+    gain_from: str,
+    variants: Mapping[str, Any],
+    notes: list[str],
+) -> np.ndarray | None:
+    """Covariance of ``[a_1..a_n, b_1..b_n]``: the OE covariance of ``A`` carried through.
 
-            def ab_of(x: np.ndarray) -> np.ndarray:
-                a_ = np.r_[1.0, x[:n]]
-                Bs = x[n:].reshape(p - 1, nb)
-                lam_ = zoh_unit_numerator(a_, dt)
-                return np.r_[x[:n], np.mean(Bs.sum(axis=1)) / lam_.sum() * lam_]
+    Eq. (15) with least-squares ``B_j``: the delta method on ``(a, B_j) -> (a, b)``.
+    IV (Section 4.4): the IV covariance given ``A`` plus the propagated uncertainty
+    of ``A`` (independent: ``A`` comes from ``w_j``, ``j >= 1``, the IV noise from ``w_0``).
+    """
+    cov_a_B = inter.cov_a_B
+    if cov_a_B is None:
+        return None
+    nb = n + 1
+    if numerator == "physical" and gain_from == "ls":
 
-            x0 = np.r_[a_hat[1:], B_ls.ravel()]
-            _, cov_theta = propagate_covariance(ab_of, x0, cov_a_B)
-        elif numerator in ("iv", "iv-delayed"):
-            cov_a = cov_a_B[:n, :n]
+        def ab_of(x: np.ndarray) -> np.ndarray:
+            a_ = np.r_[1.0, x[:n]]
+            Bs = x[n:].reshape(p - 1, nb)
+            lam_ = zoh_unit_numerator(a_, dt)
+            return np.r_[x[:n], np.mean(Bs.sum(axis=1)) / lam_.sum() * lam_]  # eq. (15)
 
-            def b_of_a(x: np.ndarray) -> np.ndarray:
-                return _iv_numerator(np.r_[1.0, x], u, y0, n, numerator)["b"]
+        x0 = np.r_[a_hat[1:], inter.B_ls.ravel()]
+        _, cov_theta = propagate_covariance(ab_of, x0, cov_a_B)
+        return cov_theta
+    if numerator in ("iv", "iv-delayed"):
+        cov_a = cov_a_B[:n, :n]
 
-            Ja = _jacobian(b_of_a, a_hat[1:], cov_a)
-            cov_theta = np.block(
-                [
-                    [cov_a, cov_a @ Ja.T],
-                    [Ja @ cov_a, variants[numerator]["cov"] + Ja @ cov_a @ Ja.T],
-                ]
-            )
-        else:
-            notes.append(
-                "gain_from='subspace': the subspace B_j have no covariance; none is reported"
-            )
+        def b_of_a(x: np.ndarray) -> np.ndarray:
+            return _iv_numerator(np.r_[1.0, x], u, y0, n, numerator)["b"]
 
-    # ------------------------------------------------------ derived parameters
+        Ja = _jacobian(b_of_a, a_hat[1:], cov_a)
+        return np.block(
+            [
+                [cov_a, cov_a @ Ja.T],
+                [Ja @ cov_a, variants[numerator]["cov"] + Ja @ cov_a @ Ja.T],
+            ]
+        )
+    notes.append("gain_from='subspace': the subspace B_j have no covariance; none is reported")
+    return None
+
+
+def _parameter_map(
+    data: ClosedLoopData,
+    theta: np.ndarray,
+    n: int,
+    dt: float,
+    mass: float | None,
+    g: float,
+    resistance: float | None,
+    notes: list[str],
+) -> tuple[list[str], Any]:
+    """Names and the map ``[a, b] -> [a, b, pole_z, pole_rad_s, (eq. (27) physical)]``."""
     names = [f"a{k}" for k in range(1, n + 1)] + [f"b{k}" for k in range(1, n + 1)]
     Y_op = None
     op = data.loop.get("operating_point", {}) if hasattr(data.loop, "get") else {}
@@ -813,78 +1007,76 @@ def fit_intersample(
                 out.append(ph["gap"] - Y_op)
         return np.array(out, dtype=float)
 
+    return names + derived_names, all_params
+
+
+def _parameters(
+    data: ClosedLoopData,
+    theta: np.ndarray,
+    cov_theta: np.ndarray | None,
+    n: int,
+    dt: float,
+    mass: float | None,
+    g: float,
+    resistance: float | None,
+    notes: list[str],
+) -> tuple[dict[str, float], np.ndarray | None]:
+    """The reported parameters and their covariance (delta method, :func:`_parameter_map`)."""
+    names, all_params = _parameter_map(data, theta, n, dt, mass, g, resistance, notes)
     if cov_theta is not None:
         values, cov = propagate_covariance(all_params, theta, cov_theta)
         cov = 0.5 * (cov + cov.T)  # J C J^T is symmetric up to rounding
     else:
         values, cov = all_params(theta), None
-    parameters = dict(zip(names + derived_names, values.tolist()))
+    parameters = dict(zip(names, values.tolist()))
     if parameters["pole_z"] <= 1.0:
         notes.append(
             f"no unstable real pole in the estimate (largest {parameters['pole_z']:.4g}); "
             "reported as is, never reflected"
         )
+    return parameters, cov
 
-    # ---------------------------------------------------------------- models
-    a_full = np.r_[1.0, theta[:n]]
-    b_full = np.r_[0.0, theta[n:]]
-    model = simo_polynomials_to_state_space(a_full, [b_full], dt, output_names=("y",))
-    simo = simo_polynomials_to_state_space(
-        a_full, [b_full, *B_ls], dt, output_names=tuple(f"y{j}" for j in range(p))
-    )
-    continuous = continuous_or_note(model, notes)
 
-    rel = np.sqrt(np.sum(R_oe**2) * oe.sy**2 / (Yi.size * float(np.var(Yi))))
-    fit = {"intersample_fit_percent": 100.0 * (1.0 - float(rel)), "sigma_w": sigma_w_inter}
+def _fit_metrics(
+    inter: _InterSampleFit, oe: _OE, Yi: np.ndarray, numerator: str, variants: Mapping[str, Any]
+) -> dict[str, float]:
+    """Fit of the inter-samples ``j >= 1`` in percent, ``sigma_w``; the IV's ``sigma_w0``."""
+    rel = np.sqrt(np.sum(inter.R_oe**2) * oe.sy**2 / (Yi.size * float(np.var(Yi))))
+    fit = {"intersample_fit_percent": 100.0 * (1.0 - float(rel)), "sigma_w": inter.sigma_w}
     if numerator in ("iv", "iv-delayed"):
         fit["sigma_w0_iv"] = variants[numerator]["sigma_w"]
+    return fit
 
-    options = {
-        "order": order,
-        "subspace": subspace,
-        "horizon": horizon,
-        "weighting": weighting,
-        "refine": refine,
-        "prefilters": list(prefilters),
-        "numerator": numerator,
-        "gain_from": gain_from,
-        "output": output,
-        "mass": mass,
-        "resistance": resistance,
-        "gravity": g,
-        "p": p,
-    }
-    extras = {
+
+def _extras(
+    a_full: np.ndarray,
+    b_full: np.ndarray,
+    inter: _InterSampleFit,
+    dt: float,
+    p: int,
+    step1_info: dict[str, Any],
+    candidates: list[dict[str, Any]],
+    variants: dict[str, Any],
+) -> dict[str, Any]:
+    """Every step's estimate, and the SIMO model ``[B_0, B_1, ..., B_{p-1}]/A``."""
+    simo = simo_polynomials_to_state_space(
+        a_full, [b_full, *inter.B_ls], dt, output_names=tuple(f"y{j}" for j in range(p))
+    )
+    return {
         "step1": step1_info,
         "step1b_candidates": candidates,
         "a": a_full,
         "b": b_full,
-        "B_intersample": B_ls,
+        "B_intersample": inter.B_ls,
         # Standard errors of the B_j coefficients (delta method, OE Jacobian); None
         # without refinement.
-        "B_intersample_std_error": None
-        if cov_a_B is None
-        else np.sqrt(np.clip(np.diag(cov_a_B)[n:], 0.0, None)).reshape(B_ls.shape),
+        "B_intersample_std_error": inter.B_std_error(),
         "simo_model": simo,
         "numerator_variants": variants,
         "poles": np.roots(a_full),
         "continuous_poles": np.log(np.roots(a_full).astype(complex)) / dt,
         "stable_unstable": split_stable_unstable(a_full),
     }
-    return IdentificationResult(
-        method="intersample",
-        model=model,
-        parameters=parameters,
-        covariance=cov,
-        n_samples=N,
-        options=options,
-        residuals=R_oe * oe.sy,
-        fit=fit,
-        singular_values=sub.singular_values,
-        notes=tuple(notes),
-        continuous_model=continuous,
-        extras=extras,
-    )
 
 
 def _jacobian(f: Any, x: np.ndarray, cov: np.ndarray) -> np.ndarray:
