@@ -239,65 +239,22 @@ def amb_result(
     notes = list(notes) + list(fit.notes)
     theta = fit.coefficients.ravel()
     cov_theta = fit.covariance
-
-    def identity(Ac: np.ndarray, Bc: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        return Ac, Bc, np.eye(Ac.shape[0])
-
-    to_phys = identity if to_physical is None else to_physical
+    to_phys = _identity_coordinates if to_physical is None else to_physical
     Ad, Bd = to_discrete(theta)
-    try:
-        sc = undiscretize(StateSpace(Ad, Bd, np.eye(Ad.shape[0]), dt=dt))  # eq. (8)
-    except ModelError as exc:
-        raise IdentificationError(
-            f"{method}: the identified discrete model has no real continuous counterpart "
-            f"({exc}); the estimate is unusable (too little excitation, too much noise, or "
-            "a loop that does not match the method's assumptions)"
-        ) from exc
+    sc = _undiscretize(method, Ad, Bd, dt)  # eq. (8)
     Ac, Bc, T = to_phys(sc.A, sc.B)
     v, structure = v_from_matrices(Ac, Bc)  # eq. (4)
-    op_m, op_i0 = operating_point(loop)
-    m = op_m if m is None else m
-    i0 = op_i0 if i0 is None else i0
-    if m is not None and i0 is not None:
-        names = list(V_NAMES) + list(PHYSICAL_NAMES)
-
-        def derived(vv: np.ndarray) -> np.ndarray:
-            p = parameters_from_v(vv, m=m, i0=i0)
-            return np.array([p[k] for k in PHYSICAL_NAMES])
-
-    else:
-        names = list(V_NAMES) + list(RATIO_NAMES)
-        notes.append(
-            "mass m or bias current i0 unknown (loop['operating_point']): physical "
-            "parameters need them; reporting v1..v9 and scale-free ratios only"
-        )
-
-        def derived(vv: np.ndarray) -> np.ndarray:
-            return np.array(list(ratios_from_v(vv).values()))
-
+    names, derived = _derived_parameters(loop, m, i0, notes)
     n = Bd.shape[0]
 
     def post(X: np.ndarray) -> np.ndarray:
+        # X = ln(M) = [[A_c, B_c], [0, 0]] dt -> physical coordinates -> v (eq. (4)) -> derived
         Aci, Bci, _ = to_phys(X[:n, :n] / dt, X[:n, n:] / dt)
         vv, _ = v_from_matrices(Aci, Bci)
         return np.concatenate([vv, derived(vv)])
 
     values = np.concatenate([v, derived(v)])
-    # Delta method: J = d post / d theta = post'(X0) [L_log(M0, dM/dtheta)].
-    M0 = _augmented(Ad, Bd)
-    X0 = np.zeros_like(M0)
-    X0[:n, :n] = sc.A * dt
-    X0[:n, n:] = sc.B * dt
-    dlog = _log_derivative(M0)
-    h = _steps(theta, cov_theta)
-    J = np.empty((values.size, theta.size))
-    for i in range(theta.size):
-        tp, tm = theta.copy(), theta.copy()
-        tp[i] += h[i]
-        tm[i] -= h[i]
-        dM = (_augmented(*to_discrete(tp)) - _augmented(*to_discrete(tm))) / (2 * h[i])
-        dX = dlog(dM)
-        J[:, i] = (post(X0 + h[i] * dX) - post(X0 - h[i] * dX)) / (2 * h[i])
+    J = _delta_jacobian(to_discrete, post, theta, cov_theta, Ad, Bd, sc, dt, values.size)
     cov = J @ cov_theta @ J.T
     cov = 0.5 * (cov + cov.T)
     A_phys = T @ np.linalg.solve(T.T, Ad.T).T  # T Ad T^-1
@@ -310,21 +267,7 @@ def amb_result(
         input_names=INPUT_NAMES,
         output_names=OUTPUT_NAMES,
     )
-    if one_step_fit is not None:
-        osf = np.asarray(one_step_fit, dtype=float)
-    elif Y is None or fit.residuals is None:
-        raise ValueError("amb_result needs Y and the residuals, or one_step_fit")
-    else:
-        osf = _one_step_fit(Y, fit.residuals)
-    fitd = {f"one_step_fit_percent_{nm}": float(f) for nm, f in zip(lhs_names, osf)}
-    fitd["one_step_fit_percent_min"] = float(np.nanmin(osf))
-    fitd["structure_residual"] = float(structure)
-    fitd["regression_condition"] = fit.condition_number
-    if structure > 1e-3:
-        notes.append(
-            f"the continuous model departs from the structure of eq. (4) by {structure:.3g} "
-            "(relative): elements that should be 0 are not; v1..v9 are read off anyway"
-        )
+    fitd = _fit_metrics(fit, Y, lhs_names, one_step_fit, structure, notes)
     ex = {
         "coefficients": fit.coefficients,
         "coefficient_std_errors": fit.std_errors,
@@ -356,6 +299,111 @@ def amb_result(
         notes=tuple(notes),
         extras=ex,
     )
+
+
+def _identity_coordinates(
+    Ac: np.ndarray, Bc: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    return Ac, Bc, np.eye(Ac.shape[0])
+
+
+def _undiscretize(method: str, Ad: np.ndarray, Bd: np.ndarray, dt: float) -> StateSpace:
+    """The continuous model of eq. (8), or an IdentificationError saying why there is none."""
+    try:
+        return undiscretize(StateSpace(Ad, Bd, np.eye(Ad.shape[0]), dt=dt))  # eq. (8)
+    except ModelError as exc:
+        raise IdentificationError(
+            f"{method}: the identified discrete model has no real continuous counterpart "
+            f"({exc}); the estimate is unusable (too little excitation, too much noise, or "
+            "a loop that does not match the method's assumptions)"
+        ) from exc
+
+
+def _derived_parameters(
+    loop: Mapping[str, Any], m: float | None, i0: float | None, notes: list[str]
+) -> tuple[list[str], Callable[[np.ndarray], np.ndarray]]:
+    """Names and map ``v -> derived``: physical parameters given ``m`` and ``i0``, else ratios."""
+    op_m, op_i0 = operating_point(loop)
+    m = op_m if m is None else m
+    i0 = op_i0 if i0 is None else i0
+    if m is not None and i0 is not None:
+        mass, bias = m, i0
+
+        def physical(vv: np.ndarray) -> np.ndarray:
+            p = parameters_from_v(vv, m=mass, i0=bias)
+            return np.array([p[k] for k in PHYSICAL_NAMES])
+
+        return list(V_NAMES) + list(PHYSICAL_NAMES), physical
+    notes.append(
+        "mass m or bias current i0 unknown (loop['operating_point']): physical "
+        "parameters need them; reporting v1..v9 and scale-free ratios only"
+    )
+
+    def ratios(vv: np.ndarray) -> np.ndarray:
+        return np.array(list(ratios_from_v(vv).values()))
+
+    return list(V_NAMES) + list(RATIO_NAMES), ratios
+
+
+def _delta_jacobian(
+    to_discrete: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
+    post: Callable[[np.ndarray], np.ndarray],
+    theta: np.ndarray,
+    cov_theta: np.ndarray,
+    Ad: np.ndarray,
+    Bd: np.ndarray,
+    sc: StateSpace,
+    dt: float,
+    n_values: int,
+) -> np.ndarray:
+    """Delta method: ``J = d post / d theta = post'(X0) [L_log(M0, dM/dtheta)]``.
+
+    ``M = [[Ad, Bd], [0, I]]``, ``X = ln(M)`` (eq. (8)); central differences for
+    the cheap steps, the exact Fréchet derivative of the logarithm in between.
+    """
+    n = Bd.shape[0]
+    M0 = _augmented(Ad, Bd)
+    X0 = np.zeros_like(M0)
+    X0[:n, :n] = sc.A * dt
+    X0[:n, n:] = sc.B * dt
+    dlog = _log_derivative(M0)
+    h = _steps(theta, cov_theta)
+    J = np.empty((n_values, theta.size))
+    for i in range(theta.size):
+        tp, tm = theta.copy(), theta.copy()
+        tp[i] += h[i]
+        tm[i] -= h[i]
+        dM = (_augmented(*to_discrete(tp)) - _augmented(*to_discrete(tm))) / (2 * h[i])
+        dX = dlog(dM)
+        J[:, i] = (post(X0 + h[i] * dX) - post(X0 - h[i] * dX)) / (2 * h[i])
+    return J
+
+
+def _fit_metrics(
+    fit: LinearFit,
+    Y: np.ndarray | None,
+    lhs_names: Sequence[str],
+    one_step_fit: np.ndarray | None,
+    structure: float,
+    notes: list[str],
+) -> dict[str, Any]:
+    """One-step fit per left-hand side, the eq. (4) structure residual, the condition number."""
+    if one_step_fit is not None:
+        osf = np.asarray(one_step_fit, dtype=float)
+    elif Y is None or fit.residuals is None:
+        raise ValueError("amb_result needs Y and the residuals, or one_step_fit")
+    else:
+        osf = _one_step_fit(Y, fit.residuals)
+    fitd = {f"one_step_fit_percent_{nm}": float(f) for nm, f in zip(lhs_names, osf)}
+    fitd["one_step_fit_percent_min"] = float(np.nanmin(osf))
+    fitd["structure_residual"] = float(structure)
+    fitd["regression_condition"] = fit.condition_number
+    if structure > 1e-3:
+        notes.append(
+            f"the continuous model departs from the structure of eq. (4) by {structure:.3g} "
+            "(relative): elements that should be 0 are not; v1..v9 are read off anyway"
+        )
+    return fitd
 
 
 # ---------------------------------------------------------------- DC levels

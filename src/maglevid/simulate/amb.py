@@ -538,6 +538,62 @@ def simulate_amb_loop(
     >>> d.y.shape, d.u.shape, d.loop["observer"]["type"]
     ((500, 3), (500, 2), 'deadbeat')
     """
+    nominal, dt, n_samples, substeps = _check_arguments(
+        plant, nominal, dt, n_samples, plant_model, excitation, substeps
+    )
+    noise = _noise_std(noise_std)
+    fstd = _force_std(force_std, plant_model)
+    gen, seed = _make_rng(rng)
+    controller, observer = _controller_observer(
+        plant, nominal, dt, controller, observer, observer_model
+    )
+    cond = _loop_condition(observer, controller)
+
+    r = make_excitation(n_samples, 2, std=excitation_std, kind=excitation, rng=gen)  # eq. (16)
+    # Noise drawn after the excitation, so r does not depend on noise_std.
+    v = gen.standard_normal((n_samples, 3)) * noise if np.any(noise) else np.zeros((n_samples, 3))
+    force = gen.standard_normal(n_samples) * fstd if fstd > 0 else None  # after the noise
+
+    meta: dict[str, Any] = {
+        "simulated": True,
+        "truth": plant.to_dict(),
+        "truth_v": plant.v().tolist(),
+        "seed": seed,
+        "plant_model": plant_model,
+        "excitation": {"kind": excitation, "std": np.broadcast_to(excitation_std, (2,)).tolist()},
+        "noise_std": noise.tolist(),
+        "force_std": fstd,
+        "observer_model": observer_model,
+    }
+    if plant_model == "linear":
+        y, u_f, u = _run_linear(plant, nominal, controller, observer, dt, r, v, kernel, meta)
+    else:
+        y, u_f, u = _run_nonlinear(
+            plant, nominal, controller, observer, dt, r, v, force, substeps, progress, meta
+        )
+    return ClosedLoopData(
+        y=y,
+        dt=dt,
+        u=u,
+        r=r,
+        u_f=u_f,
+        names={"y": OUTPUT_NAMES, "u": INPUT_NAMES, "r": ("r1", "r2"), "u_f": ("uf1", "uf2")},
+        units={"y": ("m", "A", "A"), "u": ("V", "V"), "r": ("V", "V"), "u_f": ("V", "V")},
+        loop=_loop_record(controller, observer, nominal, dt, cond),
+        metadata=meta,
+    )
+
+
+def _check_arguments(
+    plant: Any,
+    nominal: Any,
+    dt: Any,
+    n_samples: Any,
+    plant_model: str,
+    excitation: str,
+    substeps: Any,
+) -> tuple[AMBParameters, float, int, int]:
+    """The bearings, ``dt``, ``N``, the plant and excitation kinds, RK4 substeps."""
     if not isinstance(plant, AMBParameters):
         raise DataError(f"`plant` must be AMBParameters; got {type(plant).__name__}")
     nominal = plant if nominal is None else nominal
@@ -553,11 +609,18 @@ def simulate_amb_loop(
         raise DataError(f"`excitation` must be one of {EXCITATION_KINDS}; got {excitation!r}")
     if isinstance(substeps, bool) or int(substeps) != substeps or substeps < 1:
         raise DataError(f"`substeps` must be an integer >= 1; got {substeps!r}")
-    substeps = int(substeps)
-    noise = _noise_std(noise_std)
-    fstd = _force_std(force_std, plant_model)
-    gen, seed = _make_rng(rng)
+    return nominal, dt, n_samples, int(substeps)
 
+
+def _controller_observer(
+    plant: AMBParameters,
+    nominal: AMBParameters,
+    dt: float,
+    controller: IntegralStateFeedback | None,
+    observer: Observer | None,
+    observer_model: str,
+) -> tuple[IntegralStateFeedback, Observer]:
+    """Control law eq. (42) and observer eq. (43), designed on ``nominal`` by default."""
     if controller is None:
         controller = default_amb_controller(nominal, dt)
     if observer is None:
@@ -579,6 +642,11 @@ def simulate_amb_loop(
             f"controller has F {controller.F.shape}, E {controller.E.shape}; the bearing needs "
             f"F (2, {observer.nx}) and E (ne, 3)"
         )
+    return controller, observer
+
+
+def _loop_condition(observer: Observer, controller: IntegralStateFeedback) -> float:
+    """Condition of ``[[C, 0], [-F, Fe]]`` (eqs. (44)-(51) invert it); a warning when bad."""
     cond = (
         loop_matrix_condition(observer.C, controller.F, controller.Fe)
         if (3 + 2 == observer.nx + controller.ne)
@@ -590,59 +658,83 @@ def simulate_amb_loop(
             "recording cannot be used for the identification of eqs. (44)-(51)",
             cond,
         )
+    return cond
 
-    r = make_excitation(n_samples, 2, std=excitation_std, kind=excitation, rng=gen)  # eq. (16)
-    # Noise drawn after the excitation, so r does not depend on noise_std.
-    v = gen.standard_normal((n_samples, 3)) * noise if np.any(noise) else np.zeros((n_samples, 3))
-    force = gen.standard_normal(n_samples) * fstd if fstd > 0 else None  # after the noise
 
-    meta: dict[str, Any] = {
-        "simulated": True,
-        "truth": plant.to_dict(),
-        "truth_v": plant.v().tolist(),
-        "seed": seed,
-        "plant_model": plant_model,
-        "excitation": {"kind": excitation, "std": np.broadcast_to(excitation_std, (2,)).tolist()},
-        "noise_std": noise.tolist(),
-        "force_std": fstd,
-        "observer_model": observer_model,
+def _run_linear(
+    plant: AMBParameters,
+    nominal: AMBParameters,
+    controller: IntegralStateFeedback,
+    observer: Observer,
+    dt: float,
+    r: np.ndarray,
+    v: np.ndarray,
+    kernel: str,
+    meta: dict[str, Any],
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The linear plant of eqs. (3)-(7) in the loop; ``meta`` gets its operating point."""
+    sig = simulate_linear_loop(
+        amb_state_space(plant, dt), observer, controller, r=r, noise=v, kernel=kernel
+    )
+    # the linear plant runs at the nominal point x = 0, i = i0 of the real bearing
+    meta["operating_point_true"] = _linear_operating_point(plant, nominal, controller, observer)
+    meta["initial_state"] = {
+        "x_hat": np.asarray(sig.x_hat0).tolist(),
+        "e": np.asarray(sig.e0).tolist(),
     }
-    if plant_model == "linear":
-        sig = simulate_linear_loop(
-            amb_state_space(plant, dt), observer, controller, r=r, noise=v, kernel=kernel
-        )
-        y, u_f, u = sig.y, sig.u_f, sig.u
-        x_hat0, e0 = sig.x_hat0, sig.e0
-        # the linear plant runs at the nominal point x = 0, i = i0 of the real bearing
-        meta["operating_point_true"] = _linear_operating_point(
-            plant, nominal, controller, observer
-        )
-    else:
-        eq = nonlinear_equilibrium(plant, nominal, observer, controller)
-        _check_settled_loop(eq, observer, controller, dt)
-        y, u_f = _simulate_nonlinear(
-            plant,
-            nominal,
-            observer,
-            controller,
-            dt=dt,
-            r=r,
-            v=v,
-            substeps=substeps,
-            eq=eq,
-            progress=progress,
-            force=force,
-        )
-        u = u_f + r
-        x_hat0, e0 = eq["x_hat"], eq["e"]
-        meta["substeps"] = substeps
-        meta["operating_point_true"] = {
-            k: (np.asarray(val).tolist() if isinstance(val, np.ndarray) else val)
-            for k, val in eq.items()
-        }
-    meta["initial_state"] = {"x_hat": np.asarray(x_hat0).tolist(), "e": np.asarray(e0).tolist()}
+    return sig.y, sig.u_f, sig.u
 
-    loop = {
+
+def _run_nonlinear(
+    plant: AMBParameters,
+    nominal: AMBParameters,
+    controller: IntegralStateFeedback,
+    observer: Observer,
+    dt: float,
+    r: np.ndarray,
+    v: np.ndarray,
+    force: np.ndarray | None,
+    substeps: int,
+    progress: Callable[[Iterable[int]], Iterable[int]] | None,
+    meta: dict[str, Any],
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The bearing of eq. (1) from the point it settles at under the nominal bias voltages."""
+    eq = nonlinear_equilibrium(plant, nominal, observer, controller)
+    _check_settled_loop(eq, observer, controller, dt)
+    y, u_f = _simulate_nonlinear(
+        plant,
+        nominal,
+        observer,
+        controller,
+        dt=dt,
+        r=r,
+        v=v,
+        substeps=substeps,
+        eq=eq,
+        progress=progress,
+        force=force,
+    )
+    meta["substeps"] = substeps
+    meta["operating_point_true"] = {
+        k: (np.asarray(val).tolist() if isinstance(val, np.ndarray) else val)
+        for k, val in eq.items()
+    }
+    meta["initial_state"] = {
+        "x_hat": np.asarray(eq["x_hat"]).tolist(),
+        "e": np.asarray(eq["e"]).tolist(),
+    }
+    return y, u_f, u_f + r
+
+
+def _loop_record(
+    controller: IntegralStateFeedback,
+    observer: Observer,
+    nominal: AMBParameters,
+    dt: float,
+    cond: float,
+) -> dict[str, Any]:
+    """``data.loop``: what the identification methods may know about the loop."""
+    return {
         "controller": controller.to_dict(),
         "observer": observer.to_dict(),
         "C": C_AMB.tolist(),
@@ -656,17 +748,6 @@ def simulate_amb_loop(
         "dt_design": dt,
         "loop_matrix_condition": cond if math.isfinite(cond) else None,
     }
-    return ClosedLoopData(
-        y=y,
-        dt=dt,
-        u=u,
-        r=r,
-        u_f=u_f,
-        names={"y": OUTPUT_NAMES, "u": INPUT_NAMES, "r": ("r1", "r2"), "u_f": ("uf1", "uf2")},
-        units={"y": ("m", "A", "A"), "u": ("V", "V"), "r": ("V", "V"), "u_f": ("V", "V")},
-        loop=loop,
-        metadata=meta,
-    )
 
 
 # ---------------------------------------------------------------------------
