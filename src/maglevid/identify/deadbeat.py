@@ -426,36 +426,17 @@ def fit_deadbeat(
             f"the recording has {y.shape[1]} outputs and {u.shape[1]} inputs; the loop's C "
             f"and F expect {ny} and {nu}"
         )
-    P = loop_output_matrix(C, F, Fe)
+    P = loop_output_matrix(C, F, Fe)  # [Cbar Ctilde] of eq. (45)
     N = y.shape[0]
-    start = int(skip)
-    used_instruments = None
+    used_instruments, start = _instrument_plan(data, estimator, instruments, skip, instrument_lags)
     notes: list[str] = []
-    if estimator == "iv":
-        if data.r is None:
-            raise DataError("estimator='iv' needs the excitation r in the recording")
-        kind = instruments
-        if kind == "auto":
-            kind = "loop" if isinstance(data.loop.get("observer"), Mapping) else "lags"
-        used_instruments = kind
-        if kind == "lags":
-            start = max(start, int(instrument_lags))
     if N - 1 - start <= 3 * (ny + 2 * nu):
         raise DataError(
             f"the recording has {N} samples; the deadbeat ARX needs well over "
             f"{start + 1 + 3 * (ny + 2 * nu)} (skip={skip})"
         )
-    lhs, phi = deadbeat_regression_blocks(y, u, u_f, E=E, Fe=Fe, start=start)
-    Z = None
-    if used_instruments == "loop":
-        r = np.asarray(data.r)
-        sim = simulate_loop_signals(data.loop, r - r[0], dt=data.dt)  # offset-free (physical.py)
-        Z = [sim[k][start : N - 1] for k in ("y", "u_f", "u")]
-    elif used_instruments == "lags":
-        r = np.asarray(data.r)
-        Z = [
-            r[start - j : N - 1 - j] for j in range(int(instrument_lags) + 1)
-        ]  # lagged_excitation
+    lhs, phi = deadbeat_regression_blocks(y, u, u_f, E=E, Fe=Fe, start=start)  # eq. (47)
+    Z = _instrument_blocks(data, used_instruments, start, instrument_lags)
     names_y = data.channel_names("y")
     names_u = data.channel_names("u")
     labels = (
@@ -469,12 +450,85 @@ def fit_deadbeat(
     )
 
     def to_discrete(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return plant_from_observer_controller(theta, P, nx=nx, ny=ny, nu=nu)
+        return plant_from_observer_controller(theta, P, nx=nx, ny=ny, nu=nu)  # eqs. (49)-(51)
 
+    paper = _paper_form(fit, P, mats, (y, u_f), notes)
+    options = {
+        "estimator": estimator,
+        "instruments": used_instruments,
+        "skip": int(skip),
+        "instrument_lags": int(instrument_lags),
+        "covariance": covariance,
+        "hac_lags": int(hac_lags),
+        "m": m,
+        "i0": i0,
+    }
+    res = amb_result(
+        method="deadbeat-iv" if estimator == "iv" else "deadbeat-arx",
+        to_discrete=to_discrete,
+        fit=fit,
+        Y=lhs,
+        lhs_names=[*names_y, *(f"u_f{i + 1}" for i in range(nu))],
+        dt=data.dt,
+        loop=data.loop,
+        n_samples=lhs.shape[0],
+        options=options,
+        notes=notes,
+        extras=paper,
+        m=m,
+        i0=i0,
+    )
+    dc = DCLevels(data.dt, y.shape[1], u.shape[1])
+    dc.update(y, u)
+    return with_dc_levels(res, dc, data.loop)
+
+
+def _instrument_plan(
+    data: ClosedLoopData, estimator: str, instruments: str, skip: int, instrument_lags: int
+) -> tuple[str | None, int]:
+    """The instruments used (None for least squares) and the first row of the regression."""
+    start = int(skip)
+    if estimator != "iv":
+        return None, start
+    if data.r is None:
+        raise DataError("estimator='iv' needs the excitation r in the recording")
+    kind = instruments
+    if kind == "auto":
+        kind = "loop" if isinstance(data.loop.get("observer"), Mapping) else "lags"
+    if kind == "lags":
+        start = max(start, int(instrument_lags))
+    return kind, start
+
+
+def _instrument_blocks(
+    data: ClosedLoopData, kind: str | None, start: int, instrument_lags: int
+) -> list[np.ndarray] | None:
+    """Instruments for rows ``k = start .. N-2``: the loop's response to ``r``, or lagged ``r``."""
+    if kind is None:
+        return None
+    r = np.asarray(data.r)
+    N = r.shape[0]
+    if kind == "loop":
+        sim = simulate_loop_signals(data.loop, r - r[0], dt=data.dt)  # offset-free (physical.py)
+        return [sim[k][start : N - 1] for k in ("y", "u_f", "u")]
+    return [r[start - j : N - 1 - j] for j in range(int(instrument_lags) + 1)]  # lagged_excitation
+
+
+def _paper_form(
+    fit: Any,
+    P: np.ndarray,
+    mats: Mapping[str, np.ndarray],
+    signals: tuple[np.ndarray, np.ndarray],
+    notes: list[str],
+) -> dict[str, Any]:
+    """The paper's ``a1, b0, b1, L, M`` (eqs. (47)-(49)) and how well the loop structure holds."""
+    C, Fe, E = mats["C"], mats["Fe"], mats["E"]
+    ny, nx = C.shape
+    nu = mats["F"].shape[0]
     Gd_split = mats.get("G", np.zeros((nx, ny)))
     paper = observer_controller_arx(fit.coefficients, P, Gd_split, C=C, nu=nu)
     L, M = paper["L"], paper["M"]
-    struct = _integrator_block_residual(L, P, (y, u_f), nx=nx)
+    struct = _integrator_block_residual(L, P, signals, nx=nx)
     b0 = np.zeros((ny + nu, nu + ny))
     b0[ny:, nu:] = -Fe @ E  # eq. (48): b0 v(k+1) = [0; -Fe E y(k+1)]
     notes.append(
@@ -489,44 +543,16 @@ def fit_deadbeat(
             "observer/controller ARX is not exact on these data (noise, or an observer whose "
             "model is not the running plant); consider estimator='iv' or method 'physical'"
         )
-    method = "deadbeat-iv" if estimator == "iv" else "deadbeat-arx"
-    options = {
-        "estimator": estimator,
-        "instruments": used_instruments,
-        "skip": int(skip),
-        "instrument_lags": int(instrument_lags),
-        "covariance": covariance,
-        "hac_lags": int(hac_lags),
-        "m": m,
-        "i0": i0,
+    return {
+        "P": P,
+        "a1": paper["a1"],
+        "b0": b0,
+        "b1": paper["b1"],
+        "L": L,
+        "M": M,
+        "Gd_split": Gd_split,
+        "loop_structure_residual": struct,
     }
-    res = amb_result(
-        method=method,
-        to_discrete=to_discrete,
-        fit=fit,
-        Y=lhs,
-        lhs_names=[*names_y, *(f"u_f{i + 1}" for i in range(nu))],
-        dt=data.dt,
-        loop=data.loop,
-        n_samples=lhs.shape[0],
-        options=options,
-        notes=notes,
-        extras={
-            "P": P,
-            "a1": paper["a1"],
-            "b0": b0,
-            "b1": paper["b1"],
-            "L": L,
-            "M": M,
-            "Gd_split": Gd_split,
-            "loop_structure_residual": struct,
-        },
-        m=m,
-        i0=i0,
-    )
-    dc = DCLevels(data.dt, y.shape[1], u.shape[1])
-    dc.update(y, u)
-    return with_dc_levels(res, dc, data.loop)
 
 
 def fit_deadbeat_arx(data: ClosedLoopData, **options: Any) -> IdentificationResult:

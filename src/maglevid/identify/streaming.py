@@ -285,78 +285,27 @@ def fit_physical_streamed(
     True
     """
     opener = _opener(source, chunk_size)
-    first = True
-    plan: dict[str, Any] = {}
-    acc: RegressionAccumulator | None = None
-    rows: _PhysicalRows | None = None
-    system: StateSpace | None = None
-    dt = 0.0
-    loop: Mapping[str, Any] = {}
-    names: tuple[str, ...] = ()
-    n_chunks = 0
-    moments_y, moments_u = _Moments(3), _Moments(2)
-    dc: DCLevels | None = None
-    moments = _Moments(3)
+    options = {
+        "estimator": estimator,
+        "instruments": instruments,
+        "skip": skip,
+        "instrument_lags": instrument_lags,
+        "covariance": covariance,
+    }
+    # Pass 1: the regression's normal equations (eq. (47) form of physical.py), the
+    # moments of y, u and the left-hand side, the DC levels.
+    first = _PhysicalFirstPass(options)
     for chunk in _chunks(opener, progress):
-        y, u = _plant_signals(chunk)
-        if first:
-            dt, loop, names = chunk.dt, chunk.loop, chunk.channel_names("y")
-            plan = plan_physical(
-                estimator=estimator,
-                instruments=instruments,
-                skip=skip,
-                instrument_lags=instrument_lags,
-                covariance=covariance,
-                has_r=chunk.r is not None,
-                loop=loop,
-                n_samples=None,
-            )
-            if plan["instruments"] == "loop":
-                system = loop_instrument_system(loop, dt=dt)
-            rows = _PhysicalRows(plan, instrument_lags, system)
-            nz = {None: None, "loop": 8, "lags": 2 * (int(instrument_lags) + 1)}
-            acc = RegressionAccumulator(
-                8,
-                3,
-                nz=nz[plan["instruments"]],
-                labels=physical_labels(names, chunk.channel_names("u")),
-                intercept=True,
-            )
-            first = False
-        elif abs(chunk.dt - dt) > 1e-12 * dt:
-            raise DataError(f"chunk {n_chunks} has dt={chunk.dt:g} s; the first had {dt:g} s")
-        if plan["instruments"] is not None and chunk.r is None:
-            raise DataError(f"chunk {n_chunks} lacks the excitation r that the instruments need")
-        assert rows is not None and acc is not None
-        moments_y.update(y)
-        moments_u.update(u)
-        if dc is None:
-            dc = DCLevels(dt, 3, 2)
-        dc.update(y, u)
-        got = rows.rows(y, u, None if chunk.r is None else np.asarray(chunk.r))
-        if got is not None:
-            lhs, phi, Z = got
-            acc.update(lhs, phi, Z, check=False)  # chunks are ClosedLoopData: finite
-            moments.update(lhs)
-        n_chunks += 1
-    if first:
+        first.feed(chunk)
+    if first.acc is None or first.rows is None:
         raise DataError("the source gave no chunks")
-    assert rows is not None and acc is not None
-    N = rows.g
-    plan_physical(  # the record-length check, now that the length is known
-        estimator=estimator,
-        instruments=instruments,
-        skip=skip,
-        instrument_lags=instrument_lags,
-        covariance=covariance,
-        has_r=True,
-        loop=loop,
-        n_samples=N,
-    )
+    acc, plan, N = first.acc, first.plan, first.rows.g
+    plan_physical(**options, has_r=True, loop=first.loop, n_samples=N)  # the length check
     acc.solve(
         hac_lags=hac_lags, noise_ma=physical_noise_ma(3) if covariance == "white-noise" else None
     )
-    rows2 = _PhysicalRows(plan, instrument_lags, system)
+    # Pass 2: the residuals, for the covariance.
+    rows2 = _PhysicalRows(plan, instrument_lags, first.system)
     for chunk in _chunks(opener, progress):
         y, u = _plant_signals(chunk)
         got = rows2.rows(y, u, None if chunk.r is None else np.asarray(chunk.r))
@@ -368,28 +317,94 @@ def fit_physical_streamed(
             "streamed fit reads the record twice and needs the same data both times"
         )
     fit = acc.finish()
-    y_scale, h_scale = realization_scales(moments_y.m2, moments_u.m2, N)
+    y_scale, h_scale = realization_scales(first.moments_y.m2, first.moments_u.m2, N)
     assert fit.residual_sum_of_squares is not None
-    logger.info("physical: %d samples streamed in %d chunks, two passes", N, n_chunks)
+    logger.info("physical: %d samples streamed in %d chunks, two passes", N, first.n_chunks)
     res = physical_result(
         fit,
         Y=None,
         y_scale=y_scale,
         h_scale=h_scale,
-        dt=dt,
-        loop=loop,
-        names=names,
+        dt=first.dt,
+        loop=first.loop,
+        names=first.names,
         plan=plan,
         hac_lags=hac_lags,
         m=m,
         i0=i0,
-        one_step_fit=one_step_fit_percent(fit.residual_sum_of_squares, moments.m2),
+        one_step_fit=one_step_fit_percent(fit.residual_sum_of_squares, first.moments.m2),
         extra_notes=(
-            f"streamed: {N} samples in {n_chunks} chunk(s), two passes; residuals not kept",
+            f"streamed: {N} samples in {first.n_chunks} chunk(s), two passes; residuals not kept",
         ),
     )
-    assert dc is not None
-    return with_dc_levels(res, dc, loop)
+    assert first.dc is not None
+    return with_dc_levels(res, first.dc, first.loop)
+
+
+class _PhysicalFirstPass:
+    """First pass of :func:`fit_physical_streamed`, fed chunk by chunk.
+
+    The first chunk fixes ``dt``, the loop and the channel names, and with them
+    the plan of :func:`~maglevid.identify.physical.plan_physical` (instruments,
+    rows) and the accumulator of the normal equations.
+    """
+
+    def __init__(self, options: Mapping[str, Any]) -> None:
+        self.options = dict(options)
+        self.plan: dict[str, Any] = {}
+        self.acc: RegressionAccumulator | None = None
+        self.rows: _PhysicalRows | None = None
+        self.system: StateSpace | None = None
+        self.dt = 0.0
+        self.loop: Mapping[str, Any] = {}
+        self.names: tuple[str, ...] = ()
+        self.n_chunks = 0
+        self.moments_y, self.moments_u = _Moments(3), _Moments(2)
+        self.dc: DCLevels | None = None
+        self.moments = _Moments(3)  # of the regression's left-hand side
+
+    def _start(self, chunk: ClosedLoopData) -> None:
+        self.dt, self.loop, self.names = chunk.dt, chunk.loop, chunk.channel_names("y")
+        lags = self.options["instrument_lags"]
+        self.plan = plan_physical(
+            **self.options, has_r=chunk.r is not None, loop=self.loop, n_samples=None
+        )
+        if self.plan["instruments"] == "loop":
+            self.system = loop_instrument_system(self.loop, dt=self.dt)
+        self.rows = _PhysicalRows(self.plan, lags, self.system)
+        nz = {None: None, "loop": 8, "lags": 2 * (int(lags) + 1)}
+        self.acc = RegressionAccumulator(
+            8,
+            3,
+            nz=nz[self.plan["instruments"]],
+            labels=physical_labels(self.names, chunk.channel_names("u")),
+            intercept=True,
+        )
+
+    def feed(self, chunk: ClosedLoopData) -> None:
+        y, u = _plant_signals(chunk)
+        if self.acc is None:
+            self._start(chunk)
+        elif abs(chunk.dt - self.dt) > 1e-12 * self.dt:
+            raise DataError(
+                f"chunk {self.n_chunks} has dt={chunk.dt:g} s; the first had {self.dt:g} s"
+            )
+        if self.plan["instruments"] is not None and chunk.r is None:
+            raise DataError(
+                f"chunk {self.n_chunks} lacks the excitation r that the instruments need"
+            )
+        assert self.rows is not None and self.acc is not None
+        self.moments_y.update(y)
+        self.moments_u.update(u)
+        if self.dc is None:
+            self.dc = DCLevels(self.dt, 3, 2)
+        self.dc.update(y, u)
+        got = self.rows.rows(y, u, None if chunk.r is None else np.asarray(chunk.r))
+        if got is not None:
+            lhs, phi, Z = got
+            self.acc.update(lhs, phi, Z, check=False)  # chunks are ClosedLoopData: finite
+            self.moments.update(lhs)
+        self.n_chunks += 1
 
 
 def _feed_plant_io(
