@@ -23,6 +23,7 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -352,11 +353,50 @@ def assemble(
             f"has {table.n_columns} column(s); the mapping ({mapping.origin}) expects "
             f"{mapping.n_columns}"
         )
-    layout = mapping.layout
     p = mapping.p or 1
-
     # Resolve every reference first: a missing channel is reported before any loading.
-    plan: list[tuple[str, int, ChannelSpec, Key]] = []
+    plan, wide, time_key, raw = _resolve(table, mapping)
+    column_of = _ColumnReader(table, raw, mapping.layout)
+    ch = _read_channels(table, plan, wide, column_of, mapping.origin)  # outputs fix L = N*p
+    n = _check_length(table, mapping, ch, p, t_before)
+    dt, t0 = _time_axis(
+        table, mapping, time_key, column_of, ch.length, n, p, t_before, dt_known, t0_known
+    )
+    arrays = _signal_arrays(table, mapping, ch, n, p)
+    extras = _extra_channels(table, plan, column_of, ch.length, n, p)
+    _check_units(table, mapping, arrays, ch)
+
+    metadata = dict(mapping.metadata)
+    metadata.update(table.metadata)
+    metadata.update(extra_metadata or {})
+    if extras:
+        metadata["extra_signals"] = extras
+    try:
+        return ClosedLoopData(
+            y=arrays["y"],
+            dt=dt,
+            u=arrays.get("u"),
+            r=arrays.get("r"),
+            u_f=arrays.get("u_f"),
+            p=p,
+            names={s: ch.names[s] for s in arrays},
+            units={s: ch.units[s] for s in arrays},
+            t0=0.0 if t0 is None else t0,
+            loop=mapping.loop,
+            metadata=metadata,
+        )
+    except DataError as exc:
+        raise table.error(str(exc)) from None
+
+
+_Plan = list[tuple[str, int, ChannelSpec, Key]]
+
+
+def _resolve(
+    table: Table, mapping: ColumnMapping
+) -> tuple[_Plan, dict[ChannelSpec, list[Key]], Key | None, Mapping[Key, Any]]:
+    """Every channel's column (signal, index, spec, key), the wide layout's, time; loaded."""
+    plan: _Plan = []
     for sig in SIGNALS:
         for i, spec in enumerate(mapping.signals.get(sig, ())):
             plan.append((sig, i, spec, table.resolve(spec.column)))
@@ -370,14 +410,21 @@ def assemble(
     time_key = None if mapping.time is None else table.resolve(mapping.time.column)
     keys = [k for *_, k in plan] + [k for ks in wide.values() for k in ks]
     keys = list(dict.fromkeys(keys + ([] if time_key is None else [time_key])))
-    raw = table.load(keys)
+    return plan, wide, time_key, table.load(keys)
 
-    oriented: dict[Key, np.ndarray] = {}
 
-    def column_of(spec: ChannelSpec, key: Key) -> tuple[np.ndarray, str]:
-        if key not in oriented:
-            oriented[key] = orient(table, key, raw[key], layout)
-        arr = oriented[key]
+class _ColumnReader:
+    """``(spec, key) -> (values, label)``: one column, oriented once per key."""
+
+    def __init__(self, table: Table, raw: Mapping[Key, Any], layout: str) -> None:
+        self.table, self.raw, self.layout = table, raw, layout
+        self.oriented: dict[Key, np.ndarray] = {}
+
+    def __call__(self, spec: ChannelSpec, key: Key) -> tuple[np.ndarray, str]:
+        table = self.table
+        if key not in self.oriented:
+            self.oriented[key] = orient(table, key, self.raw[key], self.layout)
+        arr = self.oriented[key]
         width = arr.shape[1]
         if spec.index is None and width > 1:
             raise table.error(
@@ -392,7 +439,26 @@ def assemble(
             )
         return arr[:, idx], table.label(key, spec.index if width > 1 else None)
 
-    # -- outputs fix the length L = N*p
+
+@dataclass
+class _Channels:
+    """The signals' columns as read (unscaled), with names, units and labels."""
+
+    columns: dict[str, list[np.ndarray]]
+    names: dict[str, list[str]]
+    units: dict[str, list[str]]
+    labels: dict[str, list[str]]
+    length: int  # output samples L = N*p
+
+
+def _read_channels(
+    table: Table,
+    plan: _Plan,
+    wide: Mapping[ChannelSpec, list[Key]],
+    column_of: _ColumnReader,
+    origin: str,
+) -> _Channels:
+    """Read ``y``, ``u``, ``r``, ``u_f``; every output channel must have the same length."""
     columns: dict[str, list[np.ndarray]] = {s: [] for s in SIGNALS}
     names: dict[str, list[str]] = {s: [] for s in SIGNALS}
     units: dict[str, list[str]] = {s: [] for s in SIGNALS}
@@ -419,29 +485,51 @@ def assemble(
         names[sig].append(_channel_name(table, spec, key, sig, i))
         units[sig].append(spec.unit)
     if length is None:
-        raise table.error(f"the mapping ({mapping.origin}) places no output channel 'y'")
+        raise table.error(f"the mapping ({origin}) places no output channel 'y'")
+    return _Channels(columns, names, units, labels, length)
+
+
+def _check_length(
+    table: Table, mapping: ColumnMapping, ch: _Channels, p: int, t_before: float | None
+) -> int:
+    """The number of control periods ``N``: enough, whole, and as the metadata says."""
+    length = ch.length
     min_rows = MIN_SAMPLES * p if t_before is None else p
     if length < min_rows:
         raise table.error(
             f"too few samples: {length} output sample(s); at least {MIN_SAMPLES * p} "
             f"(= {MIN_SAMPLES} control periods x p={p}) are needed",
-            column=labels["y"][0],
+            column=ch.labels["y"][0],
         )
     if length % p:
         raise table.error(
             f"{length} output samples are not a whole number of control periods of p={p} "
             "samples (an incomplete last period?)",
-            column=labels["y"][0],
+            column=ch.labels["y"][0],
         )
     n = length // p
     if mapping.n_samples is not None and t_before is None and n != mapping.n_samples:
         raise table.error(
             f"has {n} control period(s) ({length} rows); the metadata says "
             f"{mapping.n_samples}: the file is truncated or was edited",
-            column=labels["y"][0],
+            column=ch.labels["y"][0],
         )
+    return n
 
-    # -- time column and dt
+
+def _time_axis(
+    table: Table,
+    mapping: ColumnMapping,
+    time_key: Key | None,
+    column_of: _ColumnReader,
+    length: int,
+    n: int,
+    p: int,
+    t_before: float | None,
+    dt_known: float | None,
+    t0_known: float | None,
+) -> tuple[float, float | None]:
+    """``dt`` and ``t0`` from the mapping, the chunk's context, or the checked time column."""
     dt = mapping.dt if mapping.dt is not None else dt_known
     t0 = mapping.t0 if t0_known is None else t0_known
     if time_key is not None and mapping.time is not None:
@@ -472,28 +560,38 @@ def assemble(
             f"no time column and no sample time: the mapping ({mapping.origin}) must give "
             '"time" (a time column) or "dt" (control period, s) / "sample_rate" (Hz)'
         )
+    return dt, t0
 
-    # -- finite values, inputs held or at the control rate
+
+def _signal_arrays(
+    table: Table, mapping: ColumnMapping, ch: _Channels, n: int, p: int
+) -> dict[str, np.ndarray]:
+    """Finite values; inputs held over each period or at the control rate; scaled."""
     arrays: dict[str, np.ndarray] = {}
     for sig in SIGNALS:
-        if not columns[sig]:
+        if not ch.columns[sig]:
             continue
         cols = []
-        for spec, values, label in zip(mapping.signals[sig], columns[sig], labels[sig]):
+        for spec, values, label in zip(mapping.signals[sig], ch.columns[sig], ch.labels[sig]):
             check_finite_column(table, values, label)
             if sig != "y":
-                if values.size == length:
+                if values.size == ch.length:
                     values = check_held(table, values, p, label)
                 elif values.size != n:
                     raise table.error(
                         f"has {values.size} samples; expected {n} (one per control period) "
-                        f"or {length} (one per output sample, held over each period)",
+                        f"or {ch.length} (one per output sample, held over each period)",
                         column=label,
                     )
             cols.append(values * spec.scale + spec.offset if _scaled(spec) else values)
         arrays[sig] = np.column_stack(cols)
+    return arrays
 
-    # -- extra channels (kept in metadata["extra_signals"])
+
+def _extra_channels(
+    table: Table, plan: _Plan, column_of: _ColumnReader, length: int, n: int, p: int
+) -> dict[str, dict[str, Any]]:
+    """Extra channels (kept in ``metadata["extra_signals"]``), at the output or control rate."""
     extras: dict[str, dict[str, Any]] = {}
     for sig, i, spec, key in plan:
         if sig != "extra":
@@ -513,8 +611,14 @@ def assemble(
             values = values * spec.scale + spec.offset
         name = spec.name if spec.name is not None else _channel_name(table, spec, key, "x", i)
         extras[name] = {"unit": spec.unit, "rate": rate, "values": values}
+    return extras
 
-    # -- units: u = u_f + r needs one unit per input channel; then the mapping's expectations
+
+def _check_units(
+    table: Table, mapping: ColumnMapping, arrays: Mapping[str, np.ndarray], ch: _Channels
+) -> None:
+    """``u = u_f + r`` needs one unit per input channel; then the mapping's expectations."""
+    units, labels = ch.units, ch.labels
     present = [s for s in ("u", "r", "u_f") if s in arrays]
     for j in range(arrays[present[0]].shape[1] if present else 0):
         seen = {s: units[s][j] for s in present if j < len(units[s]) and units[s][j]}
@@ -539,28 +643,6 @@ def assemble(
                     f"unit mismatch: {g!r} in the file, the mapping expects {e!r}",
                     column=labels[sig][j],
                 )
-
-    metadata = dict(mapping.metadata)
-    metadata.update(table.metadata)
-    metadata.update(extra_metadata or {})
-    if extras:
-        metadata["extra_signals"] = extras
-    try:
-        return ClosedLoopData(
-            y=arrays["y"],
-            dt=dt,
-            u=arrays.get("u"),
-            r=arrays.get("r"),
-            u_f=arrays.get("u_f"),
-            p=p,
-            names={s: names[s] for s in arrays},
-            units={s: units[s] for s in arrays},
-            t0=0.0 if t0 is None else t0,
-            loop=mapping.loop,
-            metadata=metadata,
-        )
-    except DataError as exc:
-        raise table.error(str(exc)) from None
 
 
 def _interleaved(
