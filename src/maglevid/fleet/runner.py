@@ -308,24 +308,7 @@ def run_fleet(
 
     t_start = time.perf_counter()
     started = datetime.now(timezone.utc)
-    if isinstance(sources, FleetJob) or (
-        isinstance(sources, Sequence)
-        and not isinstance(sources, str)
-        and sources
-        and all(isinstance(j, FleetJob) for j in sources)
-    ):
-        jobs = [sources] if isinstance(sources, FleetJob) else list(sources)
-    else:
-        jobs = collect_jobs(
-            sources,
-            machine=machine,
-            baseline=baseline,
-            method=method,
-            tolerances=tolerances,
-            method_options=method_options,
-        )
-    if not jobs:
-        raise DataError("the fleet is empty: no recordings to diagnose")
+    jobs = _jobs_of(sources, machine, baseline, method, tolerances, method_options)
     if not (0.0 < alpha < 1.0):
         raise DataError(f"`alpha` = {alpha!r}; expected 0 < alpha < 1")
     if isinstance(retries, bool) or not isinstance(retries, int) or retries < 0:
@@ -337,24 +320,7 @@ def run_fleet(
     if reports is not None:
         reports_dir = str(Path(reports).resolve())
         Path(reports_dir).mkdir(parents=True, exist_ok=True)
-
-    # One recording per (machine, file): the same file named twice is diagnosed once.
-    first: dict[tuple[str, str], int] = {}
-    unique: list[int] = []
-    outcomes: list[RecordingOutcome | None] = [None] * len(jobs)
-    for i, job in enumerate(jobs):
-        key = (job.machine, os.path.realpath(job.recording))
-        if key in first:
-            outcomes[i] = RecordingOutcome(
-                machine=job.machine,
-                recording=job.recording,
-                status="duplicate",
-                verdict=f"same file as {jobs[first[key]].source or jobs[first[key]].recording}",
-                source=job.source,
-            )
-        else:
-            first[key] = i
-            unique.append(i)
+    unique, outcomes = _deduplicate(jobs)
 
     with open_history(location, schema=schema) as st:  # creates and migrates before workers
         machines = sorted({jobs[i].machine for i in unique})
@@ -377,13 +343,7 @@ def run_fleet(
             stream = _execute(client, todo, independent, chains, ctx_common, known, retries)
             if progress is not None:
                 stream = iter(progress(stream, len(todo)))
-            diagnosed_on: dict[str, str | None] = {}
-            for k, out, worker_address in stream:
-                i = unique[k]
-                if out.status == "skipped":
-                    out = _fill_skipped(out, jobs[i], by_key)
-                outcomes[i] = out
-                diagnosed_on[out.recording] = worker_address
+            diagnosed_on = _collect(stream, unique, jobs, by_key, outcomes)
             t_done = time.perf_counter()
 
             final = [o for o in outcomes if o is not None]
@@ -404,26 +364,128 @@ def run_fleet(
                     client, summary, diagnosed_on, run_id, reports_dir, location, schema
                 )
             t_reports = time.perf_counter()
-        summary = replace(
-            summary,
-            run={
-                "started_at": started.isoformat(timespec="seconds"),
-                "scheduler": address,
-                "local_cluster": local,
-                "n_workers": n_live,
-                "batch_size": size,
-                "n_jobs": len(jobs),
-                "n_tasks": len(independent) + sum(len(c) for c in chains.values()),
-                "n_chains": len(chains),
-                "seconds_total": time.perf_counter() - t_start,
-                "seconds_store_read": t_read - t_start,
-                "seconds_diagnosis": t_done - t_read,
-                "seconds_summary": t_summary - t_done,
-                "seconds_reports": t_reports - t_summary,
-                "reports": reports_dir,
-            },
+        run = _run_record(
+            started,
+            (t_start, t_read, t_done, t_summary, t_reports),
+            scheduler=address,
+            local_cluster=local,
+            n_workers=n_live,
+            batch_size=size,
+            n_jobs=len(jobs),
+            n_tasks=len(independent) + sum(len(c) for c in chains.values()),
+            n_chains=len(chains),
+            reports=reports_dir,
         )
+        summary = replace(summary, run=run)
     return summary
+
+
+def _jobs_of(
+    sources: Any,
+    machine: str | None,
+    baseline: Any,
+    method: str | None,
+    tolerances: Any,
+    method_options: Mapping[str, Any] | None,
+) -> list[FleetJob]:
+    """The jobs given, or those :func:`collect_jobs` finds in the sources; never none."""
+    if isinstance(sources, FleetJob) or (
+        isinstance(sources, Sequence)
+        and not isinstance(sources, str)
+        and sources
+        and all(isinstance(j, FleetJob) for j in sources)
+    ):
+        jobs = [sources] if isinstance(sources, FleetJob) else list(sources)
+    else:
+        jobs = collect_jobs(
+            sources,
+            machine=machine,
+            baseline=baseline,
+            method=method,
+            tolerances=tolerances,
+            method_options=method_options,
+        )
+    if not jobs:
+        raise DataError("the fleet is empty: no recordings to diagnose")
+    return jobs
+
+
+def _deduplicate(jobs: Sequence[FleetJob]) -> tuple[list[int], list[RecordingOutcome | None]]:
+    """One recording per (machine, file): the same file named twice is diagnosed once.
+
+    Returns the indices of the jobs to run and the outcomes so far (the duplicates').
+    """
+    first: dict[tuple[str, str], int] = {}
+    unique: list[int] = []
+    outcomes: list[RecordingOutcome | None] = [None] * len(jobs)
+    for i, job in enumerate(jobs):
+        key = (job.machine, os.path.realpath(job.recording))
+        if key in first:
+            outcomes[i] = RecordingOutcome(
+                machine=job.machine,
+                recording=job.recording,
+                status="duplicate",
+                verdict=f"same file as {jobs[first[key]].source or jobs[first[key]].recording}",
+                source=job.source,
+            )
+        else:
+            first[key] = i
+            unique.append(i)
+    return unique, outcomes
+
+
+def _collect(
+    stream: Iterable[tuple[int, RecordingOutcome, str | None]],
+    unique: Sequence[int],
+    jobs: Sequence[FleetJob],
+    by_key: Mapping,
+    outcomes: list[RecordingOutcome | None],
+) -> dict[str, str | None]:
+    """Place each outcome as it arrives (a skipped one with the stored verdict).
+
+    Returns the worker that diagnosed each recording.
+    """
+    diagnosed_on: dict[str, str | None] = {}
+    for k, out, worker_address in stream:
+        i = unique[k]
+        if out.status == "skipped":
+            out = _fill_skipped(out, jobs[i], by_key)
+        outcomes[i] = out
+        diagnosed_on[out.recording] = worker_address
+    return diagnosed_on
+
+
+def _run_record(
+    started: datetime,
+    times: tuple[float, float, float, float, float],
+    *,
+    scheduler: str,
+    local_cluster: bool,
+    n_workers: int,
+    batch_size: int,
+    n_jobs: int,
+    n_tasks: int,
+    n_chains: int,
+    reports: str | None,
+) -> dict[str, Any]:
+    """``summary.run``: where and how the run went, and where its time went."""
+    t_start, t_read, t_done, t_summary, t_reports = times
+    return {
+        "started_at": started.isoformat(timespec="seconds"),
+        "scheduler": scheduler,
+        "local_cluster": local_cluster,
+        "n_workers": n_workers,
+        "batch_size": batch_size,
+        "n_jobs": n_jobs,
+        "n_tasks": n_tasks,
+        "n_chains": n_chains,
+        "seconds_total": time.perf_counter() - t_start,
+        "seconds_store_read": t_read - t_start,
+        "seconds_diagnosis": t_done - t_read,
+        "seconds_summary": t_summary - t_done,
+        "seconds_reports": t_reports - t_summary,
+        "reports": reports,
+    }
 
 
 def _drifts_on_cluster(
