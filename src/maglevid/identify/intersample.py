@@ -593,7 +593,8 @@ def fit_intersample(
     )
 
     # Derived parameters (largest real pole; eq. (27)'s physical parameters)
-    parameters, cov = _parameters(data, theta, cov_theta, n, dt, mass, g, resistance, notes)
+    names, all_params = _parameter_map(data, theta, n, dt, mass, g, resistance, notes)
+    parameters, cov = _parameters(names, all_params, theta, cov_theta, notes)
 
     # The T-model B_0/A (the SIMO model of every inter-sample is in extras)
     a_full, b_full = np.r_[1.0, theta[:n]], np.r_[0.0, theta[n:]]
@@ -1011,18 +1012,13 @@ def _parameter_map(
 
 
 def _parameters(
-    data: ClosedLoopData,
+    names: list[str],
+    all_params: Any,
     theta: np.ndarray,
     cov_theta: np.ndarray | None,
-    n: int,
-    dt: float,
-    mass: float | None,
-    g: float,
-    resistance: float | None,
     notes: list[str],
 ) -> tuple[dict[str, float], np.ndarray | None]:
-    """The reported parameters and their covariance (delta method, :func:`_parameter_map`)."""
-    names, all_params = _parameter_map(data, theta, n, dt, mass, g, resistance, notes)
+    """The reported parameters and their covariance (delta method through ``all_params``)."""
     if cov_theta is not None:
         values, cov = propagate_covariance(all_params, theta, cov_theta)
         cov = 0.5 * (cov + cov.T)  # J C J^T is symmetric up to rounding

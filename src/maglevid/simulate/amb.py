@@ -38,7 +38,7 @@ import argparse
 import logging
 import math
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import asdict
+from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
@@ -565,12 +565,11 @@ def simulate_amb_loop(
         "force_std": fstd,
         "observer_model": observer_model,
     }
+    bearing = _Bearing(plant, nominal, controller, observer, dt)
     if plant_model == "linear":
-        y, u_f, u = _run_linear(plant, nominal, controller, observer, dt, r, v, kernel, meta)
+        y, u_f, u = _run_linear(bearing, r, v, kernel, meta)
     else:
-        y, u_f, u = _run_nonlinear(
-            plant, nominal, controller, observer, dt, r, v, force, substeps, progress, meta
-        )
+        y, u_f, u = _run_nonlinear(bearing, r, v, force, substeps, progress, meta)
     return ClosedLoopData(
         y=y,
         dt=dt,
@@ -579,7 +578,7 @@ def simulate_amb_loop(
         u_f=u_f,
         names={"y": OUTPUT_NAMES, "u": INPUT_NAMES, "r": ("r1", "r2"), "u_f": ("uf1", "uf2")},
         units={"y": ("m", "A", "A"), "u": ("V", "V"), "r": ("V", "V"), "u_f": ("V", "V")},
-        loop=_loop_record(controller, observer, nominal, dt, cond),
+        loop=_loop_record(bearing, cond),
         metadata=meta,
     )
 
@@ -661,18 +660,22 @@ def _loop_condition(observer: Observer, controller: IntegralStateFeedback) -> fl
     return cond
 
 
+@dataclass(frozen=True)
+class _Bearing:
+    """The bearing in its loop: the real one, the nominal design, eqs. (42)-(43), ``dt``."""
+
+    plant: AMBParameters
+    nominal: AMBParameters
+    controller: IntegralStateFeedback
+    observer: Observer
+    dt: float
+
+
 def _run_linear(
-    plant: AMBParameters,
-    nominal: AMBParameters,
-    controller: IntegralStateFeedback,
-    observer: Observer,
-    dt: float,
-    r: np.ndarray,
-    v: np.ndarray,
-    kernel: str,
-    meta: dict[str, Any],
+    b: _Bearing, r: np.ndarray, v: np.ndarray, kernel: str, meta: dict[str, Any]
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The linear plant of eqs. (3)-(7) in the loop; ``meta`` gets its operating point."""
+    plant, nominal, controller, observer, dt = b.plant, b.nominal, b.controller, b.observer, b.dt
     sig = simulate_linear_loop(
         amb_state_space(plant, dt), observer, controller, r=r, noise=v, kernel=kernel
     )
@@ -686,11 +689,7 @@ def _run_linear(
 
 
 def _run_nonlinear(
-    plant: AMBParameters,
-    nominal: AMBParameters,
-    controller: IntegralStateFeedback,
-    observer: Observer,
-    dt: float,
+    b: _Bearing,
     r: np.ndarray,
     v: np.ndarray,
     force: np.ndarray | None,
@@ -699,6 +698,7 @@ def _run_nonlinear(
     meta: dict[str, Any],
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The bearing of eq. (1) from the point it settles at under the nominal bias voltages."""
+    plant, nominal, controller, observer, dt = b.plant, b.nominal, b.controller, b.observer, b.dt
     eq = nonlinear_equilibrium(plant, nominal, observer, controller)
     _check_settled_loop(eq, observer, controller, dt)
     y, u_f = _simulate_nonlinear(
@@ -726,14 +726,9 @@ def _run_nonlinear(
     return y, u_f, u_f + r
 
 
-def _loop_record(
-    controller: IntegralStateFeedback,
-    observer: Observer,
-    nominal: AMBParameters,
-    dt: float,
-    cond: float,
-) -> dict[str, Any]:
+def _loop_record(b: _Bearing, cond: float) -> dict[str, Any]:
     """``data.loop``: what the identification methods may know about the loop."""
+    controller, observer, nominal, dt = b.controller, b.observer, b.nominal, b.dt
     return {
         "controller": controller.to_dict(),
         "observer": observer.to_dict(),
