@@ -63,13 +63,19 @@ __all__ = [
     "DEFAULT_FRACTION",
     "DEFAULT_MAX_DISPLACEMENT",
     "DEFAULT_MAX_EXCITATION_STD",
+    "DEFAULT_SPECTRA",
     "DesignInformation",
     "ExperimentPlan",
     "PlanRow",
+    "design_for_recording",
     "design_information",
+    "excitation_signal",
+    "noise_of_result",
     "plan_experiment",
     "plan_for_recording",
     "plan_from_result",
+    "spectrum_label",
+    "v_of_result",
 ]
 
 #: Fraction of the tolerance the 95 % half-width must reach.
@@ -158,11 +164,13 @@ class DesignInformation:
     i0: float | None
     gap: float
     spectrum: str = "white"
-    spectra: Mapping[str, tuple[np.ndarray, float]] = field(default_factory=dict)
+    spectra: Mapping[str, tuple[np.ndarray, float, float]] = field(default_factory=dict)
+    i_rms_r: float = 0.0  # rms coil current (larger coil) per reference excitation [A]
+    i_rms_e: float = 0.0  # the same from the noise-driven loop [A]
 
-    def _part(self, spectrum: str | None) -> tuple[np.ndarray, float]:
+    def _part(self, spectrum: str | None) -> tuple[np.ndarray, float, float]:
         if spectrum is None or spectrum == self.spectrum:
-            return self.info_r, self.x_rms_r
+            return self.info_r, self.x_rms_r, self.i_rms_r
         try:
             return self.spectra[spectrum]
         except KeyError:
@@ -174,11 +182,10 @@ class DesignInformation:
         self, *, n_samples: int, excitation_std: float, spectrum: str | None = None
     ) -> CramerRaoBound:
         """The bound for ``n_samples`` at ``excitation_std`` [V rms per input]."""
-        info_r, _ = self._part(spectrum)
-        a = excitation_std / self.reference_std
-        info = n_samples * (a * a * info_r + self.info_e)
         return bound_from_fisher(
-            eliminate_nuisance(info, 9),
+            self.v_information(
+                n_samples=n_samples, excitation_std=excitation_std, spectrum=spectrum
+            ),
             self.v,
             n_samples=n_samples,
             noise=self.noise,
@@ -186,16 +193,36 @@ class DesignInformation:
             i0=self.i0,
         )
 
+    def v_information(
+        self, *, n_samples: int, excitation_std: float, spectrum: str | None = None
+    ) -> np.ndarray:
+        """Fisher information of v1..v9 (nuisance parameters eliminated), 9 x 9."""
+        info_r, _, _ = self._part(spectrum)
+        a = excitation_std / self.reference_std
+        return eliminate_nuisance(n_samples * (a * a * info_r + self.info_e), 9)
+
     def displacement_rms(self, excitation_std: float, spectrum: str | None = None) -> float:
-        _, x_rms_r = self._part(spectrum)
+        _, x_rms_r, _ = self._part(spectrum)
         a = excitation_std / self.reference_std
         return math.sqrt((a * x_rms_r) ** 2 + self.x_rms_e**2)
+
+    def excursion(self, excitation_std: float, spectrum: str | None = None) -> float:
+        """Largest relative excursion ``max(std x / x0, std i / i0)`` of the loop.
+
+        What sets the linearisation's model error (the diagnosis's
+        :func:`~maglevid.diagnose.pipeline.estimate_model_error`).
+        """
+        _, _, i_rms_r = self._part(spectrum)
+        a = excitation_std / self.reference_std
+        x = self.displacement_rms(excitation_std, spectrum) / self.gap
+        i = math.sqrt((a * i_rms_r) ** 2 + self.i_rms_e**2) / self.i0 if self.i0 else 0.0
+        return max(x, i)
 
     def max_excitation(
         self, max_excitation_std: float, max_displacement: float, spectrum: str | None = None
     ) -> float:
         """The largest excitation [V rms] within the amplifier and displacement limits."""
-        _, x_rms_r = self._part(spectrum)
+        _, x_rms_r, _ = self._part(spectrum)
         x_lim = max_displacement * self.gap
         a_disp = (
             self.reference_std * math.sqrt(max(x_lim**2 - self.x_rms_e**2, 0.0)) / x_rms_r
@@ -305,33 +332,34 @@ def design_information(
         v, dt, noise, m=plant.m, estimate_noise=True, estimate_force=noise.force_std > 0
     )
 
-    def per_sample(r: np.ndarray, with_noise: bool) -> tuple[np.ndarray, float]:
+    def per_sample(r: np.ndarray, with_noise: bool) -> tuple[np.ndarray, float, float]:
         y, u = _loop_record(plant, nominal, dt, r=r, noise=noise if with_noise else None, rng=rng)
         st = predictor_statistics(model, y, u, nuisance=False)
-        return st.fisher / r.shape[0], float(np.std(y[:, 0]))
+        sd = np.std(y, axis=0)
+        return st.fisher / r.shape[0], float(sd[0]), float(max(sd[1], sd[2]))
 
     zero = predictor_statistics(model, np.zeros((2, 3)), np.zeros((2, 2)), nuisance=False)
     s_term = zero.fisher / 2  # the S term of eq. (2) per sample (the data part is 0)
-    info_e, x_rms_e = per_sample(np.zeros((n, 2)), True)
-    parts: dict[str, tuple[np.ndarray, float]] = {}
+    info_e, x_rms_e, i_rms_e = per_sample(np.zeros((n, 2)), True)
+    parts: dict[str, tuple[np.ndarray, float, float]] = {}
     for name in spectra:
         if name.startswith("lowpass:") and float(name.split(":", 1)[1]) >= 0.4 / dt:
             continue  # corners at or above 0.8 x Nyquist
-        info, x_rms = per_sample(excitation_signal(name, n, dt, rng + 1), False)
-        parts[name] = (info - s_term, x_rms)
+        info, x_rms, i_rms = per_sample(excitation_signal(name, n, dt, rng + 1), False)
+        parts[name] = (info - s_term, x_rms, i_rms)
     if excitation is None:
         present = "white"
         if present not in parts:
-            info, x_rms = per_sample(excitation_signal(present, n, dt, rng + 1), False)
-            parts[present] = (info - s_term, x_rms)
-        info_r, x_rms_r = parts.pop(present)
+            info, x_rms, i_rms = per_sample(excitation_signal(present, n, dt, rng + 1), False)
+            parts[present] = (info - s_term, x_rms, i_rms)
+        info_r, x_rms_r, i_rms_r = parts.pop(present)
     else:
         present = "recorded"
         r = np.asarray(excitation, float)
         if r.ndim != 2 or r.shape[1] != 2 or not np.all(np.std(r, axis=0) > 0):
             raise DataError("`excitation` must be (n, 2) with both inputs excited")
         r = r[:n]
-        info, x_rms_r = per_sample((r - r.mean(axis=0)) / np.std(r, axis=0), False)
+        info, x_rms_r, i_rms_r = per_sample((r - r.mean(axis=0)) / np.std(r, axis=0), False)
         info_r = info - s_term
     return DesignInformation(
         v=v,
@@ -342,6 +370,8 @@ def design_information(
         info_e=info_e,
         x_rms_r=x_rms_r,
         x_rms_e=x_rms_e,
+        i_rms_r=i_rms_r,
+        i_rms_e=i_rms_e,
         m=plant.m,
         i0=plant.i0,
         gap=plant.x0,
@@ -603,6 +633,38 @@ def _excitation_for(
     return hi
 
 
+def design_for_recording(
+    data: ClosedLoopData,
+    *,
+    v: Any = None,
+    noise: NoiseModel | None = None,
+    spectra: Sequence[str] = DEFAULT_SPECTRA,
+    n_simulate: int = 20_000,
+) -> DesignInformation:
+    """:func:`design_information` for an existing recording (:func:`plan_for_recording`)."""
+    v = evaluation_point(data, v)
+    noise = NoiseModel.from_data(data) if noise is None else noise
+    if noise is None:
+        raise DataError("no noise model: pass `noise` (e.g. the ml fit's sensor_noise_std)")
+    m, i0 = operating_point(data.loop)
+    if m is None or i0 is None:
+        raise DataError("planning needs the mass and bias current (loop['operating_point'])")
+    plant = plant_from_v(np.asarray(v, float), m=m, i0=i0)
+    nom = data.loop.get("nominal") if isinstance(data.loop, Mapping) else None
+    nominal = AMBParameters(**nom) if isinstance(nom, Mapping) else plant
+    if data.r is None:
+        raise DataError("planning from a recording needs its excitation r")
+    return design_information(
+        plant,
+        nominal=nominal,
+        dt=data.dt,
+        noise=noise,
+        excitation=np.asarray(data.r),
+        spectra=spectra,
+        n_simulate=n_simulate,
+    )
+
+
 def plan_for_recording(
     data: ClosedLoopData,
     *,
@@ -616,36 +678,44 @@ def plan_for_recording(
     result's v1..v9; by default the simulated truth), with the mass and bias
     current of ``data.loop["operating_point"]``; the loop is the default
     design on ``data.loop["nominal"]``; the present length and excitation
-    are the recording's (``std`` of ``r``, mean over the two inputs).
+    are the recording's (``std`` of ``r``, mean over the two inputs; its
+    waveform is the present spectrum, ``"recorded"``).
     ``options`` go to :func:`plan_experiment` (``parameters``, ``tolerance``,
     ``fraction``, ``max_excitation_std``, ``max_displacement``).
     """
-    v = evaluation_point(data, v)
-    noise = NoiseModel.from_data(data) if noise is None else noise
-    if noise is None:
-        raise DataError("no noise model: pass `noise` (e.g. the ml fit's sensor_noise_std)")
-    m, i0 = operating_point(data.loop)
-    if m is None or i0 is None:
-        raise DataError("planning needs the mass and bias current (loop['operating_point'])")
-    plant = plant_from_v(np.asarray(v, float), m=m, i0=i0)
-    nom = data.loop.get("nominal") if isinstance(data.loop, Mapping) else None
-    nominal = AMBParameters(**nom) if isinstance(nom, Mapping) else plant
-    if data.r is None:
-        raise DataError("planning from a recording needs its excitation r")
-    design = design_information(
-        plant, nominal=nominal, dt=data.dt, noise=noise, excitation=np.asarray(data.r)
-    )
+    design = design_for_recording(data, v=v, noise=noise)
     exc = float(np.mean(np.std(np.asarray(data.r), axis=0)))
     return plan_experiment(design, n_samples=data.n_samples, excitation_std=exc, **options)
+
+
+def noise_of_result(result: Any) -> NoiseModel | None:
+    """The noise model an identification result states: the ``ml`` fit's sensor noise
+    and force estimates, else the white-noise covariance of an IV/LS fit (no force);
+    ``None`` when it states none."""
+    extras = getattr(result, "extras", {}) or {}
+    s = extras.get("sensor_noise_std")
+    if s is None and extras.get("noise_covariance") is not None:
+        s = np.sqrt(np.clip(np.diag(np.asarray(extras["noise_covariance"], float)), 0, None))
+    if s is None or not np.all(np.asarray(s, float) > 0):
+        return None
+    f = extras.get("force_std")  # the ml fit's estimate of the force disturbance
+    f = float(f) if isinstance(f, (int, float)) and np.isfinite(f) and f > 0 else 0.0
+    return NoiseModel(tuple(np.asarray(s, float).tolist()), force_std=f)  # type: ignore[arg-type]
+
+
+def v_of_result(result: Any) -> list[float]:
+    """v1..v9 of an AMB identification result (``DataError`` without them)."""
+    try:
+        return [float(result.parameters[f"v{i}"]) for i in range(1, 10)]
+    except (KeyError, AttributeError, TypeError):
+        raise DataError("planning needs an AMB identification result with v1..v9") from None
 
 
 def plan_from_result(data: ClosedLoopData, result: Any, **options: Any) -> ExperimentPlan:
     """:func:`plan_for_recording` at an identification result's estimate.
 
-    The resolver an ``inconclusive`` verdict can cite: the bearing is the
-    result's v1..v9, the sensor noise the ``ml`` fit's estimate
-    (``extras["sensor_noise_std"]``), else the IV fit's white-noise covariance
-    (``extras["noise_covariance"]``), else the recording's metadata.
+    The bearing is the result's v1..v9, the noise the result's own statement
+    (:func:`noise_of_result`), else the recording's metadata.
     ``plan_from_result(data, fit, parameters=("R1",), tolerance=0.05).sentence()``
     gives e.g. "to resolve R1 to 0.5 of the tolerance, the record needs 9 s at
     this excitation (1 V rms), or 560 ms at 4 V rms".
@@ -655,17 +725,6 @@ def plan_from_result(data: ClosedLoopData, result: Any, **options: Any) -> Exper
     DataError
         The result has no v1..v9, or no noise level can be found.
     """
-    try:
-        v = [float(result.parameters[f"v{i}"]) for i in range(1, 10)]
-    except (KeyError, AttributeError):
-        raise DataError("planning needs an AMB identification result with v1..v9") from None
-    extras = getattr(result, "extras", {}) or {}
-    s = extras.get("sensor_noise_std")
-    if s is None and extras.get("noise_covariance") is not None:
-        s = np.sqrt(np.clip(np.diag(np.asarray(extras["noise_covariance"], float)), 0, None))
-    noise = None
-    if s is not None and np.all(np.asarray(s, float) > 0):
-        f = extras.get("force_std")  # the ml fit's estimate of the force disturbance
-        f = float(f) if isinstance(f, (int, float)) and np.isfinite(f) and f > 0 else 0.0
-        noise = NoiseModel(tuple(np.asarray(s, float).tolist()), force_std=f)  # type: ignore[arg-type]
-    return plan_for_recording(data, v=v, noise=noise, **options)
+    return plan_for_recording(
+        data, v=v_of_result(result), noise=noise_of_result(result), **options
+    )
