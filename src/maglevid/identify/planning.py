@@ -21,18 +21,35 @@ smaller of the amplifier limit (``max_excitation_std``, V rms per input) and
 the level that keeps the rotor's rms displacement within
 ``max_displacement`` of the air gap (the linearised model's range).
 
-Scope: white Gaussian excitation on both amplifier inputs at equal level
-(the simulator's); the spectrum is not optimised. The two simulations are of
-the paper's linear model (eqs. (3)-(4), ``plant_model="linear"``) with sensor
-noise only: the split ``alpha^2 I_r + I_e`` is exact there. A force
-disturbance (the simulator's realistic default, and the ``ml`` method's noise
-model) is left out of the plan: it is noise in the innovations and also an
-excitation of the plant, and the linear simulator has no force input; on the
-default bearing (0.1 N) the bound with it is within ~1.5x of the plan's
-(``docs/gosiewski.md``, "Maximum likelihood"). The loop is the default
-design on the nominal bearing (:func:`~maglevid.simulate.amb.simulate_amb_loop`),
+Noise model: sensor noise on x, i1, i2, a force disturbance on the rotor
+(held over each sample, ``b_F = [0, 1/m, 0, 0]``) and amplifier noise added
+after the logged ``u`` -- the ``ml`` predictor's model
+(:func:`~maglevid.identify.cramer_rao.amb_linear_gaussian_model`); by default
+the simulator's realistic bearing (its sensor noise and 0.1 N). The two
+simulations are of the default loop around the linearised bearing
+(:func:`_loop_record`: the loop of
+:func:`~maglevid.simulate.loop.closed_loop_system` with the force and the
+amplifier noise as two more inputs the controller never sees), so the split
+``alpha^2 I_r + I_e`` is exact. The force costs information on the coil
+parameters (R1, kw1: ~1.8x the std with sensor noise alone on the default
+bearing) and adds some on the rotor's (it excites it).
+
+Spectrum: the present excitation is white (a design) or the recording's own
+``r`` (its waveform scaled to unit rms: ``spectrum = "recorded"``). The plan
+also evaluates candidate spectra of the same rms (:data:`DEFAULT_SPECTRA`:
+white noise through a second-order Butterworth low-pass at 20 Hz - 1 kHz) and
+names, per parameter and for all together, the one that needs the shortest
+record at its own largest allowed excitation (a low-frequency excitation moves
+the rotor more per volt, so the displacement limit binds earlier). On the
+nominal bearing a 100 Hz low-pass excitation gives 3-5x smaller bounds than
+white noise at the same rms.
+
+The loop is the default design on the nominal bearing
+(:func:`~maglevid.simulate.amb.default_amb_controller` and ``_observer``),
 which is how the simulated recordings are made; for a recording with another
 controller the plan is that of the default loop around the estimated bearing.
+The bound is asymptotic: a planned record of a few hundred samples is at the
+edge of its validity.
 """
 
 from __future__ import annotations
