@@ -34,6 +34,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     from maglevid.simulate.amb import (
         DEFAULT_DT,
         DEFAULT_EXCITATION_STD,
+        DEFAULT_FORCE_STD,
         DEFAULT_N_SAMPLES,
         DEFAULT_NOISE_STD,
         parse_fault,
@@ -63,6 +64,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="SX,SI1,SI2",
         help=f"sensor noise std of x [m], i1 [A], i2 [A] (default {list(DEFAULT_NOISE_STD)} "
         "or the recording's)",
+    )
+    parser.add_argument(
+        "--force-std",
+        type=float,
+        default=None,
+        metavar="N",
+        help=f"force disturbance on the rotor [N rms per sample] (default {DEFAULT_FORCE_STD} "
+        "as the simulator's realistic bearing, or the recording's / its ml estimate)",
     )
     parser.add_argument(
         "--excitation-std",
@@ -126,7 +135,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         "max_excitation_std": args.max_excitation_std,
         "max_displacement": args.max_displacement,
     }
-    noise = None if args.noise is None else NoiseModel(tuple(args.noise))
+    noise = _noise_model(args, NoiseModel)
     if args.recording is not None:
         if args.fault:
             raise DataError("--fault describes a design; with a recording, leave it out")
@@ -147,6 +156,17 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     return out
 
 
+def _noise_model(args: argparse.Namespace, noise_model: Any) -> Any:
+    """The noise model the options state (``None``: the default or the recording's)."""
+    from maglevid.simulate.amb import DEFAULT_FORCE_STD, DEFAULT_NOISE_STD
+
+    if args.noise is None and args.force_std is None:
+        return None
+    sensor = DEFAULT_NOISE_STD if args.noise is None else args.noise
+    force = DEFAULT_FORCE_STD if args.force_std is None else args.force_std
+    return noise_model(tuple(sensor), force_std=force)
+
+
 def _plan_recording(args: argparse.Namespace, noise: Any, options: dict, plan_fn: Any) -> Any:
     from maglevid.identify.cramer_rao import NoiseModel
     from maglevid.identify.ml import fit_ml
@@ -160,7 +180,9 @@ def _plan_recording(args: argparse.Namespace, noise: Any, options: dict, plan_fn
         if args.from_fit or not has_truth:
             v = [fit.parameters[f"v{i}"] for i in range(1, 10)]
         if noise is None and NoiseModel.from_data(data) is None:
-            noise = NoiseModel(tuple(fit.extras["sensor_noise_std"]))
+            noise = NoiseModel(
+                tuple(fit.extras["sensor_noise_std"]), force_std=fit.extras["force_std"]
+            )
     if args.excitation_std is not None or args.seconds is not None:
         from maglevid.exceptions import DataError
 
@@ -177,14 +199,22 @@ def format_text(result: dict[str, Any]) -> str:
         f"<= {100 * r['displacement_limit']:.3g} % of the gap)",
         f"target: 95 % half-width <= {r['fraction']:g} x tolerance",
         f"{'parameter':>10} {'value':>12} {'std now':>11} {'target':>11} {'s needed':>10} "
-        f"{'s at max':>10} {'V rms for this length':>22}",
+        f"{'s at max':>10} {'V rms for this length':>22}  best spectrum (s at its max V rms)",
     ]
     for p in r["parameters"]:
         exc = p["excitation_for_present_length"]
         lines.append(
             f"{p['name']:>10} {p['value']:>12.5g} {p['std_now']:>11.3g} {p['target_std']:>11.3g} "
             f"{p['seconds_now']:>10.3g} {p['seconds_at_max_excitation']:>10.3g} "
-            f"{'not reachable' if exc is None else f'{exc:.3g}':>22}"
+            f"{'not reachable' if exc is None else f'{exc:.3g}':>22}  "
+            f"{_label(p['best_spectrum'])} ({p['seconds_with_best_spectrum']:.3g} s at "
+            f"{p['excitation_with_best_spectrum']:.3g} V)"
         )
     lines.append(r["sentence"])
     return "\n".join(lines)
+
+
+def _label(spectrum: str) -> str:
+    from maglevid.identify.planning import spectrum_label
+
+    return spectrum_label(spectrum)

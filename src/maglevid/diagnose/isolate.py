@@ -224,6 +224,9 @@ class FaultHypothesis:
     #: error alone (what more data can and cannot shrink); empty when not computed.
     noise_std_errors: tuple[float, ...] = ()
     floor_std_errors: tuple[float, ...] = ()
+    #: ``dv / dlog c`` of a single-cause fit at its estimate (for experiment
+    #: planning, :mod:`maglevid.diagnose.resolve`); empty otherwise.
+    sensitivity: tuple[float, ...] = ()
 
     @property
     def changes_percent(self) -> dict[str, float]:
@@ -324,6 +327,7 @@ def _fit(
 
     noise_se: tuple[float, ...] = ()
     floor_se: tuple[float, ...] = ()
+    g = np.zeros(0)
     if names:
         sol = optimize.least_squares(
             resid, np.zeros(len(names)), method="lm", xtol=1e-14, ftol=1e-14
@@ -358,6 +362,7 @@ def _fit(
         p_value=float(special.chdtrc(dof, chi2)),
         noise_std_errors=noise_se,
         floor_std_errors=floor_se,
+        sensitivity=tuple(float(x) for x in g),
     )
 
 

@@ -38,7 +38,7 @@ from maglevid.diagnose.isolate import (
     MeasuredOperatingPoint,
     isolate_fault,
 )
-from maglevid.diagnose.resolve import tolerance_of, unresolved_parameters
+from maglevid.diagnose.resolve import plan_unresolved, tolerance_of, unresolved_parameters
 from maglevid.exceptions import DataError, MaglevidError
 from maglevid.jsonable import thaw, to_json_nulls
 from maglevid.lti import StateSpace
@@ -626,6 +626,10 @@ def diagnose(
             duration_s=data.n_samples * data.dt,
             excitation_rms=_excitation_rms(data),
         )
+        unresolved, why = plan_unresolved(
+            unresolved, iso, data, result, tolerances=tol, level=level
+        )
+        notes.extend([why] if why else [])
     verdict, code, reasons = _verdict(changes, iso, tol, unresolved)
     if op is not None:
         reasons.append(

@@ -21,25 +21,42 @@ smaller of the amplifier limit (``max_excitation_std``, V rms per input) and
 the level that keeps the rotor's rms displacement within
 ``max_displacement`` of the air gap (the linearised model's range).
 
-Scope: white Gaussian excitation on both amplifier inputs at equal level
-(the simulator's); the spectrum is not optimised. The two simulations are of
-the paper's linear model (eqs. (3)-(4), ``plant_model="linear"``) with sensor
-noise only: the split ``alpha^2 I_r + I_e`` is exact there. A force
-disturbance (the simulator's realistic default, and the ``ml`` method's noise
-model) is left out of the plan: it is noise in the innovations and also an
-excitation of the plant, and the linear simulator has no force input; on the
-default bearing (0.1 N) the bound with it is within ~1.5x of the plan's
-(``docs/gosiewski.md``, "Maximum likelihood"). The loop is the default
-design on the nominal bearing (:func:`~maglevid.simulate.amb.simulate_amb_loop`),
+Noise model: sensor noise on x, i1, i2, a force disturbance on the rotor
+(held over each sample, ``b_F = [0, 1/m, 0, 0]``) and amplifier noise added
+after the logged ``u`` -- the ``ml`` predictor's model
+(:func:`~maglevid.identify.cramer_rao.amb_linear_gaussian_model`); by default
+the simulator's realistic bearing (its sensor noise and 0.1 N). The two
+simulations are of the default loop around the linearised bearing
+(:func:`_loop_record`: the loop of
+:func:`~maglevid.simulate.loop.closed_loop_system` with the force and the
+amplifier noise as two more inputs the controller never sees), so the split
+``alpha^2 I_r + I_e`` is exact. The force costs information on the coil
+parameters (R1, kw1: ~1.8x the std with sensor noise alone on the default
+bearing) and adds some on the rotor's (it excites it).
+
+Spectrum: the present excitation is white (a design) or the recording's own
+``r`` (its waveform scaled to unit rms: ``spectrum = "recorded"``). The plan
+also evaluates candidate spectra of the same rms (:data:`DEFAULT_SPECTRA`:
+white noise through a second-order Butterworth low-pass at 20 Hz - 1 kHz) and
+names, per parameter and for all together, the one that needs the shortest
+record at its own largest allowed excitation (a low-frequency excitation moves
+the rotor more per volt, so the displacement limit binds earlier). On the
+nominal bearing a 100 Hz low-pass excitation gives 3-5x smaller bounds than
+white noise at the same rms.
+
+The loop is the default design on the nominal bearing
+(:func:`~maglevid.simulate.amb.default_amb_controller` and ``_observer``),
 which is how the simulated recordings are made; for a recording with another
 controller the plan is that of the default loop around the estimated bearing.
+The bound is asymptotic: a planned record of a few hundred samples is at the
+edge of its validity.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -63,13 +80,19 @@ __all__ = [
     "DEFAULT_FRACTION",
     "DEFAULT_MAX_DISPLACEMENT",
     "DEFAULT_MAX_EXCITATION_STD",
+    "DEFAULT_SPECTRA",
     "DesignInformation",
     "ExperimentPlan",
     "PlanRow",
+    "design_for_recording",
     "design_information",
+    "excitation_signal",
+    "noise_of_result",
     "plan_experiment",
     "plan_for_recording",
     "plan_from_result",
+    "spectrum_label",
+    "v_of_result",
 ]
 
 #: Fraction of the tolerance the 95 % half-width must reach.
@@ -90,9 +113,61 @@ DEFAULT_PARAMETERS = ("R1", "R2", "kw1", "kw2", "L1", "L2", "ki1", "ki2", "x0")
 _Z95 = 1.959963984540054
 
 
+#: Candidate excitation spectra the plan compares (module notes): white, and
+#: white noise through a second-order Butterworth low-pass at these corners [Hz]
+#: (corners at or above 0.8 x Nyquist are left out).
+DEFAULT_SPECTRA = (
+    "white",
+    "lowpass:20",
+    "lowpass:50",
+    "lowpass:100",
+    "lowpass:300",
+    "lowpass:1000",
+)
+
+
+def spectrum_label(spectrum: str) -> str:
+    """Words for a spectrum name: ``"lowpass:100"`` -> ``"low-pass 100 Hz"``."""
+    if spectrum.startswith("lowpass:"):
+        return f"low-pass {float(spectrum.split(':', 1)[1]):g} Hz"
+    return {"white": "white", "recorded": "as recorded"}.get(spectrum, spectrum)
+
+
+def excitation_signal(spectrum: str, n_samples: int, dt: float, rng: Any) -> np.ndarray:
+    """Unit-rms excitation on both inputs, shape ``(n_samples, 2)``, of a named spectrum.
+
+    ``"white"``: white Gaussian (the simulator's). ``"lowpass:F"``: white Gaussian
+    through a second-order Butterworth low-pass with corner ``F`` Hz, scaled
+    back to unit rms (the same amplifier rms, its power moved below ``F``).
+    """
+    from scipy import signal
+
+    gen = np.random.default_rng(rng)
+    w = gen.standard_normal((int(n_samples), 2))
+    if spectrum == "white":
+        return w
+    if not spectrum.startswith("lowpass:"):
+        raise DataError(f"unknown excitation spectrum {spectrum!r}; use 'white' or 'lowpass:F'")
+    try:
+        fc = float(spectrum.split(":", 1)[1])
+    except ValueError:
+        raise DataError(f"`{spectrum}`: the corner must be a number of Hz") from None
+    nyquist = 0.5 / dt
+    if not 0 < fc < nyquist:
+        raise DataError(f"`{spectrum}`: the corner must be in (0, {nyquist:g}) Hz (Nyquist)")
+    sos = signal.butter(2, fc, fs=1.0 / dt, output="sos")
+    r = signal.sosfilt(sos, w, axis=0)
+    return r / np.std(r, axis=0)
+
+
 @dataclass(frozen=True)
 class DesignInformation:
-    """Per-sample information of a loop, split into excitation and noise parts."""
+    """Per-sample information of a loop, split into excitation and noise parts.
+
+    ``info_r`` and ``x_rms_r`` are those of the present excitation spectrum
+    (``spectrum``); ``spectra`` holds the same pair for every candidate
+    spectrum the plan may propose instead (module notes).
+    """
 
     v: np.ndarray
     dt: float
@@ -105,13 +180,29 @@ class DesignInformation:
     m: float | None
     i0: float | None
     gap: float
+    spectrum: str = "white"
+    spectra: Mapping[str, tuple[np.ndarray, float, float]] = field(default_factory=dict)
+    i_rms_r: float = 0.0  # rms coil current (larger coil) per reference excitation [A]
+    i_rms_e: float = 0.0  # the same from the noise-driven loop [A]
 
-    def bound(self, *, n_samples: int, excitation_std: float) -> CramerRaoBound:
+    def _part(self, spectrum: str | None) -> tuple[np.ndarray, float, float]:
+        if spectrum is None or spectrum == self.spectrum:
+            return self.info_r, self.x_rms_r, self.i_rms_r
+        try:
+            return self.spectra[spectrum]
+        except KeyError:
+            raise DataError(
+                f"spectrum {spectrum!r} was not computed; known: {[self.spectrum, *self.spectra]}"
+            ) from None
+
+    def bound(
+        self, *, n_samples: int, excitation_std: float, spectrum: str | None = None
+    ) -> CramerRaoBound:
         """The bound for ``n_samples`` at ``excitation_std`` [V rms per input]."""
-        a = excitation_std / self.reference_std
-        info = n_samples * (a * a * self.info_r + self.info_e)
         return bound_from_fisher(
-            eliminate_nuisance(info, 9),
+            self.v_information(
+                n_samples=n_samples, excitation_std=excitation_std, spectrum=spectrum
+            ),
             self.v,
             n_samples=n_samples,
             noise=self.noise,
@@ -119,9 +210,95 @@ class DesignInformation:
             i0=self.i0,
         )
 
-    def displacement_rms(self, excitation_std: float) -> float:
+    def v_information(
+        self, *, n_samples: int, excitation_std: float, spectrum: str | None = None
+    ) -> np.ndarray:
+        """Fisher information of v1..v9 (nuisance parameters eliminated), 9 x 9."""
+        info_r, _, _ = self._part(spectrum)
         a = excitation_std / self.reference_std
-        return math.sqrt((a * self.x_rms_r) ** 2 + self.x_rms_e**2)
+        return eliminate_nuisance(n_samples * (a * a * info_r + self.info_e), 9)
+
+    def displacement_rms(self, excitation_std: float, spectrum: str | None = None) -> float:
+        _, x_rms_r, _ = self._part(spectrum)
+        a = excitation_std / self.reference_std
+        return math.sqrt((a * x_rms_r) ** 2 + self.x_rms_e**2)
+
+    def excursion(self, excitation_std: float, spectrum: str | None = None) -> float:
+        """Largest relative excursion ``max(std x / x0, std i / i0)`` of the loop.
+
+        What sets the linearisation's model error (the diagnosis's
+        :func:`~maglevid.diagnose.pipeline.estimate_model_error`).
+        """
+        _, _, i_rms_r = self._part(spectrum)
+        a = excitation_std / self.reference_std
+        x = self.displacement_rms(excitation_std, spectrum) / self.gap
+        i = math.sqrt((a * i_rms_r) ** 2 + self.i_rms_e**2) / self.i0 if self.i0 else 0.0
+        return max(x, i)
+
+    def max_excitation(
+        self, max_excitation_std: float, max_displacement: float, spectrum: str | None = None
+    ) -> float:
+        """The largest excitation [V rms] within the amplifier and displacement limits."""
+        _, x_rms_r, _ = self._part(spectrum)
+        x_lim = max_displacement * self.gap
+        a_disp = (
+            self.reference_std * math.sqrt(max(x_lim**2 - self.x_rms_e**2, 0.0)) / x_rms_r
+            if x_rms_r > 0
+            else math.inf
+        )
+        return min(max_excitation_std, a_disp)
+
+
+def _loop_record(
+    plant: AMBParameters,
+    nominal: AMBParameters,
+    dt: float,
+    *,
+    r: np.ndarray,
+    noise: NoiseModel | None,
+    rng: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """``y`` and the logged ``u`` of the default loop around the linear ``plant``.
+
+    The loop of :func:`~maglevid.simulate.loop.closed_loop_system` (inputs
+    ``[r; v]``) with two more inputs the controller never sees: the force
+    disturbance ``F`` on the rotor (``b_F = [0, 1/m, 0, 0]``, held over each
+    sample) and amplifier noise added after the logged ``u``. Each enters the
+    plant state through its ZOH input matrix ``B_w``, and the integral state
+    ``e'`` through ``-E C_p B_w`` (as ``B_u`` does in that function), never the
+    observer. The same noise model as the ``ml`` predictor's
+    (:func:`~maglevid.identify.cramer_rao.amb_linear_gaussian_model`).
+    """
+    from maglevid.exceptions import DesignError
+    from maglevid.lti import StateSpace, discretize
+    from maglevid.physics.amb import amb_matrices, amb_state_space
+    from maglevid.simulate.amb import default_amb_controller, default_amb_observer
+    from maglevid.simulate.kernel import simulate_lti
+    from maglevid.simulate.loop import closed_loop_system
+
+    controller = default_amb_controller(nominal, dt)
+    observer = default_amb_observer(nominal, dt)
+    pd = amb_state_space(plant, dt)
+    cl = closed_loop_system(pd, observer, controller)
+    if float(np.max(np.abs(cl.poles()))) >= 1.0:
+        raise DesignError("the default loop does not hold this bearing: nothing to plan")
+    n = r.shape[0]
+    gen = np.random.default_rng(rng)
+    sensor = np.zeros(3) if noise is None else np.asarray(noise.sensor_std)
+    force = 0.0 if noise is None else noise.force_std
+    amp = np.zeros(2) if noise is None else np.asarray(noise.amplifier_std)
+    v = gen.standard_normal((n, 3)) * sensor
+    Ac, _ = amb_matrices(plant)
+    bF = np.zeros((4, 1))
+    bF[1, 0] = 1.0 / plant.m
+    bFd = discretize(StateSpace(Ac, bF, np.eye(4)), dt).B
+    Bw = np.hstack([bFd, pd.B])  # force, amplifier noise on u1, u2
+    nxo = cl.A.shape[0] - 4 - controller.E.shape[0]
+    Bz = np.vstack([Bw, np.zeros((nxo, 3)), -controller.E @ pd.C @ Bw])
+    sys = StateSpace(cl.A, np.hstack([cl.B, Bz]), cl.C, np.hstack([cl.D, np.zeros((5, 3))]), dt)
+    w = np.hstack([gen.standard_normal((n, 1)) * force, gen.standard_normal((n, 2)) * amp])
+    out, _ = simulate_lti(sys, np.hstack([r, v, w]))
+    return out[:, :3], out[:, 3:] + r
 
 
 def design_information(
@@ -132,6 +309,8 @@ def design_information(
     noise: NoiseModel | None = None,
     n_simulate: int = 20_000,
     rng: int = 0,
+    excitation: np.ndarray | None = None,
+    spectra: Sequence[str] = DEFAULT_SPECTRA,
 ) -> DesignInformation:
     """:class:`DesignInformation` of the default loop around ``plant`` (module notes).
 
@@ -144,43 +323,77 @@ def design_information(
     dt : float
         Control period [s].
     noise : NoiseModel, optional
-        Default: the simulator's default sensor noise.
+        Sensor noise, force disturbance and amplifier noise. Default: the
+        simulator's realistic default (its sensor noise and a 0.1 N force).
     n_simulate : int
-        Samples of each of the two simulations (the expectation of eq. (2) is
-        their average; its relative sampling error is ~1 % at 2e4).
+        Samples of each simulation (the expectation of eq. (2) is their
+        average; its relative sampling error is ~1 % at 2e4).
     rng : int
         Seed of the simulations.
+    excitation : ndarray, shape (n, 2), optional
+        The present excitation's waveform (e.g. a recording's ``r``); its
+        spectrum is kept, its level scaled to unit rms per input. Default:
+        white (``spectrum = "white"``).
+    spectra : sequence of str
+        Candidate spectra to compare (:data:`DEFAULT_SPECTRA`; ``()`` for none).
     """
-    from maglevid.simulate.amb import DEFAULT_NOISE_STD, simulate_amb_loop
+    from maglevid.simulate.amb import DEFAULT_FORCE_STD, DEFAULT_NOISE_STD
 
     plant = AMBParameters.nominal() if plant is None else plant
     nominal = plant if nominal is None else nominal
-    noise = NoiseModel(DEFAULT_NOISE_STD) if noise is None else noise
-    ref = 1.0
-    common = {"nominal": nominal, "dt": dt, "n_samples": int(n_simulate), "rng": int(rng)}
-    # The linear plant, sensor noise only (module notes: the split is exact there).
-    common.update(plant_model="linear", force_std=0.0)
-    noise = NoiseModel(noise.sensor_std, amplifier_std=noise.amplifier_std)
-    d_r = simulate_amb_loop(plant, excitation_std=ref, noise_std=(0.0, 0.0, 0.0), **common)
-    d_e = simulate_amb_loop(plant, excitation_std=0.0, noise_std=noise.sensor_std, **common)
+    if noise is None:
+        noise = NoiseModel(DEFAULT_NOISE_STD, force_std=DEFAULT_FORCE_STD)
+    n = int(n_simulate)
     v = plant.v()
-    model = amb_linear_gaussian_model(v, dt, noise, m=plant.m, estimate_noise=True)
-    st_r = predictor_statistics(model, d_r.y, d_r.u, nuisance=False)
-    st_e = predictor_statistics(model, d_e.y, d_e.u, nuisance=False)
+    model = amb_linear_gaussian_model(
+        v, dt, noise, m=plant.m, estimate_noise=True, estimate_force=noise.force_std > 0
+    )
+
+    def per_sample(r: np.ndarray, with_noise: bool) -> tuple[np.ndarray, float, float]:
+        y, u = _loop_record(plant, nominal, dt, r=r, noise=noise if with_noise else None, rng=rng)
+        st = predictor_statistics(model, y, u, nuisance=False)
+        sd = np.std(y, axis=0)
+        return st.fisher / r.shape[0], float(sd[0]), float(max(sd[1], sd[2]))
+
     zero = predictor_statistics(model, np.zeros((2, 3)), np.zeros((2, 2)), nuisance=False)
     s_term = zero.fisher / 2  # the S term of eq. (2) per sample (the data part is 0)
+    info_e, x_rms_e, i_rms_e = per_sample(np.zeros((n, 2)), True)
+    parts: dict[str, tuple[np.ndarray, float, float]] = {}
+    for name in spectra:
+        if name.startswith("lowpass:") and float(name.split(":", 1)[1]) >= 0.4 / dt:
+            continue  # corners at or above 0.8 x Nyquist
+        info, x_rms, i_rms = per_sample(excitation_signal(name, n, dt, rng + 1), False)
+        parts[name] = (info - s_term, x_rms, i_rms)
+    if excitation is None:
+        present = "white"
+        if present not in parts:
+            info, x_rms, i_rms = per_sample(excitation_signal(present, n, dt, rng + 1), False)
+            parts[present] = (info - s_term, x_rms, i_rms)
+        info_r, x_rms_r, i_rms_r = parts.pop(present)
+    else:
+        present = "recorded"
+        r = np.asarray(excitation, float)
+        if r.ndim != 2 or r.shape[1] != 2 or not np.all(np.std(r, axis=0) > 0):
+            raise DataError("`excitation` must be (n, 2) with both inputs excited")
+        r = r[:n]
+        info, x_rms_r, i_rms_r = per_sample((r - r.mean(axis=0)) / np.std(r, axis=0), False)
+        info_r = info - s_term
     return DesignInformation(
         v=v,
         dt=dt,
         noise=noise,
-        reference_std=ref,
-        info_r=(st_r.fisher / n_simulate) - s_term,
-        info_e=st_e.fisher / n_simulate,
-        x_rms_r=float(np.std(d_r.y[:, 0])),
-        x_rms_e=float(np.std(d_e.y[:, 0])),
+        reference_std=1.0,
+        info_r=info_r,
+        info_e=info_e,
+        x_rms_r=x_rms_r,
+        x_rms_e=x_rms_e,
+        i_rms_r=i_rms_r,
+        i_rms_e=i_rms_e,
         m=plant.m,
         i0=plant.i0,
         gap=plant.x0,
+        spectrum=present,
+        spectra=parts,
     )
 
 
@@ -195,6 +408,9 @@ class PlanRow:
     seconds_now: float  # needed at the present excitation
     seconds_at_max: float  # needed at the largest allowed excitation
     excitation_for_length: float | None  # V rms at the present length (None: not reachable)
+    best_spectrum: str = "white"  # the candidate spectrum that needs the shortest record
+    seconds_best: float = math.inf  # needed with it, at its largest allowed excitation
+    excitation_best: float = 0.0  # that excitation [V rms per input]
 
     @property
     def resolved(self) -> bool:
@@ -222,6 +438,9 @@ class PlanRow:
             "seconds_now": self.seconds_now,
             "seconds_at_max_excitation": self.seconds_at_max,
             "excitation_for_present_length": self.excitation_for_length,
+            "best_spectrum": self.best_spectrum,
+            "seconds_with_best_spectrum": self.seconds_best,
+            "excitation_with_best_spectrum": self.excitation_best,
         }
 
 
@@ -247,6 +466,10 @@ class ExperimentPlan:
     tolerance: Mapping[str, float]
     fraction: float
     noise: NoiseModel
+    spectrum: str = "white"
+    best_spectrum: str = "white"  # shortest record for every open parameter together
+    seconds_best: float = math.inf
+    excitation_best: float = 0.0
 
     @property
     def seconds_now(self) -> float:
@@ -270,10 +493,21 @@ class ExperimentPlan:
         )
         if self.max_excitation_std > self.excitation_std * 1.01:
             out += f", or {_fmt_s(self.seconds_at_max)} at {self.max_excitation_std:.3g} V rms"
+        if self.best_spectrum != self.spectrum and self.seconds_best < 0.8 * min(
+            self.seconds_now, self.seconds_at_max
+        ):
+            out += (
+                f"; a {spectrum_label(self.best_spectrum)} excitation at "
+                f"{self.excitation_best:.3g} V rms needs {_fmt_s(self.seconds_best)}"
+            )
         return out
 
     def to_dict(self) -> dict[str, Any]:
         return {
+            "spectrum": self.spectrum,
+            "best_spectrum": self.best_spectrum,
+            "seconds_needed_with_best_spectrum": self.seconds_best,
+            "excitation_with_best_spectrum": self.excitation_best,
             "n_samples": self.n_samples,
             "seconds": self.n_samples * self.dt,
             "dt": self.dt,
@@ -336,26 +570,25 @@ def plan_experiment(
         for p in parameters
     }
     # Largest excitation: the amplifier or the displacement limit, whichever is smaller.
-    x_lim = max_displacement * design.gap
-    a_disp = (
-        design.reference_std * math.sqrt(max(x_lim**2 - design.x_rms_e**2, 0.0)) / design.x_rms_r
-        if design.x_rms_r > 0
-        else math.inf
-    )
-    a_max = min(max_excitation_std, a_disp)
+    a_max = design.max_excitation(max_excitation_std, max_displacement)
     now = design.bound(n_samples=1, excitation_std=excitation_std)
-    at_max = design.bound(n_samples=1, excitation_std=a_max)
     names = list(now.names)
     unknown = [p for p in parameters if p not in names]
     if unknown:
         raise DataError(f"unknown parameters {unknown}; expected names among {names}")
+    index = [names.index(p) for p in parameters]
+    # Per-sample variances at each spectrum's largest allowed excitation.
+    at_max: dict[str, tuple[float, np.ndarray]] = {}
+    for sp in (design.spectrum, *design.spectra):
+        a_sp = design.max_excitation(max_excitation_std, max_displacement, sp)
+        cov = design.bound(n_samples=1, excitation_std=a_sp, spectrum=sp).covariance
+        at_max[sp] = (a_sp, np.diag(cov)[index])
     rows = []
-    for p in parameters:
-        i = names.index(p)
+    for j, (p, i) in enumerate(zip(parameters, index, strict=True)):
         value = float(now.values[i])
         target = fraction * tol[p] * abs(value) / _Z95
         var1_now = float(now.covariance[i, i])
-        var1_max = float(at_max.covariance[i, i])
+        best = min(at_max, key=lambda sp: at_max[sp][1][j])
         rows.append(
             PlanRow(
                 name=p,
@@ -363,10 +596,21 @@ def plan_experiment(
                 target_std=target,
                 std_now=math.sqrt(var1_now / n_samples),
                 seconds_now=var1_now / target**2 * design.dt,
-                seconds_at_max=var1_max / target**2 * design.dt,
+                seconds_at_max=float(at_max[design.spectrum][1][j]) / target**2 * design.dt,
                 excitation_for_length=_excitation_for(design, i, n_samples, target, a_max),
+                best_spectrum=best,
+                seconds_best=float(at_max[best][1][j]) / target**2 * design.dt,
+                excitation_best=at_max[best][0],
             )
         )
+    # One spectrum for every parameter not yet resolved (all of them when all are).
+    open_j = [j for j, r in enumerate(rows) if not r.resolved] or list(range(len(rows)))
+    targets = np.array([rows[j].target_std ** 2 for j in open_j])
+
+    def seconds(sp: str) -> float:
+        return float(np.max(at_max[sp][1][open_j] / targets)) * design.dt
+
+    best_all = min(at_max, key=seconds)
     return ExperimentPlan(
         rows=tuple(rows),
         n_samples=int(n_samples),
@@ -378,6 +622,10 @@ def plan_experiment(
         tolerance=tol,
         fraction=float(fraction),
         noise=design.noise,
+        spectrum=design.spectrum,
+        best_spectrum=best_all,
+        seconds_best=seconds(best_all),
+        excitation_best=at_max[best_all][0],
     )
 
 
@@ -402,6 +650,38 @@ def _excitation_for(
     return hi
 
 
+def design_for_recording(
+    data: ClosedLoopData,
+    *,
+    v: Any = None,
+    noise: NoiseModel | None = None,
+    spectra: Sequence[str] = DEFAULT_SPECTRA,
+    n_simulate: int = 20_000,
+) -> DesignInformation:
+    """:func:`design_information` for an existing recording (:func:`plan_for_recording`)."""
+    v = evaluation_point(data, v)
+    noise = NoiseModel.from_data(data) if noise is None else noise
+    if noise is None:
+        raise DataError("no noise model: pass `noise` (e.g. the ml fit's sensor_noise_std)")
+    m, i0 = operating_point(data.loop)
+    if m is None or i0 is None:
+        raise DataError("planning needs the mass and bias current (loop['operating_point'])")
+    plant = plant_from_v(np.asarray(v, float), m=m, i0=i0)
+    nom = data.loop.get("nominal") if isinstance(data.loop, Mapping) else None
+    nominal = AMBParameters(**nom) if isinstance(nom, Mapping) else plant
+    if data.r is None:
+        raise DataError("planning from a recording needs its excitation r")
+    return design_information(
+        plant,
+        nominal=nominal,
+        dt=data.dt,
+        noise=noise,
+        excitation=np.asarray(data.r),
+        spectra=spectra,
+        n_simulate=n_simulate,
+    )
+
+
 def plan_for_recording(
     data: ClosedLoopData,
     *,
@@ -415,34 +695,44 @@ def plan_for_recording(
     result's v1..v9; by default the simulated truth), with the mass and bias
     current of ``data.loop["operating_point"]``; the loop is the default
     design on ``data.loop["nominal"]``; the present length and excitation
-    are the recording's (``std`` of ``r``, mean over the two inputs).
+    are the recording's (``std`` of ``r``, mean over the two inputs; its
+    waveform is the present spectrum, ``"recorded"``).
     ``options`` go to :func:`plan_experiment` (``parameters``, ``tolerance``,
     ``fraction``, ``max_excitation_std``, ``max_displacement``).
     """
-    v = evaluation_point(data, v)
-    noise = NoiseModel.from_data(data) if noise is None else noise
-    if noise is None:
-        raise DataError("no noise model: pass `noise` (e.g. the ml fit's sensor_noise_std)")
-    m, i0 = operating_point(data.loop)
-    if m is None or i0 is None:
-        raise DataError("planning needs the mass and bias current (loop['operating_point'])")
-    plant = plant_from_v(np.asarray(v, float), m=m, i0=i0)
-    nom = data.loop.get("nominal") if isinstance(data.loop, Mapping) else None
-    nominal = AMBParameters(**nom) if isinstance(nom, Mapping) else plant
-    if data.r is None:
-        raise DataError("planning from a recording needs its excitation r")
-    design = design_information(plant, nominal=nominal, dt=data.dt, noise=noise)
+    design = design_for_recording(data, v=v, noise=noise)
     exc = float(np.mean(np.std(np.asarray(data.r), axis=0)))
     return plan_experiment(design, n_samples=data.n_samples, excitation_std=exc, **options)
+
+
+def noise_of_result(result: Any) -> NoiseModel | None:
+    """The noise model an identification result states: the ``ml`` fit's sensor noise
+    and force estimates, else the white-noise covariance of an IV/LS fit (no force);
+    ``None`` when it states none."""
+    extras = getattr(result, "extras", {}) or {}
+    s = extras.get("sensor_noise_std")
+    if s is None and extras.get("noise_covariance") is not None:
+        s = np.sqrt(np.clip(np.diag(np.asarray(extras["noise_covariance"], float)), 0, None))
+    if s is None or not np.all(np.asarray(s, float) > 0):
+        return None
+    f = extras.get("force_std")  # the ml fit's estimate of the force disturbance
+    f = float(f) if isinstance(f, (int, float)) and np.isfinite(f) and f > 0 else 0.0
+    return NoiseModel(tuple(np.asarray(s, float).tolist()), force_std=f)  # type: ignore[arg-type]
+
+
+def v_of_result(result: Any) -> list[float]:
+    """v1..v9 of an AMB identification result (``DataError`` without them)."""
+    try:
+        return [float(result.parameters[f"v{i}"]) for i in range(1, 10)]
+    except (KeyError, AttributeError, TypeError):
+        raise DataError("planning needs an AMB identification result with v1..v9") from None
 
 
 def plan_from_result(data: ClosedLoopData, result: Any, **options: Any) -> ExperimentPlan:
     """:func:`plan_for_recording` at an identification result's estimate.
 
-    The resolver an ``inconclusive`` verdict can cite: the bearing is the
-    result's v1..v9, the sensor noise the ``ml`` fit's estimate
-    (``extras["sensor_noise_std"]``), else the IV fit's white-noise covariance
-    (``extras["noise_covariance"]``), else the recording's metadata.
+    The bearing is the result's v1..v9, the noise the result's own statement
+    (:func:`noise_of_result`), else the recording's metadata.
     ``plan_from_result(data, fit, parameters=("R1",), tolerance=0.05).sentence()``
     gives e.g. "to resolve R1 to 0.5 of the tolerance, the record needs 9 s at
     this excitation (1 V rms), or 560 ms at 4 V rms".
@@ -452,15 +742,6 @@ def plan_from_result(data: ClosedLoopData, result: Any, **options: Any) -> Exper
     DataError
         The result has no v1..v9, or no noise level can be found.
     """
-    try:
-        v = [float(result.parameters[f"v{i}"]) for i in range(1, 10)]
-    except (KeyError, AttributeError):
-        raise DataError("planning needs an AMB identification result with v1..v9") from None
-    extras = getattr(result, "extras", {}) or {}
-    s = extras.get("sensor_noise_std")
-    if s is None and extras.get("noise_covariance") is not None:
-        s = np.sqrt(np.clip(np.diag(np.asarray(extras["noise_covariance"], float)), 0, None))
-    noise = None
-    if s is not None and np.all(np.asarray(s, float) > 0):
-        noise = NoiseModel(tuple(np.asarray(s, float).tolist()))  # type: ignore[arg-type]
-    return plan_for_recording(data, v=v, noise=noise, **options)
+    return plan_for_recording(
+        data, v=v_of_result(result), noise=noise_of_result(result), **options
+    )
