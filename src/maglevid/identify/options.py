@@ -46,6 +46,7 @@ __all__ = [
     "KINDS",
     "SIGNATURE_DEFAULT",
     "Option",
+    "UnknownOptionError",
     "bind_defaults",
     "check_options",
     "declared",
@@ -53,6 +54,11 @@ __all__ = [
     "options_doc",
     "parse_cli_options",
 ]
+
+
+class UnknownOptionError(DataError, TypeError):
+    """A keyword option the method does not declare: a :class:`DataError` (one line at
+    the command line) and, as Python says of an unexpected keyword, a ``TypeError``."""
 
 
 class _SignatureDefault:
@@ -290,9 +296,10 @@ def check_options(
 
     Raises
     ------
+    UnknownOptionError
+        An option the method does not declare (with the closest known name).
     DataError
-        One line: the unknown option (with the closest known name), or the
-        option whose value is not what it takes.
+        One line: the option whose value is not what it takes.
     """
     by_name = {o.name: o for o in declared_options}
     for name, value in options.items():
@@ -300,7 +307,7 @@ def check_options(
         if opt is None:
             close = difflib.get_close_matches(name, list(by_name), n=1, cutoff=0.6)
             hint = f" (did you mean {close[0]!r}?)" if close else ""
-            raise DataError(
+            raise UnknownOptionError(
                 f"method {method!r} has no option {name!r}{hint}; its options: "
                 f"{', '.join(by_name) or '(none)'}"
             )

@@ -47,6 +47,7 @@ from maglevid.identify.closedloop import (
     simo_polynomials_to_state_space,
 )
 from maglevid.identify.options import Option, declared
+from maglevid.identify.pem import OPTIONS_PEM
 from maglevid.identify.result import IdentificationResult
 
 __all__ = ["METHODS", "OPTIONS_TWO_STAGE", "fit_two_stage", "newey_west"]
@@ -67,20 +68,19 @@ def newey_west(X: np.ndarray, e: np.ndarray, lags: int) -> np.ndarray:
     return S
 
 
+#: pem's declarations of the options both methods take.
+_PEM = {o.name: o for o in OPTIONS_PEM}
 #: The options of ``two-stage`` (defaults: :func:`fit_two_stage`'s signature).
 OPTIONS_TWO_STAGE = (
-    Option("output", "channel", "plant output channel"),
-    Option("input", "channel", "plant input channel (the command u:0 or a measured current)"),
+    _PEM["output"], _PEM["input"],
     Option("reference", "channel", "external signal uncorrelated with the noise (instruments)"),
-    Option("na", "int", "order of A of the plant ARX", low=1),
-    Option("nb", "int", "number of B coefficients", low=1),
-    Option("nk", "int", "input delay in samples (0 for a measured input)", low=0),
+    _PEM["na"], _PEM["nb"], _PEM["nk"],
     Option("n_fir", "int", "causal lags of the reference in stage 1 (cover the settling)", low=1),
     Option("n_noncausal", "int", "non-causal lags of the reference (Forssell-Ljung)", low=0),
-    Option("segments", "segments", "pieces [start, stop) of the record used (default all)"),
+    _PEM["segments"],
     Option("intercept", "bool", "one intercept per segment, in both stages"),
     Option("hac_lags", "int", "Newey-West window (default na + nb + nk + 10)", low=0),
-)
+)  # fmt: skip
 
 
 @declared(*OPTIONS_TWO_STAGE)
