@@ -141,7 +141,8 @@ def test_method_list_shows_every_method_with_its_options(capsys):
     assert pem["na"] == {"name": "na", "kind": "int", "doc": pem["na"]["doc"], "default": 2,
                          "range": [1, None]}  # fmt: skip
     assert pem["structure"]["choices"] == ["arx", "armax", "oe"]
-    assert listed["options"]["greybox-levitator"][5]["unit"] == "kg"  # m
+    greybox = {o["name"]: o for o in listed["options"]["greybox-levitator"]}
+    assert greybox["m"]["unit"] == "kg" and greybox["m"]["low_open"] is True
     assert main(["identify", "x.npz", "--method", "list"]) == 0
     text = capsys.readouterr().out
     assert "\n    na: int = 2 " in text and "{arx, armax, oe}" in text
