@@ -7,7 +7,13 @@ import json
 from typing import Any
 
 from maglevid.exceptions import DataError
-from maglevid.identify.registry import describe_methods, get_method
+from maglevid.identify.options import parse_cli_options
+from maglevid.identify.registry import (
+    describe_method_options,
+    describe_methods,
+    get_method,
+    method_options,
+)
 
 COMMAND = "identify"
 HELP = "identify the plant (and its physical parameters) from a recording"
@@ -77,7 +83,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="append",
         default=[],
         metavar="KEY=VALUE",
-        help="method option (VALUE parsed as JSON when possible); repeatable",
+        help="method option, typed by the method's declaration (`--method list` shows each "
+        "method's options, kinds, defaults and ranges); repeatable",
     )
     parser.add_argument(
         "--force",
@@ -100,13 +107,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def _parse_options(items: list[str]) -> dict[str, Any]:
-    from maglevid.exceptions import DataError
-
-    out: dict[str, Any] = {}
+def _check_option_syntax(items: list[str]) -> None:
+    """Every ``--option`` is ``KEY=VALUE`` (checked before the recording is read)."""
     for item in items:
         if "=" not in item:
             raise DataError(f"--option {item!r}: expected KEY=VALUE")
+
+
+def _typed_options(method: str, items: list[str]) -> dict[str, Any]:
+    """``--option`` items as ``method``'s keyword options, typed and validated by its
+    declaration (:mod:`maglevid.identify.options`); one DataError otherwise."""
+    declared = method_options(method)
+    if declared is not None:
+        return parse_cli_options(method, declared, items)
+    out: dict[str, Any] = {}  # a method without a declaration: JSON when possible
+    for item in items:
         k, v = item.split("=", 1)
         try:
             out[k] = json.loads(v)
@@ -130,7 +145,7 @@ def _should_stream(args: argparse.Namespace) -> bool:
     )
 
 
-def _run_streamed(args: argparse.Namespace, options: dict[str, Any]) -> dict[str, Any]:
+def _run_streamed(args: argparse.Namespace) -> dict[str, Any]:
     from maglevid.cli._progress import progress
     from maglevid.identify.streaming import STREAMED_METHODS, identify_streamed
     from maglevid.io import iter_recording_chunks
@@ -148,6 +163,7 @@ def _run_streamed(args: argparse.Namespace, options: dict[str, Any]) -> dict[str
             f"method {method!r} cannot be streamed (streamed: "
             f"{', '.join(sorted(STREAMED_METHODS))}); use --no-stream to read the whole file"
         )
+    options = _typed_options(method, args.option)
     # The quality gate on the first chunk (the whole record when it fits in one).
     first = next(iter_recording_chunks(args.recording, args.chunk_size, mapping=args.mapping))
     warnings = quality_gate(first, force=args.force)
@@ -170,16 +186,20 @@ def _run_streamed(args: argparse.Namespace, options: dict[str, Any]) -> dict[str
 def run(args: argparse.Namespace) -> dict[str, Any]:
     if args.method == "list":
         described = describe_methods()
-        return {"methods": list(described), "descriptions": described}
-    options = _parse_options(args.option)
+        return {
+            "methods": list(described),
+            "descriptions": described,
+            "options": describe_method_options(),
+        }
+    _check_option_syntax(args.option)
     if _should_stream(args):
-        return _run_streamed(args, options)
+        return _run_streamed(args)
     if len(args.recording) > 1:
-        return _run_sessions(args, options)
-    return _run_one(args.recording[0], args, dict(options))
+        return _run_sessions(args)
+    return _run_one(args.recording[0], args)
 
 
-def _run_one(path: str, args: argparse.Namespace, options: dict[str, Any]) -> dict[str, Any]:
+def _run_one(path: str, args: argparse.Namespace) -> dict[str, Any]:
     from maglevid.cli._progress import stages
     from maglevid.io import read_recording
     from maglevid.plants import choose_method, infer_kind
@@ -191,13 +211,13 @@ def _run_one(path: str, args: argparse.Namespace, options: dict[str, Any]) -> di
     method, reason = choose_method(data)
     if args.method is not None and args.method != method:
         method, reason = args.method, "chosen by the user"
+    options = _typed_options(method, args.option)  # an unknown method is refused here
     notes = []
     if data.r is None and (args.recover_excitation or method in NEEDS_EXCITATION):
         data, notes = _recover(data, method, options)
     if kind == "levitator" and "segments" not in options and method != "levitator":
         options["segments"] = _levitator_segments(data, method)
-    fit = get_method(method)  # an unknown method is refused before the gate
-    check_options(method, fit, options)
+    fit = get_method(method)
     try:
         warnings = quality_gate(data, force=args.force)
     except DataError as exc:
@@ -278,7 +298,7 @@ def _levitator_segments(data: Any, method: str) -> list[tuple[int, int]]:
     return segs if method == "greybox-levitator" else rep.bounds()
 
 
-def _run_sessions(args: argparse.Namespace, options: dict[str, Any]) -> dict[str, Any]:
+def _run_sessions(args: argparse.Namespace) -> dict[str, Any]:
     """Several sessions of one rig: each on its own, then all together."""
     from maglevid.exceptions import DataError
     from maglevid.identify.levitator import fit_levitator_sessions
@@ -293,8 +313,8 @@ def _run_sessions(args: argparse.Namespace, options: dict[str, Any]) -> dict[str
             f"levitator); these are {sorted(kinds)}"
             + (f", method {args.method}" if args.method else "")
         )
-    per = [_run_one(p, args, dict(options)) for p in args.recording]
-    joint = fit_levitator_sessions(sessions, **options)
+    per = [_run_one(p, args) for p in args.recording]
+    joint = fit_levitator_sessions(sessions, **_typed_options("levitator", args.option))
     out = joint.to_dict()
     out.update(
         recording=list(args.recording),
@@ -327,28 +347,6 @@ def _with_warnings(out: dict[str, Any], warnings: list[str]) -> dict[str, Any]:
         out["warnings"] = warnings
         out["notes"] = list(dict.fromkeys([*warnings, *out.get("notes", [])]))
     return out
-
-
-def check_options(method: str, fit: Any, options: dict[str, Any]) -> None:
-    """Refuse an option the method does not take, naming the ones it does (one line).
-
-    The fit function's keyword parameters are its options; calling it with
-    another one would be a TypeError (a traceback at the command line).
-    """
-    import inspect
-
-    from maglevid.exceptions import DataError
-
-    params = inspect.signature(fit).parameters
-    if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
-        return
-    known = [n for n, p in params.items() if p.kind is inspect.Parameter.KEYWORD_ONLY]
-    unknown = sorted(set(options) - set(known))
-    if unknown:
-        raise DataError(
-            f"method {method!r} has no option {', '.join(map(repr, unknown))}; its options: "
-            f"{', '.join(known) or '(none)'}"
-        )
 
 
 def quality_gate(data: Any, *, force: bool) -> list[str]:
@@ -385,10 +383,7 @@ def quality_gate(data: Any, *, force: bool) -> list[str]:
 
 def format_text(result: dict[str, Any]) -> str:
     if "methods" in result:
-        width = max(map(len, result["methods"]))
-        return "\n".join(
-            f"{name:<{width}}  {result['descriptions'][name]}" for name in result["methods"]
-        )
+        return _method_list_text(result)
     rec = result["recording"]
     lines = [f"recording: {', '.join(rec) if isinstance(rec, list) else rec}"]
     if result.get("plant_kind"):
@@ -428,6 +423,28 @@ def format_text(result: dict[str, Any]) -> str:
     lines.extend(f"warning: {n}" for n in result.get("warnings", []))
     lines.extend(f"note: {n}" for n in result.get("notes", []) if n not in warned)
     lines.extend(_consensus_lines(result))
+    return "\n".join(lines)
+
+
+def _method_list_text(result: dict[str, Any]) -> str:
+    """One line per method, then one indented line per declared option:
+    ``name  kind = default  [range | choices] unit  doc``."""
+    width = max(map(len, result["methods"]))
+    lines = []
+    for name in result["methods"]:
+        lines.append(f"{name:<{width}}  {result['descriptions'][name]}")
+        for o in result.get("options", {}).get(name, []):
+            allowed = ""
+            if "choices" in o:
+                allowed = "{" + ", ".join(map(str, o["choices"])) + "}"
+            elif "range" in o:
+                lo, hi = o["range"]
+                left = "-inf" if lo is None else f"{lo:g}"
+                allowed = ("(" if o.get("low_open") else "[") + left + ", "
+                allowed += "inf)" if hi is None else f"{hi:g}]"
+            unit = f" [{o['unit']}]" if o.get("unit") else ""
+            head = f"{o['name']}: {o['kind']} = {json.dumps(o['default'])}"
+            lines.append(f"    {head:<36} {allowed}{unit}  {o['doc']}".rstrip())
     return "\n".join(lines)
 
 

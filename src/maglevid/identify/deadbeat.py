@@ -80,6 +80,7 @@ from maglevid.data import ClosedLoopData
 from maglevid.exceptions import DataError, IdentificationError
 from maglevid.identify.arx import solve_regression_blocks
 from maglevid.identify.iv import simulate_loop_signals
+from maglevid.identify.options import AMB_OPTIONS, declared
 from maglevid.identify.result import IdentificationResult
 from maglevid.identify.uncertainty import DCLevels, amb_result, with_dc_levels
 from maglevid.physics.amb import C_AMB
@@ -349,6 +350,11 @@ def _signals(data: ClosedLoopData) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return np.asarray(data.y), np.asarray(data.u), np.asarray(data.u_f)
 
 
+#: The options of the deadbeat methods, from the AMB methods' shared declaration.
+_OPTION_NAMES = ("instruments", "skip", "instrument_lags", "covariance", "hac_lags", "m", "i0")
+
+
+@declared(*(AMB_OPTIONS[n] for n in ("estimator", *_OPTION_NAMES)))
 def fit_deadbeat(
     data: ClosedLoopData,
     *,
@@ -371,23 +377,12 @@ def fit_deadbeat(
     estimator : {"ls", "iv"}
         ``"ls"``: the paper's least squares (biased under measurement noise).
         ``"iv"``: instrumental variables from the excitation ``r``.
-    instruments : {"auto", "loop", "lags"}
-        For ``"iv"``: the nominal loop's noise-free response to ``r`` (needs the
-        observer in ``data.loop``), or lagged ``r``; ``"auto"`` picks ``"loop"``
-        when possible.
-    skip : int
-        Samples dropped at the start (observer transient; a deadbeat observer
-        converges in two).
-    instrument_lags : int
-        Lags of ``r`` for ``instruments="lags"``.
-    covariance : {"white-noise", "hac"}
-        ``"white-noise"`` (default, needs the observer in ``data.loop``): the
-        equation error written exactly as a moving average of white measurement
-        noise (:func:`observer_noise_ma`); ``"hac"``: a lag window.
-    hac_lags : int
-        Lag window for ``covariance="hac"``.
-    m, i0 : float, optional
-        Mass and bias current; default ``data.loop["operating_point"]``.
+
+    The other options are declared once (listed under *Options*):
+    ``instruments`` for ``"iv"``; ``skip`` (a deadbeat observer converges in
+    two samples); ``covariance="white-noise"`` (needs the observer in
+    ``data.loop``) writes the equation error exactly as a moving average of
+    white measurement noise (:func:`observer_noise_ma`).
 
     Returns
     -------
@@ -412,10 +407,6 @@ def fit_deadbeat(
     Z. Gosiewski, M. Paszowski, "Diagnostics of magnetic bearings via
     identification of its physical parameters".
     """
-    if estimator not in ("ls", "iv"):
-        raise DataError(f"`estimator` must be 'ls' or 'iv'; got {estimator!r}")
-    if instruments not in ("auto", "loop", "lags"):
-        raise DataError(f"`instruments` must be 'auto', 'loop' or 'lags'; got {instruments!r}")
     y, u, u_f = _signals(data)
     mats = loop_matrices(data)
     C, F, Fe, E = mats["C"], mats["F"], mats["Fe"], mats["E"]
@@ -575,3 +566,6 @@ def fit_deadbeat_iv(data: ClosedLoopData, **options: Any) -> IdentificationResul
 
 #: Registered with ``maglevid identify --method``.
 METHODS = {"deadbeat-arx": fit_deadbeat_arx, "deadbeat-iv": fit_deadbeat_iv}
+#: Their options: fit_deadbeat's, the estimator fixed by the method.
+_FIXED_ESTIMATOR = tuple(o for o in fit_deadbeat.options if o.name != "estimator")
+OPTIONS = {"deadbeat-arx": _FIXED_ESTIMATOR, "deadbeat-iv": _FIXED_ESTIMATOR}

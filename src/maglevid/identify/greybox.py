@@ -55,6 +55,7 @@ from maglevid.identify.closedloop import (
     resolve_channel,
     resolve_segments,
 )
+from maglevid.identify.options import Option, declared
 from maglevid.identify.result import IdentificationResult
 from maglevid.lti import StateSpace
 from maglevid.physics.levitator import LevitatorParameters, linearize
@@ -330,12 +331,7 @@ def _one_step(inn: InnovationsModel, Y: np.ndarray, U: np.ndarray) -> np.ndarray
 
 
 def _check_options(model: str, current_hold: str, force_law: str, *, extras: bool) -> None:
-    if model not in MODELS:
-        raise DataError(f"`model` must be one of {MODELS}; got {model!r}")
-    if current_hold not in ("foh", "zoh"):
-        raise DataError(f"`current_hold` must be 'foh' or 'zoh'; got {current_hold!r}")
-    if force_law not in FORCE_LAWS:
-        raise DataError(f"`force_law` must be one of {FORCE_LAWS}; got {force_law!r}")
+    # Each option's own values are checked by the declaration (OPTIONS_GREYBOX).
     if model == "electromechanical" and (extras or force_law != "inverse-square"):
         raise DataError(
             "free_gain, use_equilibrium=False and force laws other than "
@@ -343,6 +339,33 @@ def _check_options(model: str, current_hold: str, force_law: str, *, extras: boo
         )
 
 
+#: The options of ``greybox-levitator`` (maglevid.identify.options), declared once.
+OPTIONS_GREYBOX = (
+    Option("model", "str", "mechanical (current in) or electromechanical (command in)",
+           choices=MODELS),
+    Option("force_law", "str", "the force law (mechanical model only)", choices=FORCE_LAWS),
+    Option("gap", "channel", "channel of the gap [m]"),
+    Option("current", "channel", "channel of the coil current [A]"),
+    Option("command", "channel", "channel of the command [V]"),
+    Option("m", "float", "known mass (only K/m enters the mechanical model)", low=0,
+           low_open=True, unit="kg"),
+    Option("g", "float", "gravity", low=0, low_open=True, unit="m/s^2"),
+    Option("use_equilibrium", "bool", "tie each segment's current to the law's i0(y0)"),
+    Option("flux_lag", "bool", "the force follows the current through a lag tau"),
+    Option("free_gain", "bool", "current gain beta times the law's (mechanical only)"),
+    Option("initial", "object", "starting LevitatorParameters (default: the UAQ values)"),
+    Option("current_hold", "str", "how the current is read between samples",
+           choices=("foh", "zoh")),
+    Option("segments", "segments", "levitating pieces [start, stop), one operating point each"),
+    Option("y_ref", "float", "gap at which the pole is reported (default: first segment's)",
+           unit="m"),
+    Option("burn_in", "int", "predictor samples discarded per segment", low=0),
+    Option("k_step", "int", "horizon of the k-step prediction fit", low=1),
+    Option("max_nfev", "int", "limit on residual evaluations of the fit", low=1),
+)  # fmt: skip
+
+
+@declared(*OPTIONS_GREYBOX)
 def fit_greybox_levitator(
     data: ClosedLoopData,
     *,

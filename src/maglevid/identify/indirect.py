@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -47,11 +48,12 @@ from maglevid.identify.closedloop import (
     resolve_segments,
     simo_polynomials_to_state_space,
 )
+from maglevid.identify.options import Option, declared
 from maglevid.identify.pem import fit_pem
 from maglevid.identify.result import IdentificationResult
 from maglevid.lti import StateSpace
 
-__all__ = ["METHODS", "fit_indirect", "resolve_controller"]
+__all__ = ["METHODS", "OPTIONS_INDIRECT", "fit_indirect", "resolve_controller"]
 
 log = logging.getLogger(__name__)
 
@@ -121,73 +123,50 @@ def _cascade_gains_of(data: ClosedLoopData) -> CascadeGains | None:
     return None
 
 
-def fit_indirect(
+#: The options of ``indirect`` (defaults: :func:`fit_indirect`'s signature).
+OPTIONS_INDIRECT = (
+    Option("controller", "object", "known controller: StateSpace, dict or 'uaq-cascade'"),
+    Option("controller_inputs", "channels", "channel feeding each controller input"),
+    Option("plant_input", "channel", "the plant input (the controller output)"),
+    Option("plant_outputs", "channels", "plant outputs modelled (default: y among inputs)"),
+    Option("fit_channels", "channels", "channels compared in the output-error cost"),
+    Option("intermediate", "channel", "plant output that drives the rest of the plant"),
+    Option("n", "int", "order of the common denominator", low=1),
+    Option("nk", "int", "input delay in samples (>= 1: no algebraic loop)", low=1),
+    Option("segments", "segments", "linear, unsaturated pieces [start, stop) (default all)"),
+    Option("burn_in", "int", "samples of each segment left out of the cost", low=0),
+    Option("initial", "object", "starting plant: StateSpace or theta = [a, b per output]"),
+    Option("max_nfev", "int", "limit on residual evaluations of the fit", low=1),
+)
+
+
+@dataclass(frozen=True)
+class _Channels:
+    """The loop's signals for the closed-loop output error (resolved once)."""
+
+    plant_input: Any  # the resolved plant input channel
+    outputs: list[Any]  # resolved plant output channels
+    intermediate: str | None
+    feedback: list[int]  # per controller input: index of the plant output, -1 exogenous
+    exogenous: np.ndarray  # (N, n_exo) signals driving the closed loop
+    fits: list[Any]  # resolved channels of the cost
+    z_index: list[int]  # per fit channel: closed-loop output row (outputs, then u)
+
+    @property
+    def specs(self) -> list[str]:
+        return [p.spec for p in self.outputs]
+
+
+def _loop_channels(
     data: ClosedLoopData,
-    *,
-    controller: Any = None,
-    controller_inputs: Sequence[str] | None = None,
-    plant_input: str = "u:0",
-    plant_outputs: Sequence[str] | None = None,
-    fit_channels: Sequence[str] | None = None,
-    intermediate: str | None = None,
-    n: int = 3,
-    nk: int = 1,
-    segments: Sequence[Sequence[int]] | None = None,
-    burn_in: int = 0,
-    initial: Sequence[float] | None = None,
-    max_nfev: int | None = None,
-) -> IdentificationResult:
-    """Indirect closed-loop identification with a known linear controller.
-
-    Parameters
-    ----------
-    data : ClosedLoopData
-        Same-rate record.
-    controller : StateSpace, dict, "uaq-cascade" or None
-        The known controller (see :func:`resolve_controller`).
-    controller_inputs : list of str
-        Channel feeding each controller input, e.g. ``["r:0", "y:0", "y:1"]``.
-        Channels that are plant outputs close the loop; the others are exogenous.
-    plant_input : str
-        The plant input (the controller output), ``"u:0"``.
-    plant_outputs : list of str, optional
-        Plant outputs modelled, default: the ``y`` channels among
-        ``controller_inputs``.
-    fit_channels : list of str, optional
-        Channels compared in the output-error cost (default: ``plant_outputs``);
-        may include ``plant_input``. Each is weighted by ``1/std`` over the segments.
-    intermediate : str, optional
-        A plant output that is itself the input of the rest of the plant (the coil
-        current of a voltage-driven levitator). The plant from it to the first
-        output is ``B_first / B_intermediate``, whose largest real *zero* of
-        ``B_intermediate`` is reported as ``intermediate_pole_*`` (for the UAQ rig:
-        the mechanical pole ``sqrt(2 g/(a + y0))``).
-    n, nk : int
-        Order of the common denominator and the input delay (numerators have ``n``
-        coefficients from ``q^-nk``).
-    segments : list of (start, stop), optional
-        Linear, unsaturated pieces. A new segment after each saturation keeps the
-        controller linear; its unknown initial state is estimated.
-    burn_in : int
-        Samples of each segment left out of the cost (with ``x0`` estimated, 0 is fine).
-    initial : StateSpace or sequence of float, optional
-        Starting plant: a discrete model of order ``n`` with ``ny`` outputs (e.g. a
-        physical model, :func:`maglevid.physics.levitator.linearize`) or
-        ``theta = [a1..an, b(out 1), b(out 2), ...]``; default: a direct SIMO ARX
-        estimate. The start must give a stable closed loop with the controller.
-    max_nfev : int, optional
-
-    Returns
-    -------
-    IdentificationResult
-        ``parameters``: ``a1..an``, ``b{j}_{k}`` and ``pole_z``, ``pole_rad_s`` (and
-        ``intermediate_pole_*``); asymptotic covariance from the Jacobian of the
-        weighted output errors (white-error assumption: optimistic when the errors
-        are coloured, see notes).
-    """
-    if n < 1 or nk < 1:
-        raise DataError(f"`n` and `nk` must be >= 1 (no algebraic loop); got n={n}, nk={nk}")
-    K, cin = resolve_controller(data, controller, controller_inputs)
+    cin: list[str],
+    plant_input: str,
+    plant_outputs: Sequence[str] | None,
+    fit_channels: Sequence[str] | None,
+    intermediate: str | None,
+) -> _Channels:
+    """Which logged channel is the plant input, each plant output, each exogenous
+    input of the controller and each fitted channel (clear errors otherwise)."""
     uch = resolve_channel(data, plant_input)
     chans = [resolve_channel(data, s) for s in cin]
     if plant_outputs is None:
@@ -215,52 +194,50 @@ def fit_indirect(
             z_index.append(len(pspec))
         else:
             raise DataError(f"fit channel {f.spec} is neither a plant output nor the plant input")
-    ny = len(pouts)
-    nK = K.nx
-    segs = resolve_segments(data, segments, min_length=max(3 * (n + nK), burn_in + 10))
-    Z = np.column_stack([f.values for f in fits])
-    w = 1.0 / np.array([max(np.std(np.concatenate([Z[a:b, j] for a, b in segs])), 1e-300)
-                        for j in range(Z.shape[1])])  # fmt: skip
-    n_theta = n + ny * n
-    notes: list[str] = [
-        f"plant {uch.name} -> {[p.name for p in pouts]}; controller known "
-        f"({'preset ' + controller if isinstance(controller, str) else 'given'})",
-        "closed-loop output error: the predictor is the (stable) closed loop",
-    ]
-    options: dict[str, Any] = {
-        "controller": controller if isinstance(controller, str) else "StateSpace",
-        "controller_inputs": list(cin),
-        "plant_input": plant_input,
-        "plant_outputs": pspec,
-        "fit_channels": [f.spec for f in fits],
-        "intermediate": intermediate,
-        "n": n,
-        "nk": nk,
-        "segments": [list(s) for s in segs],
-        "burn_in": burn_in,
-    }
+    return _Channels(uch, pouts, intermediate, feedback, exo, fits, z_index)
 
-    def plant_of(theta: np.ndarray) -> StateSpace:
+
+@dataclass(frozen=True)
+class _ClosedLoopOutputError:
+    """The cost of the module notes: ``W (z_t - G_cl(theta; q) r_t - F_t(theta) x0 - c)``
+    over the segments, ``x0`` and ``c`` eliminated by least squares (variable projection)."""
+
+    K: StateSpace
+    ch: _Channels
+    segs: list[tuple[int, int]]
+    Z: np.ndarray  # the fitted channels
+    w: np.ndarray  # their weights 1/std
+    n: int
+    nk: int
+    dt: float
+    burn_in: int
+
+    def plant(self, theta: np.ndarray) -> StateSpace:
+        """``P(theta)``: common denominator ``a``, one numerator per output from ``q^-nk``."""
+        n, nk = self.n, self.nk
         a = np.r_[1.0, theta[:n]]
-        bs = [np.r_[np.zeros(nk), theta[n + j * n : n + (j + 1) * n]] for j in range(ny)]
-        return simo_polynomials_to_state_space(a, bs, data.dt)
+        bs = [np.r_[np.zeros(nk), theta[n + j * n : n + (j + 1) * n]]
+              for j in range(len(self.ch.outputs))]  # fmt: skip
+        return simo_polynomials_to_state_space(a, bs, self.dt)
 
-    def simulate(theta: np.ndarray) -> list[np.ndarray] | None:
-        """Per segment: fitted channels, closed-loop response incl. x0 and offsets."""
+    def simulate(self, theta: np.ndarray) -> list[np.ndarray] | None:
+        """Per segment: fitted channels, closed-loop response incl. x0 and offsets;
+        ``None`` when the closed loop with the known controller is not stable."""
         try:
-            cl = close_loop(plant_of(theta), K, feedback)
+            cl = close_loop(self.plant(theta), self.K, self.ch.feedback)
         except ModelError:
             return None
         rho = np.max(np.abs(cl.poles())) if cl.nx else 0.0
         if not np.isfinite(rho) or rho >= 1.0:
             return None
+        z_index, w, burn_in = self.ch.z_index, self.w, self.burn_in
         Csel = cl.C[z_index]
         Dsel = cl.D[z_index]
         # Transfer functions of the selected channels: common denominator det(zI - A).
         den = np.poly(cl.A)
         out = []
-        for a0, b0 in segs:
-            r = exo[a0:b0]
+        for a0, b0 in self.segs:
+            r = self.ch.exogenous[a0:b0]
             m = b0 - a0
             forced = np.zeros((m, len(z_index)))
             for j in range(len(z_index)):
@@ -269,82 +246,112 @@ def fit_indirect(
                     num = np.poly(cl.A - bcol @ Csel[j : j + 1]) - den + Dsel[j, e] * den
                     forced[:, j] += signal.lfilter(num, den, r[:, e])
             F = _free_response_basis(Csel, cl.A, m)
-            target = Z[a0:b0]
             basis = np.concatenate(
                 [F, np.broadcast_to(np.eye(len(z_index))[None], (m, len(z_index), len(z_index)))],
                 axis=2,
             )
             Wb = (basis * w[None, :, None])[burn_in:].reshape(-1, basis.shape[2])
-            rhs = ((target - forced) * w[None, :])[burn_in:].reshape(-1)
+            rhs = ((self.Z[a0:b0] - forced) * w[None, :])[burn_in:].reshape(-1)
             lin, *_ = np.linalg.lstsq(Wb, rhs, rcond=None)
             out.append(forced + basis @ lin)
         return out
 
-    def residuals(theta: np.ndarray) -> np.ndarray:
-        sims = simulate(theta)
+    def residuals(self, theta: np.ndarray) -> np.ndarray:
+        sims = self.simulate(theta)
+        segs, burn_in, nz = self.segs, self.burn_in, len(self.ch.z_index)
         if sims is None:
-            return np.full(sum(b - a - burn_in for a, b in segs) * len(z_index), 1e3)
-        res = [((Z[a:b] - s) * w[None, :])[burn_in:].reshape(-1) for (a, b), s in zip(segs, sims)]
+            return np.full(sum(b - a - burn_in for a, b in segs) * nz, 1e3)
+        res = [((self.Z[a:b] - s) * self.w[None, :])[burn_in:].reshape(-1)
+               for (a, b), s in zip(segs, sims)]  # fmt: skip
         return np.concatenate(res)
 
-    if initial is None:
-        theta0 = _simo_arx_start(data, uch.spec, pspec, n, nk, segs)
-        notes.append("start: direct SIMO ARX estimate")
-    elif isinstance(initial, StateSpace):
-        theta0 = _theta_from_state_space(initial, n, nk, ny)
-        notes.append("start: the given initial plant model")
-    else:
-        theta0 = np.asarray(initial, dtype=float)
-        if theta0.shape != (n_theta,):
-            raise DataError(f"`initial` must have {n_theta} values; got {theta0.shape}")
-    if simulate(theta0) is None:
-        raise IdentificationError(
-            "the starting plant does not give a stable closed loop with the known controller; "
-            "give `initial` (e.g. from physics) or check the controller"
-        )
-    sol = optimize.least_squares(residuals, theta0, method="trf", x_scale="jac", max_nfev=max_nfev)
+
+@declared(*OPTIONS_INDIRECT)
+def fit_indirect(
+    data: ClosedLoopData,
+    *,
+    controller: Any = None,
+    controller_inputs: Sequence[str] | None = None,
+    plant_input: str = "u:0",
+    plant_outputs: Sequence[str] | None = None,
+    fit_channels: Sequence[str] | None = None,
+    intermediate: str | None = None,
+    n: int = 3,
+    nk: int = 1,
+    segments: Sequence[Sequence[int]] | None = None,
+    burn_in: int = 0,
+    initial: Sequence[float] | None = None,
+    max_nfev: int | None = None,
+) -> IdentificationResult:
+    """Indirect closed-loop identification with a known linear controller.
+
+    The options are declared in :data:`OPTIONS_INDIRECT`. Details:
+    ``controller`` (see :func:`resolve_controller`) with ``controller_inputs``
+    such as ``["r:0", "y:0", "y:1"]``: inputs that are plant outputs close the
+    loop, the others drive it. ``fit_channels`` (default the plant outputs) may
+    include ``plant_input``; each is weighted by ``1/std`` over the segments.
+    ``intermediate`` is a plant output that is itself the input of the rest of
+    the plant (the coil current of a voltage-driven levitator): the largest real
+    zero of its numerator is reported as ``intermediate_pole_*`` (for the UAQ
+    rig: the mechanical pole ``sqrt(2 g/(a + y0))``). A new segment after each
+    saturation keeps the controller linear; its initial state is estimated.
+    ``initial``: a discrete model of order ``n`` with ``ny`` outputs (e.g.
+    :func:`maglevid.physics.levitator.linearize`) or ``theta = [a1..an, b(out
+    1), ...]``; default a direct SIMO ARX estimate; it must give a stable
+    closed loop with the controller.
+
+    The steps: the loop's channels (:func:`_loop_channels`), the closed-loop
+    output error of the module notes (:class:`_ClosedLoopOutputError`), its
+    start (:func:`_starting_theta`), the least-squares fit, the parameters with
+    their covariance (:func:`_indirect_parameters`) and the closed-loop fits.
+
+    Returns
+    -------
+    IdentificationResult
+        ``parameters``: ``a1..an``, ``b{j}_{k}`` and ``pole_z``, ``pole_rad_s`` (and
+        ``intermediate_pole_*``); asymptotic covariance from the Jacobian of the
+        weighted output errors (white-error assumption: optimistic when the errors
+        are coloured, see notes).
+    """
+    K, cin = resolve_controller(data, controller, controller_inputs)
+    ch = _loop_channels(data, cin, plant_input, plant_outputs, fit_channels, intermediate)
+    segs = resolve_segments(data, segments, min_length=max(3 * (n + K.nx), burn_in + 10))
+    Z = np.column_stack([f.values for f in ch.fits])
+    w = 1.0 / np.array([max(np.std(np.concatenate([Z[a:b, j] for a, b in segs])), 1e-300)
+                        for j in range(Z.shape[1])])  # fmt: skip
+    cost = _ClosedLoopOutputError(K, ch, segs, Z, w, n, nk, data.dt, burn_in)
+    notes: list[str] = [
+        f"plant {ch.plant_input.name} -> {[p.name for p in ch.outputs]}; controller known "
+        f"({'preset ' + controller if isinstance(controller, str) else 'given'})",
+        "closed-loop output error: the predictor is the (stable) closed loop",
+    ]
+    options: dict[str, Any] = {
+        "controller": controller if isinstance(controller, str) else "StateSpace",
+        "controller_inputs": list(cin), "plant_input": plant_input,
+        "plant_outputs": ch.specs, "fit_channels": [f.spec for f in ch.fits],
+        "intermediate": ch.intermediate, "n": n, "nk": nk,
+        "segments": [list(s) for s in segs], "burn_in": burn_in,
+    }  # fmt: skip
+    theta0 = _starting_theta(data, cost, initial, notes)
+    sol = optimize.least_squares(
+        cost.residuals, theta0, method="trf", x_scale="jac", max_nfev=max_nfev
+    )
     if not sol.success:
         notes.append(f"optimiser stopped: {sol.message}")
     theta = sol.x
-    cov = covariance_from_jacobian(sol.jac, sol.fun, theta.size)
-    notes.append(
-        "covariance assumes white output errors; closed-loop output errors are coloured, "
-        "so the intervals are optimistic (compare segments)"
-    )
-    names = [f"a{j}" for j in range(1, n + 1)] + [
-        f"b{p.name}_{k}" for p in pouts for k in range(nk, nk + n)
-    ]
-    pv, Jp, pn = pole_statistics(lambda t: np.r_[1.0, t[:n]], theta, data.dt)
-    notes.extend(pn)
-    params = dict(zip(names, theta.tolist()))
-    params.update(pv)
-    jacs = [Jp]
-    if intermediate is not None:
-        j = pspec.index(intermediate)
-        sl = slice(n + j * n, n + (j + 1) * n)
-
-        def bpoly(t: np.ndarray) -> np.ndarray:
-            b = t[sl]
-            return b / b[0]
-
-        iv, Ji, inotes = pole_statistics(bpoly, theta, data.dt, prefix="intermediate_")
-        notes.extend(inotes)
-        params.update(iv)
-        jacs.append(Ji)
-    ext = extend_covariance(cov, jacs)
-    sims = simulate(theta)
+    params, ext = _indirect_parameters(cost, sol, data.dt, notes)
+    sims = cost.simulate(theta)
     zhat = np.full(Z.shape, np.nan)
     for (a, b), s in zip(segs, sims or []):
         zhat[a + burn_in : b] = s[burn_in:]
     fit = {
         f"closed_loop_fit_percent_{f.name}": fit_percent(Z[:, j], zhat[:, j], segs)
-        for j, f in enumerate(fits)
+        for j, f in enumerate(ch.fits)
     }
     fit["weighted_rms"] = float(np.sqrt(np.mean(sol.fun**2)))
-    model = plant_of(theta)
-    model = StateSpace(
-        model.A, model.B, model.C, model.D, data.dt, (), (uch.name,), tuple(p.name for p in pouts)
-    )
+    model = cost.plant(theta)
+    model = StateSpace(model.A, model.B, model.C, model.D, data.dt, (),
+                       (ch.plant_input.name,), tuple(p.name for p in ch.outputs))  # fmt: skip
     cont = continuous_or_note(model, notes)
     resid = np.full(Z.shape, np.nan)
     resid[~np.isnan(zhat)] = (Z - zhat)[~np.isnan(zhat)]
@@ -361,6 +368,64 @@ def fit_indirect(
         continuous_model=cont,
         extras={"closed_loop_prediction": zhat, "weights": w.tolist()},
     )
+
+
+def _starting_theta(
+    data: ClosedLoopData, cost: _ClosedLoopOutputError, initial: Any, notes: list[str]
+) -> np.ndarray:
+    """The start of the fit: ``initial`` or a direct SIMO ARX estimate; it must give a
+    stable closed loop with the known controller."""
+    n, nk, ny = cost.n, cost.nk, len(cost.ch.outputs)
+    if initial is None:
+        theta0 = _simo_arx_start(data, cost.ch.plant_input.spec, cost.ch.specs, n, nk, cost.segs)
+        notes.append("start: direct SIMO ARX estimate")
+    elif isinstance(initial, StateSpace):
+        theta0 = _theta_from_state_space(initial, n, nk, ny)
+        notes.append("start: the given initial plant model")
+    else:
+        theta0 = np.asarray(initial, dtype=float)
+        if theta0.shape != (n + ny * n,):
+            raise DataError(f"`initial` must have {n + ny * n} values; got {theta0.shape}")
+    if cost.simulate(theta0) is None:
+        raise IdentificationError(
+            "the starting plant does not give a stable closed loop with the known controller; "
+            "give `initial` (e.g. from physics) or check the controller"
+        )
+    return theta0
+
+
+def _indirect_parameters(
+    cost: _ClosedLoopOutputError, sol: Any, dt: float, notes: list[str]
+) -> tuple[dict[str, float], np.ndarray]:
+    """``a1..an``, ``b{out}_{k}``, the pole (and the intermediate pole) with the
+    covariance from the Jacobian of the weighted output errors, by the delta method."""
+    n, nk, theta = cost.n, cost.nk, sol.x
+    cov = covariance_from_jacobian(sol.jac, sol.fun, theta.size)
+    notes.append(
+        "covariance assumes white output errors; closed-loop output errors are coloured, "
+        "so the intervals are optimistic (compare segments)"
+    )
+    names = [f"a{j}" for j in range(1, n + 1)] + [
+        f"b{p.name}_{k}" for p in cost.ch.outputs for k in range(nk, nk + n)
+    ]
+    pv, Jp, pn = pole_statistics(lambda t: np.r_[1.0, t[:n]], theta, dt)
+    notes.extend(pn)
+    params = dict(zip(names, theta.tolist()))
+    params.update(pv)
+    jacs = [Jp]
+    if cost.ch.intermediate is not None:
+        j = cost.ch.specs.index(cost.ch.intermediate)
+        sl = slice(n + j * n, n + (j + 1) * n)
+
+        def bpoly(t: np.ndarray) -> np.ndarray:
+            b = t[sl]
+            return b / b[0]
+
+        iv, Ji, inotes = pole_statistics(bpoly, theta, dt, prefix="intermediate_")
+        notes.extend(inotes)
+        params.update(iv)
+        jacs.append(Ji)
+    return params, extend_covariance(cov, jacs)
 
 
 def _free_response_basis(C: np.ndarray, A: np.ndarray, m: int, block: int = 64) -> np.ndarray:

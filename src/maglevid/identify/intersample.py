@@ -83,6 +83,7 @@ from maglevid.identify.closedloop import (
     covariance_from_jacobian,
     simo_polynomials_to_state_space,
 )
+from maglevid.identify.options import Option
 from maglevid.identify.result import IdentificationResult, propagate_covariance
 from maglevid.lti import StateSpace, discretize
 from maglevid.physics.suspension import (
@@ -1219,3 +1220,26 @@ def data_matrix_singular_values(
 
 
 METHODS = {"intersample": fit_intersample}
+#: Its options, declared once (maglevid.identify.options; defaults: fit_intersample's).
+OPTIONS = {
+    "intersample": (
+        Option("order", "int", "plant order n (None: chosen from the singular values)",
+               low=1, optional=True),
+        Option("subspace", "str", "step-1 subspace algorithm", choices=SUBSPACE),
+        Option("horizon", "int", "subspace horizon (block rows; default automatic)", low=1),
+        Option("weighting", "str", "subspace weighting (default: the routine's)"),
+        Option("refine", "bool", "step 1b: output-error refinement of A"),
+        Option("prefilters", "floats", "low-pass cutoffs (fraction of Nyquist) tried by "
+               "step 1b; null: the raw data", low=0, low_open=True, high=1, optional=True),
+        Option("numerator", "str", "eq. (15) physical numerator or step 2 IV (non-causal "
+               "or delayed instrument)", choices=NUMERATORS),
+        Option("gain_from", "str", "where eq. (15) takes B_j(1)", choices=GAIN_SOURCES),
+        Option("output", "int", "output channel (position) when y has several", low=0),
+        Option("mass", "float", "ball mass (default: data.loop['physical']['M'])", low=0,
+               low_open=True, unit="kg"),
+        Option("resistance", "float", "coil-circuit resistance (default: "
+               "data.loop['physical']['R'])", low=0, low_open=True, unit="ohm"),
+        Option("gravity", "float", "gravity (default: data.loop['physical']['g'] or "
+               "9.80665)", low=0, low_open=True, unit="m/s^2"),
+    )
+}  # fmt: skip

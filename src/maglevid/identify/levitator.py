@@ -40,6 +40,7 @@ from maglevid.data import ClosedLoopData
 from maglevid.diagnose.quality import SegmentReport, find_levitation_segments, split_segments
 from maglevid.exceptions import DataError, IdentificationError, MaglevidError
 from maglevid.identify.greybox import FORCE_LAWS, fit_greybox_levitator, validate_greybox
+from maglevid.identify.options import Option
 from maglevid.identify.result import IdentificationResult
 
 __all__ = [
@@ -596,3 +597,22 @@ def _with_consensus(
 
 
 METHODS = {"levitator": fit_levitator}
+#: Its options, declared once (maglevid.identify.options; defaults: fit_levitator's).
+OPTIONS = {
+    "levitator": (
+        Option("segments", "segments", "operating-point segments (default: found)"),
+        Option("force_laws", "strs", "candidate force laws", choices=FORCE_LAWS),
+        Option("flux_lag", "bools", "fit each law without and/or with a flux lag"),
+        Option("equilibrium", "bools", "with and/or without the equilibrium-current tie"),
+        Option("y_ref", "float", "gap at which the pole is reported (default: mean gap)",
+               unit="m"),
+        Option("k_step", "int", "horizon of the validation, samples ahead", low=1),
+        Option("m", "float", "ball mass (the pole does not depend on it)", low=0,
+               low_open=True, unit="kg"),
+        Option("gap", "channel", "channel of the gap [m]"),
+        Option("current", "channel", "channel of the coil current [A]"),
+        Option("command", "channel", "channel of the command [V]"),
+        Option("frame", "str", "model input: the command, the measured current, or auto",
+               choices=("auto", "command", "current")),
+    )
+}  # fmt: skip

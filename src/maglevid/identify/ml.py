@@ -60,6 +60,7 @@ from maglevid.identify.cramer_rao import (
     predictor_derivatives,
     steady_state_predictor,
 )
+from maglevid.identify.options import AMB_OPTIONS, Option
 from maglevid.identify.physical import fit_physical
 from maglevid.identify.result import IdentificationResult, propagate_covariance
 from maglevid.identify.uncertainty import one_step_fit_percent, operating_point
@@ -789,3 +790,18 @@ def _result(
 
 #: Registered with ``maglevid identify --method``.
 METHODS: Mapping[str, Any] = {"ml": fit_ml}
+#: Its options, declared once (maglevid.identify.options; defaults: fit_ml's).
+OPTIONS = {
+    "ml": (
+        Option("start", "object", "starting point: 'physical' (the IV estimate) or v1..v9"),
+        Option("noise_std", "object", "sensor noise std of [x, i1, i2]: 'estimate', "
+               "'metadata' or three values [m, A, A]"),
+        Option("force_std", "object", "force disturbance std: 'estimate', 'metadata' or a "
+               "value [N] (0: none)"),
+        Option("amplifier_std", "floats", "amplifier input noise per sample (known)", low=0,
+               unit="V"),
+        Option("max_iter", "int", "Fisher-scoring iterations at most", low=1),
+        AMB_OPTIONS["m"],
+        AMB_OPTIONS["i0"],
+    )
+}  # fmt: skip

@@ -60,6 +60,7 @@ from maglevid.identify.deadbeat import (
     loop_output_matrix,
 )
 from maglevid.identify.era import realize_era
+from maglevid.identify.options import AMB_OPTIONS, Option, declared
 from maglevid.identify.result import IdentificationResult
 from maglevid.identify.uncertainty import DCLevels, amb_result, with_dc_levels
 
@@ -127,6 +128,13 @@ def case_one_transformation(
     return A, B, Gd
 
 
+@declared(
+    Option("order", "int", "ARX order p of the observer/controller", low=1),
+    Option("n_markov", "int", "Markov parameters computed (default: as the Hankels need)", low=1),
+    Option("era_rows", "int", "block rows of the ERA Hankel matrices (default 2)", low=1),
+    Option("era_cols", "int", "block columns of the ERA Hankel matrices (default 2)", low=1),
+    *(AMB_OPTIONS[n] for n in ("skip", "covariance", "hac_lags", "m", "i0")),
+)
 def fit_okid_era(
     data: ClosedLoopData,
     *,
@@ -146,15 +154,9 @@ def fit_okid_era(
     ----------
     data : ClosedLoopData
         As for :func:`maglevid.identify.deadbeat.fit_deadbeat`.
-    order : int
-        ARX order ``p`` of the observer/controller (exact only for 1; see the
-        module notes).
-    n_markov : int, optional
-        Markov parameters computed (default: enough for the Hankel matrices).
-    era_rows, era_cols : int, optional
-        Block size of the ERA Hankel matrices (default 2 x 2).
-    skip, covariance, hac_lags, m, i0
-        As for :func:`~maglevid.identify.deadbeat.fit_deadbeat`.
+
+    The options are declared once (listed under *Options*); ``order`` is exact
+    only for 1 (see the module notes).
 
     Returns
     -------
@@ -163,9 +165,6 @@ def fit_okid_era(
         delta-method covariance through ARX -> Markov -> ERA -> T), the ERA
         singular values in ``singular_values``.
     """
-    if int(order) < 1:
-        raise DataError(f"`order` must be >= 1; got {order}")
-    order = int(order)
     y, u, u_f = _signals(data)
     mats = loop_matrices(data)
     C, F, Fe, E = mats["C"], mats["F"], mats["Fe"], mats["E"]

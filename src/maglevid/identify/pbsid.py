@@ -57,6 +57,7 @@ import scipy.linalg as sla
 from maglevid._validation import as_signal, check_positive
 from maglevid.exceptions import DataError, IdentificationError, ModelError
 from maglevid.identify._hankel import _LagGram, factor_gram, lower_factor
+from maglevid.identify.options import Option, bind_defaults
 from maglevid.identify.physical import to_physical_coordinates
 from maglevid.identify.result import IdentificationResult
 from maglevid.identify.subspace import (
@@ -913,3 +914,30 @@ METHODS = {
         "innovation model with Kalman gain",
     ),
 }
+
+
+def _declaration(algorithm: str) -> tuple[Option, ...]:
+    """The options of ``pbsid`` / ``ssarx`` (maglevid.identify.options), defaults from
+    :func:`fit_pbsid` / :func:`fit_ssarx` except ``dt`` (the recording's)."""
+    opts = [
+        Option("order", "int", "model order (default: from the singular values)", low=1),
+        Option("past", "int", "past window p (default: by AIC)", low=1),
+        Option("future", "int", "future window f (default: from p)", low=1),
+        Option("dt", "float", "sample time (default: the recording's)", default=None,
+               optional=False, low=0, low_open=True, unit="s"),
+        Option("feedthrough", "bool", "estimate a direct term D"),
+        *((Option("weighting", "str", "weighting of the SVD", choices=_WEIGHTINGS),)
+          if algorithm == "ssarx" else ()),
+        Option("rank_tol", "float", "relative singular-value tolerance of the rank",
+               low=0, low_open=True, high=1),
+        Option("remove_mean", "bool", "identify on deviations from the means"),
+        Option("coordinates", "str", "state coordinates of the model", choices=_COORDINATES),
+        Option("max_past", "int", f"largest automatic past window (default "
+               f"{DEFAULT_MAX_PAST})", low=1),
+        Option("rng", "object", "random generator of the randomised checks"),
+    ]  # fmt: skip
+    return bind_defaults(opts, fit_pbsid if algorithm == "pbsid" else fit_ssarx)
+
+
+#: The options of each method, declared once (``--method list``, the CLI's --option).
+OPTIONS = {"pbsid": _declaration("pbsid"), "ssarx": _declaration("ssarx")}

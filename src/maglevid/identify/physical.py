@@ -108,6 +108,7 @@ from maglevid.data import ClosedLoopData
 from maglevid.exceptions import DataError, IdentificationError, ModelError
 from maglevid.identify.arx import LinearFit, solve_regression_blocks
 from maglevid.identify.iv import simulate_loop_signals
+from maglevid.identify.options import AMB_OPTIONS, declared
 from maglevid.identify.result import IdentificationResult
 from maglevid.identify.uncertainty import DCLevels, amb_result, with_dc_levels
 from maglevid.lti import StateSpace, undiscretize
@@ -321,6 +322,10 @@ def _plant_signals(data: ClosedLoopData) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(data.y), np.asarray(data.u)
 
 
+_AMB_NAMES = ("estimator", "instruments", "skip", "instrument_lags", "covariance", "hac_lags")
+
+
+@declared(*(AMB_OPTIONS[n] for n in (*_AMB_NAMES, "m", "i0")))
 def fit_physical(
     data: ClosedLoopData,
     *,
@@ -340,29 +345,14 @@ def fit_physical(
     data : ClosedLoopData
         ``y = [x, i1, i2]``, ``u`` (or ``u_f`` and ``r``); ``r`` and, for
         ``instruments="loop"``, ``data.loop`` with the controller and observer.
-    estimator : {"iv", "ls"}
-        ``"iv"`` (default): consistent under measurement noise. ``"ls"``: least
-        squares, exact without noise, biased with it.
-    instruments : {"auto", "loop", "lags"}
-        ``"auto"``: ``"loop"`` when the loop's controller and observer are
-        recorded, else ``"lags"``.
-    skip : int
-        Samples dropped at the start.
-    instrument_lags : int
-        Lags of ``r`` for ``instruments="lags"``.
-    covariance : {"white-noise", "hac"}
-        How the covariance of the ARX coefficients is obtained. ``"white-noise"``
-        (default): the equation error is ``w(k+1) - Theta_y w(k) - theta_h
-        w_pos(k-1)`` for white measurement noise ``w``, and the covariance is
-        written exactly in terms of ``Cov(w)`` fitted to the residuals
-        (:func:`maglevid.identify.arx.white_noise_covariance`). ``"hac"``: a
-        lag-window estimate for any short-memory equation error (disturbances
-        too), but it overstates the standard errors on this plant (see
-        :mod:`maglevid.identify.arx`).
-    hac_lags : int
-        Lag window for ``covariance="hac"``.
-    m, i0 : float, optional
-        Mass and bias current; default ``data.loop["operating_point"]``.
+
+    The options are declared once (:data:`~maglevid.identify.options.AMB_OPTIONS`,
+    listed under *Options*). ``covariance="white-noise"``: the equation error is
+    ``w(k+1) - Theta_y w(k) - theta_h w_pos(k-1)`` for white measurement noise
+    ``w``, its covariance written exactly in ``Cov(w)`` fitted to the residuals
+    (:func:`maglevid.identify.arx.white_noise_covariance`); ``"hac"`` holds for
+    any short-memory equation error but overstates the standard errors on this
+    plant (see :mod:`maglevid.identify.arx`).
 
     Returns
     -------

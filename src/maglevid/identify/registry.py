@@ -18,6 +18,13 @@ that starts with :data:`UNSUPPORTED_POLE_NOTE` (the CLI prints it as a warning).
 
 A method's one-line description (``--method list``) is ``DESCRIPTIONS[name]``
 where its module defines it, else the first line of the function's docstring.
+
+Every method declares its options once (:mod:`maglevid.identify.options`):
+``fit.options`` (the ``@declared`` decorator) or ``OPTIONS[name]`` beside its
+module's ``METHODS``. :func:`method_options` returns that declaration, with
+the defaults taken from the fit function's signature; :func:`get_method`
+validates the keyword options against it (one DataError: unknown option with
+the closest name, wrong kind, out of range) before anything else.
 """
 
 from __future__ import annotations
@@ -32,13 +39,16 @@ import numpy as np
 
 from maglevid._plugins import modules_with
 from maglevid.exceptions import DataError, MaglevidError
+from maglevid.identify.options import Option, bind_defaults, check_options, describe_option
 
 __all__ = [
     "UNSUPPORTED_POLE_NOTE",
     "available_methods",
     "check_unstable_poles",
+    "describe_method_options",
     "describe_methods",
     "get_method",
+    "method_options",
 ]
 
 #: How a note on an unstable pole that the validation does not support begins.
@@ -59,21 +69,59 @@ def available_methods() -> dict[str, Callable[..., Any]]:
     return out
 
 
+def _declarations() -> dict[str, tuple[Option, ...] | None]:
+    """Each registered method's declared options (``None``: the method declares none)."""
+    out: dict[str, tuple[Option, ...] | None] = {}
+    for mod in modules_with("maglevid.identify", "METHODS"):
+        declared = getattr(mod, "OPTIONS", {})
+        for name, fn in mod.METHODS.items():
+            opts = getattr(fn, "options", None)
+            if opts is None and name in declared:
+                opts = bind_defaults(declared[name], fn)
+            out[name] = None if opts is None else tuple(opts)
+    return out
+
+
+def method_options(name: str) -> tuple[Option, ...] | None:
+    """The declared options of method ``name`` (defaults filled in), or ``None``.
+
+    ``None`` only for a method that declares none (tests/identify/
+    test_method_contract.py refuses such a registration).
+    """
+    declarations = _declarations()
+    if name not in declarations:
+        raise DataError(f"unknown method {name!r}; available: {', '.join(sorted(declarations))}")
+    return declarations[name]
+
+
+def describe_method_options() -> dict[str, list[dict[str, Any]]]:
+    """Each method's declared options as plain data (``--method list``), by name."""
+    return {
+        name: [describe_option(o) for o in opts or ()]
+        for name, opts in sorted(_declarations().items())
+    }
+
+
 def get_method(name: str) -> Callable[..., Any]:
     """The fit function registered as ``name``, under the contract of this module.
 
     A clear error lists the valid names. The returned function has the
-    method's signature (an unknown option is still a ``TypeError``).
+    method's signature; its keyword options are validated against the
+    method's declaration (one DataError naming the option).
     """
     methods = available_methods()
     if name not in methods:
         raise DataError(f"unknown method {name!r}; available: {', '.join(sorted(methods))}")
-    return _under_contract(name, methods[name])
+    return _under_contract(name, methods[name], method_options(name))
 
 
-def _under_contract(name: str, fit: Callable[..., Any]) -> Callable[..., Any]:
+def _under_contract(
+    name: str, fit: Callable[..., Any], declared: tuple[Option, ...] | None
+) -> Callable[..., Any]:
     @functools.wraps(fit)
     def run(data: Any, *args: Any, **options: Any) -> Any:
+        if declared is not None:
+            check_options(name, declared, options)
         _refuse_constant(name, data)
         try:
             result = fit(data, *args, **options)

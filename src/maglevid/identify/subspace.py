@@ -56,6 +56,7 @@ from maglevid.identify._hankel import (
     lower_factor,
 )
 from maglevid.identify._recursion import linear_recursion
+from maglevid.identify.options import Option, bind_defaults
 from maglevid.identify.result import IdentificationResult
 from maglevid.lti import StateSpace, undiscretize
 
@@ -1636,3 +1637,33 @@ DESCRIPTIONS = {
     "moesp": "MOESP subspace identification of a black-box state-space model u -> y",
     "n4sid": "N4SID subspace identification of a black-box state-space model u -> y",
 }
+
+
+def _declaration(algorithm: str) -> tuple[Option, ...]:
+    """The options of ``moesp`` / ``n4sid`` (maglevid.identify.options), defaults from
+    :func:`fit_moesp` / :func:`fit_n4sid` except ``dt`` (the recording's)."""
+    moesp = algorithm == "moesp"
+    opts = [
+        Option("order", "int", "model order (default: from the singular values)", low=1),
+        Option("horizon", "int", "block rows i (default: ARX order by AIC + 1)", low=2),
+        Option("dt", "float", "sample time (default: the recording's)", default=None,
+               optional=False, low=0, low_open=True, unit="s"),
+        Option("feedthrough", "bool", "estimate a direct term D"),
+        Option("weighting", "str", "weighting of the oblique/orthogonal projection",
+               choices=_MOESP_WEIGHTINGS if moesp else _N4SID_WEIGHTINGS),
+        *(() if moesp else (Option("variant", "str", "N4SID algorithm variant",
+                                   choices=_N4SID_VARIANTS),)),
+        Option("rank_tol", "float", "relative singular-value tolerance of the rank",
+               low=0, low_open=True, high=1),
+        Option("factorization", "str", "data factorisation", choices=_FACTORIZATIONS),
+        Option("bd_method", "str", "how B and D are estimated", choices=_BD_METHODS),
+        Option("max_horizon", "int", f"largest automatic horizon (default "
+               f"{DEFAULT_MAX_HORIZON})", low=2),
+        Option("noise_model", "bool", "estimate the Kalman gain and innovation covariance"),
+        Option("rng", "object", "random generator of the randomised checks"),
+    ]  # fmt: skip
+    return bind_defaults(opts, fit_moesp if moesp else fit_n4sid)
+
+
+#: The options of each method, declared once (``--method list``, the CLI's --option).
+OPTIONS = {"moesp": _declaration("moesp"), "n4sid": _declaration("n4sid")}

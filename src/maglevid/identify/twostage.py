@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 
 from maglevid.data import ClosedLoopData
-from maglevid.exceptions import DataError, IdentificationError
+from maglevid.exceptions import IdentificationError
 from maglevid.identify.closedloop import (
     continuous_or_note,
     extend_covariance,
@@ -46,9 +46,11 @@ from maglevid.identify.closedloop import (
     resolve_segments,
     simo_polynomials_to_state_space,
 )
+from maglevid.identify.options import Option, declared
+from maglevid.identify.pem import OPTIONS_PEM
 from maglevid.identify.result import IdentificationResult
 
-__all__ = ["METHODS", "fit_two_stage", "newey_west"]
+__all__ = ["METHODS", "OPTIONS_TWO_STAGE", "fit_two_stage", "newey_west"]
 
 log = logging.getLogger(__name__)
 
@@ -66,6 +68,22 @@ def newey_west(X: np.ndarray, e: np.ndarray, lags: int) -> np.ndarray:
     return S
 
 
+#: pem's declarations of the options both methods take.
+_PEM = {o.name: o for o in OPTIONS_PEM}
+#: The options of ``two-stage`` (defaults: :func:`fit_two_stage`'s signature).
+OPTIONS_TWO_STAGE = (
+    _PEM["output"], _PEM["input"],
+    Option("reference", "channel", "external signal uncorrelated with the noise (instruments)"),
+    _PEM["na"], _PEM["nb"], _PEM["nk"],
+    Option("n_fir", "int", "causal lags of the reference in stage 1 (cover the settling)", low=1),
+    Option("n_noncausal", "int", "non-causal lags of the reference (Forssell-Ljung)", low=0),
+    _PEM["segments"],
+    Option("intercept", "bool", "one intercept per segment, in both stages"),
+    Option("hac_lags", "int", "Newey-West window (default na + nb + nk + 10)", low=0),
+)  # fmt: skip
+
+
+@declared(*OPTIONS_TWO_STAGE)
 def fit_two_stage(
     data: ClosedLoopData,
     *,
@@ -83,25 +101,12 @@ def fit_two_stage(
 ) -> IdentificationResult:
     """Two-stage (projection / 2SLS) estimate of a SISO plant from closed-loop data.
 
-    Parameters
-    ----------
-    data : ClosedLoopData
-    output, input : str
-        Plant output and input channels (for the UAQ levitator ``"y:0"`` and the
-        measured current ``"y:1"``, or the command ``"u:0"``).
-    reference : str
-        The external signal, uncorrelated with the noise (reference or dither).
-    na, nb, nk : int
-        ARX orders and delay of the plant model (``nk = 0`` for a measured input).
-    n_fir : int
-        Causal lags of the reference in stage 1 (cover the closed-loop settling time).
-    n_noncausal : int
-        Non-causal lags (Forssell & Ljung's projection).
-    segments : list of (start, stop), optional
-    intercept : bool
-        One intercept per segment, in both stages.
-    hac_lags : int, optional
-        Bartlett window of the Newey-West covariance (default ``na + nb + nk + 10``).
+    The options are declared in :data:`OPTIONS_TWO_STAGE`. The steps are the
+    module's equations: the instruments ``Z`` and regressors ``Phi``
+    (:func:`_instruments_and_regressors`), stage 1 (projection of ``Phi`` onto
+    ``Z``), stage 2 (least squares on the projected regressors) and its
+    Newey-West sandwich covariance (:func:`_two_stage_least_squares`), then the
+    one-step prediction fit.
 
     Returns
     -------
@@ -110,11 +115,6 @@ def fit_two_stage(
         ``fit``: one-step prediction fit of the ARX predictor and the stage-1 R^2 of
         the projected input and output (how much of each the reference explains).
     """
-    for name, v, lo in (("na", na, 1), ("nb", nb, 1), ("nk", nk, 0), ("n_fir", n_fir, 1)):
-        if not isinstance(v, (int, np.integer)) or v < lo:
-            raise DataError(f"`{name}` must be an integer >= {lo}; got {v!r}")
-    if n_noncausal < 0:
-        raise DataError(f"`n_noncausal` must be >= 0; got {n_noncausal}")
     ych = resolve_channel(data, output)
     xch = resolve_channel(data, input)
     rch = resolve_channel(data, reference)
@@ -125,61 +125,11 @@ def fit_two_stage(
     back = h + n_fir - 1
     segs = resolve_segments(data, segments, min_length=back + n_noncausal + 10 * (na + nb))
     hl = na + nb + nk + 10 if hac_lags is None else int(hac_lags)
-    rows_Z, rows_P, tgt, sid = [], [], [], []
-    for s, (a0, b0) in enumerate(segs):
-        t = np.arange(a0 + back, b0 - n_noncausal)
-        rows_Z.append(np.column_stack([r[t + j] for j in range(n_noncausal, -n_fir - h, -1)]))
-        rows_P.append(
-            np.column_stack(
-                [-y[t - j] for j in range(1, na + 1)] + [x[t - nk - j] for j in range(nb)]
-            )
-        )
-        tgt.append(y[t])
-        sid.append(np.full(t.size, s))
-    Z = np.vstack(rows_Z)
-    Phi = np.vstack(rows_P)
-    Y = np.concatenate(tgt)
-    seg_id = np.concatenate(sid)
-    if intercept:
-        D = (seg_id[:, None] == np.arange(len(segs))[None, :]).astype(float)
-        Z = np.hstack([Z, D])
-        Phi = np.hstack([Phi, D])
-    if Z.shape[0] < 3 * Z.shape[1]:
-        raise IdentificationError(
-            f"{Z.shape[0]} rows for {Z.shape[1]} instruments; "
-            "give longer segments or a smaller n_fir"
-        )
-    # Stage 1: projection of every regressor (and of y, for the diagnostics) onto Z.
-    coef, *_ = np.linalg.lstsq(Z, np.column_stack([Phi, Y]), rcond=None)
-    proj = Z @ coef
-    Phi_hat, Y_hat = proj[:, :-1], proj[:, -1]
-
-    def r2(a: np.ndarray, b: np.ndarray) -> float:
-        """R^2 of a projection, against the per-segment means."""
-        num = np.sum((a - b) ** 2)
-        den = sum(np.sum((a[seg_id == s] - a[seg_id == s].mean()) ** 2) for s in range(len(segs)))
-        return float(1.0 - num / den) if den > 0 else float("nan")
-
-    xcol = na  # first input regressor column: x_{t-nk}
-    stage1 = {
-        "stage1_r2_output": r2(Y, Y_hat),
-        "stage1_r2_input": r2(Phi[:, xcol], Phi_hat[:, xcol]),
-    }
-    # Stage 2: least squares of the *measured* output on the projected regressors (2SLS).
-    sv = np.linalg.svd(Phi_hat, compute_uv=False)
-    if sv[-1] <= sv[0] * max(Phi_hat.shape) * np.finfo(float).eps:
-        raise IdentificationError(
-            "the projected regressors are rank deficient: the reference does not excite "
-            "the loop enough for this model order (see stage-1 R^2)"
-        )
-    theta, *_ = np.linalg.lstsq(Phi_hat, Y, rcond=None)
-    e = Y - Phi @ theta  # equation error with the measured regressors
-    # Covariance: (Phi_hat' Phi_hat)^-1 S (Phi_hat' Phi_hat)^-1 by QR (no explicit inverse).
-    # With Phi_hat = Q R:  (R'R)^-1 S (R'R)^-1 = R^-1 B R^-T,  B = R^-T S R^-1.
-    _, R = np.linalg.qr(Phi_hat)
-    S = newey_west(Phi_hat, e, hl)
-    B = np.linalg.solve(R.T, np.linalg.solve(R.T, S).T)
-    cov_full = np.linalg.solve(R, np.linalg.solve(R, B).T).T
+    Z, Phi, Y, seg_id = _instruments_and_regressors(
+        y, x, r, segs, na=na, nb=nb, nk=nk, n_fir=n_fir, n_noncausal=n_noncausal,
+        intercept=intercept,
+    )  # fmt: skip
+    theta, cov_full, stage1 = _two_stage_least_squares(Z, Phi, Y, seg_id, len(segs), hl, na)
     n_model = na + nb
     cov = 0.5 * (cov_full[:n_model, :n_model] + cov_full[:n_model, :n_model].T)
     th = theta[:n_model]
@@ -200,31 +150,16 @@ def fit_two_stage(
     params.update(pv)
     a = np.r_[1.0, th[:na]]
     b = np.r_[np.zeros(nk), th[na:n_model]]
-    yhat = np.full(y.size, np.nan)
-    for s, (a0, b0) in enumerate(segs):
-        d = theta[n_model + s] if intercept else 0.0
-        inn = innovations_from_polynomials(a, [b, np.array([d])])
-        U = np.column_stack([x[a0:b0], np.ones(b0 - a0)])
-        p1 = inn.predict(y[a0:b0, None], U, k=1)[:, 0]
-        p1[:h] = np.nan
-        yhat[a0:b0] = p1
+    yhat = _one_step_prediction(y, x, segs, a, b, theta[n_model:] if intercept else None, h)
     fit = {"one_step_fit_percent": fit_percent(y, yhat, segs), **stage1}
     model = simo_polynomials_to_state_space(a, [b], data.dt, input_name=xch.name,
                                             output_names=(ych.name,))  # fmt: skip
     cont = continuous_or_note(model, notes) if nk >= 1 else None
     options: dict[str, Any] = {
-        "output": output,
-        "input": input,
-        "reference": reference,
-        "na": na,
-        "nb": nb,
-        "nk": nk,
-        "n_fir": n_fir,
-        "n_noncausal": n_noncausal,
-        "segments": [list(sg) for sg in segs],
-        "intercept": intercept,
-        "hac_lags": hl,
-    }
+        "output": output, "input": input, "reference": reference, "na": na, "nb": nb,
+        "nk": nk, "n_fir": n_fir, "n_noncausal": n_noncausal,
+        "segments": [list(sg) for sg in segs], "intercept": intercept, "hac_lags": hl,
+    }  # fmt: skip
     resid = np.full(y.size, np.nan)
     resid[~np.isnan(yhat)] = (y - yhat)[~np.isnan(yhat)]
     return IdentificationResult(
@@ -240,6 +175,115 @@ def fit_two_stage(
         continuous_model=cont,
         extras={"A": a.tolist(), "B": b.tolist(), "intercepts": theta[n_model:].tolist()},
     )
+
+
+def _instruments_and_regressors(
+    y: np.ndarray,
+    x: np.ndarray,
+    r: np.ndarray,
+    segs: list[tuple[int, int]],
+    *,
+    na: int,
+    nb: int,
+    nk: int,
+    n_fir: int,
+    n_noncausal: int,
+    intercept: bool,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``Z_t = [r_{t+n_nc}, ..., r_{t-n_fir-h+1}, 1_seg]`` and ``Phi_t = [-y_{t-1..t-na},
+    x_{t-nk..}, 1_seg]`` with the targets ``y_t`` and each row's segment."""
+    h = max(na, nk + nb - 1)
+    back = h + n_fir - 1
+    rows_Z, rows_P, tgt, sid = [], [], [], []
+    for s, (a0, b0) in enumerate(segs):
+        t = np.arange(a0 + back, b0 - n_noncausal)
+        rows_Z.append(np.column_stack([r[t + j] for j in range(n_noncausal, -n_fir - h, -1)]))
+        rows_P.append(
+            np.column_stack(
+                [-y[t - j] for j in range(1, na + 1)] + [x[t - nk - j] for j in range(nb)]
+            )
+        )
+        tgt.append(y[t])
+        sid.append(np.full(t.size, s))
+    Z = np.vstack(rows_Z)
+    Phi = np.vstack(rows_P)
+    seg_id = np.concatenate(sid)
+    if intercept:
+        D = (seg_id[:, None] == np.arange(len(segs))[None, :]).astype(float)
+        Z = np.hstack([Z, D])
+        Phi = np.hstack([Phi, D])
+    if Z.shape[0] < 3 * Z.shape[1]:
+        raise IdentificationError(
+            f"{Z.shape[0]} rows for {Z.shape[1]} instruments; "
+            "give longer segments or a smaller n_fir"
+        )
+    return Z, Phi, np.concatenate(tgt), seg_id
+
+
+def _two_stage_least_squares(
+    Z: np.ndarray,
+    Phi: np.ndarray,
+    Y: np.ndarray,
+    seg_id: np.ndarray,
+    n_segments: int,
+    hac_lags: int,
+    na: int,
+) -> tuple[np.ndarray, np.ndarray, dict[str, float]]:
+    """Stage 1 ``Phi_hat = Z (Z'Z)^+ Z' Phi``, stage 2 ``theta = argmin ||Y - Phi_hat theta||``;
+    ``(theta, sandwich covariance, stage-1 R^2 of the output and the input)``."""
+    # Stage 1: projection of every regressor (and of y, for the diagnostics) onto Z.
+    coef, *_ = np.linalg.lstsq(Z, np.column_stack([Phi, Y]), rcond=None)
+    proj = Z @ coef
+    Phi_hat, Y_hat = proj[:, :-1], proj[:, -1]
+
+    def r2(a: np.ndarray, b: np.ndarray) -> float:
+        """R^2 of a projection, against the per-segment means."""
+        num = np.sum((a - b) ** 2)
+        den = sum(np.sum((a[seg_id == s] - a[seg_id == s].mean()) ** 2) for s in range(n_segments))
+        return float(1.0 - num / den) if den > 0 else float("nan")
+
+    xcol = na  # first input regressor column: x_{t-nk}
+    stage1 = {
+        "stage1_r2_output": r2(Y, Y_hat),
+        "stage1_r2_input": r2(Phi[:, xcol], Phi_hat[:, xcol]),
+    }
+    # Stage 2: least squares of the *measured* output on the projected regressors (2SLS).
+    sv = np.linalg.svd(Phi_hat, compute_uv=False)
+    if sv[-1] <= sv[0] * max(Phi_hat.shape) * np.finfo(float).eps:
+        raise IdentificationError(
+            "the projected regressors are rank deficient: the reference does not excite "
+            "the loop enough for this model order (see stage-1 R^2)"
+        )
+    theta, *_ = np.linalg.lstsq(Phi_hat, Y, rcond=None)
+    e = Y - Phi @ theta  # equation error with the measured regressors
+    # Covariance: (Phi_hat' Phi_hat)^-1 S (Phi_hat' Phi_hat)^-1 by QR (no explicit inverse).
+    # With Phi_hat = Q R:  (R'R)^-1 S (R'R)^-1 = R^-1 B R^-T,  B = R^-T S R^-1.
+    _, R = np.linalg.qr(Phi_hat)
+    S = newey_west(Phi_hat, e, hac_lags)
+    B = np.linalg.solve(R.T, np.linalg.solve(R.T, S).T)
+    cov_full = np.linalg.solve(R, np.linalg.solve(R, B).T).T
+    return theta, cov_full, stage1
+
+
+def _one_step_prediction(
+    y: np.ndarray,
+    x: np.ndarray,
+    segs: list[tuple[int, int]],
+    a: np.ndarray,
+    b: np.ndarray,
+    intercepts: np.ndarray | None,
+    h: int,
+) -> np.ndarray:
+    """One-step prediction of the ARX predictor on each segment (NaN for its first ``h``)."""
+    yhat = np.full(y.size, np.nan)
+    for s, (a0, b0) in enumerate(segs):
+        d = intercepts[s] if intercepts is not None else 0.0
+        inn = innovations_from_polynomials(a, [b, np.array([d])])
+        U = np.column_stack([x[a0:b0], np.ones(b0 - a0)])
+        p1 = inn.predict(y[a0:b0, None], U, k=1)[:, 0]
+        p1[:h] = np.nan
+        yhat[a0:b0] = p1
+    return yhat
 
 
 METHODS = {"two-stage": fit_two_stage}
