@@ -284,11 +284,8 @@ MAX_FUNCTION_LINES = 150
 TOO_LONG_BEING_SPLIT: frozenset[tuple[str, str]] = frozenset(
     {
         ("diagnose/pipeline.py", "diagnose"),
-        ("identify/indirect.py", "fit_indirect"),
-        ("identify/pem.py", "fit_pem"),
         ("identify/subspace.py", "_fit"),
         ("diagnose/history.py", "HistoryStore.record_diagnosis"),
-        ("identify/twostage.py", "fit_two_stage"),
         ("identify/pbsid.py", "_fit"),
         ("identify/greybox.py", "fit_greybox_levitator"),
     }
