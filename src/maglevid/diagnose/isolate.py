@@ -73,6 +73,7 @@ from maglevid.exceptions import DataError
 from maglevid.physics.amb import AMBParameters, linearized_v, v_from_parameters
 
 __all__ = [
+    "MODEL_ERROR_FLOOR",
     "HYPOTHESES",
     "FaultHypothesis",
     "IsolationResult",
@@ -158,6 +159,12 @@ HYPOTHESES: dict[str, tuple[str, str, str]] = {
         "coil 2 current sensor reads low",
     ),
 }
+
+
+#: Smallest relative model error of each v_i: the conversions (ZOH logarithm,
+#: eq. (4) read off a realisation) and a real bearing's unmodelled dynamics are
+#: not trusted below 0.1 %, far below any engineering tolerance.
+MODEL_ERROR_FLOOR = 1e-3
 
 
 @dataclass(frozen=True)

@@ -34,6 +34,7 @@ from maglevid.diagnose.compare import DEFAULT_TOLERANCE, compare_parameters
 from maglevid.diagnose.diagnosis import Diagnosis
 from maglevid.diagnose.isolate import (
     HYPOTHESES,
+    MODEL_ERROR_FLOOR,
     IsolationResult,
     MeasuredOperatingPoint,
     isolate_fault,
@@ -131,10 +132,6 @@ def _baseline_from_history(
     return vals, params, v_cov, "earlier identification (history)"
 
 
-#: Smallest relative model error of each v_i: the conversions (ZOH logarithm,
-#: eq. (4) read off a realisation) and a real bearing's unmodelled dynamics are
-#: not trusted below 0.1 %, far below any engineering tolerance.
-MODEL_ERROR_FLOOR = 1e-3
 
 
 def measured_operating_point(data: ClosedLoopData) -> MeasuredOperatingPoint | None:

@@ -49,7 +49,7 @@ import numpy as np
 from scipy import special
 
 from maglevid.diagnose.compare import DEFAULT_TOLERANCE
-from maglevid.diagnose.isolate import FaultHypothesis, IsolationResult
+from maglevid.diagnose.isolate import MODEL_ERROR_FLOOR, FaultHypothesis, IsolationResult
 
 __all__ = ["Unresolved", "tolerance_of", "unresolved_parameters", "with_cramer_rao_plan"]
 
@@ -304,8 +304,6 @@ class _ExcitationGrid:
     def __init__(
         self, design: Any, amp: float, disp: float, excitation_std: float, model_error: float
     ) -> None:
-        from maglevid.diagnose.pipeline import MODEL_ERROR_FLOOR
-
         self.design = design
         self.floor = MODEL_ERROR_FLOOR
         self.eps_now = max(model_error, MODEL_ERROR_FLOOR)
