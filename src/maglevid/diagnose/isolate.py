@@ -73,8 +73,8 @@ from maglevid.exceptions import DataError
 from maglevid.physics.amb import AMBParameters, linearized_v, v_from_parameters
 
 __all__ = [
-    "MODEL_ERROR_FLOOR",
     "HYPOTHESES",
+    "MODEL_ERROR_FLOOR",
     "FaultHypothesis",
     "IsolationResult",
     "MeasuredOperatingPoint",

@@ -132,8 +132,6 @@ def _baseline_from_history(
     return vals, params, v_cov, "earlier identification (history)"
 
 
-
-
 def measured_operating_point(data: ClosedLoopData) -> MeasuredOperatingPoint | None:
     """Where the bearing sat in the recording: the mean levels of its logged deviations.
 
