@@ -28,7 +28,7 @@ import os
 from collections.abc import Mapping
 from dataclasses import replace
 from datetime import datetime, timezone
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -37,10 +37,12 @@ from maglevid.diagnose.compare import DEFAULT_TOLERANCE
 from maglevid.diagnose.diagnosis import Diagnosis
 from maglevid.exceptions import DataError, MaglevidError
 from maglevid.jsonable import to_json_nulls
-from maglevid.physics.amb import AMBParameters
 from maglevid.physics.units import parameter_unit
 from maglevid.plants import DIAGNOSED_PARAMETERS, DiagnosisRun, DiagnosisStages, kind_of
 from maglevid.plants.base import cannot_diagnose
+
+if TYPE_CHECKING:  # the annotation of `baseline` (what a two-coil AMB's stages accept)
+    from maglevid.physics.amb import AMBParameters
 
 __all__ = ["DIAGNOSED_PARAMETERS", "choose_method", "diagnose", "recording_hash"]
 
