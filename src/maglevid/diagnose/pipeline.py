@@ -204,6 +204,9 @@ def diagnose(
 ) -> Diagnosis:
     """Diagnose one recording of a bearing against a baseline.
 
+    The recording's plant kind (:func:`maglevid.plants.kind_of`) decides what each
+    stage does; the stages are the same for every kind (the module's list).
+
     Parameters
     ----------
     recording : ClosedLoopData or path
@@ -212,7 +215,8 @@ def diagnose(
         ``"nominal"``: the design parameters stored in the recording's loop
         (``loop["nominal"]``); ``"history"``: the machine's latest identification
         in ``history`` (falls back to the design for the first diagnosis); or
-        explicit parameters.
+        explicit parameters. A levitator compares with its published physics
+        (``metadata["plant"]``) unless ``"history"`` finds an earlier diagnosis.
     machine : str, optional
         Machine name (needed with a history store; default: the recording's
         ``metadata["machine"]``).
