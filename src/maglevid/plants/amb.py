@@ -320,14 +320,11 @@ class _Compared:
     has_v: bool
 
 
-def _given_baseline(baseline: Any, notes: list[str]) -> tuple[AMBParameters | None, dict, str]:
+def _given_baseline(baseline: Any, notes: list[str]) -> tuple[AMBParameters | None, dict[str, tuple[float, float]], str]:
     """The baseline the caller gave: parameters, or values (a full set also isolates)."""
     if isinstance(baseline, AMBParameters):
-        return (
-            baseline,
-            {k: (v, 0.0) for k, v in _physical_dict(baseline).items()},
-            ("given parameters"),
-        )
+        values = {k: (v, 0.0) for k, v in _physical_dict(baseline).items()}
+        return baseline, values, "given parameters"
     base_vals = {k: (float(v), 0.0) for k, v in baseline.items()}
     try:
         params = AMBParameters(
