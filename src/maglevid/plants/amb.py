@@ -320,7 +320,10 @@ class _Compared:
     has_v: bool
 
 
-def _given_baseline(baseline: Any, notes: list[str]) -> tuple[AMBParameters | None, dict[str, tuple[float, float]], str]:
+_Values = dict[str, tuple[float, float]]
+
+
+def _given_baseline(baseline: Any, notes: list[str]) -> tuple[AMBParameters | None, _Values, str]:
     """The baseline the caller gave: parameters, or values (a full set also isolates)."""
     if isinstance(baseline, AMBParameters):
         values = {k: (v, 0.0) for k, v in _physical_dict(baseline).items()}
