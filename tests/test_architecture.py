@@ -283,7 +283,6 @@ MAX_FUNCTION_LINES = 150
 #: list at merge; a name here that is no longer too long fails the test too.
 TOO_LONG_BEING_SPLIT: frozenset[tuple[str, str]] = frozenset(
     {
-        ("diagnose/pipeline.py", "diagnose"),
         ("identify/subspace.py", "_fit"),
         ("diagnose/history.py", "HistoryStore.record_diagnosis"),
         ("identify/pbsid.py", "_fit"),
@@ -342,3 +341,61 @@ def test_no_function_longer_than_150_lines():
     )
     stale = sorted(TOO_LONG_BEING_SPLIT - set(too_long))
     assert not stale, f"no longer over {MAX_FUNCTION_LINES} lines; remove from the list: {stale}"
+
+
+#: The concrete plant kinds: one module each in maglevid/plants (issue 19, item 1).
+KIND_MODULES = sorted(
+    p.stem
+    for p in (SRC / "maglevid" / "plants").glob("*.py")
+    if p.stem not in ("__init__", "base")
+)
+
+
+def _kind_names() -> set[str]:
+    """The ``name = "..."`` of each kind class in the kind modules (read with ast)."""
+    names = set()
+    for stem in KIND_MODULES:
+        tree = ast.parse((SRC / "maglevid" / "plants" / f"{stem}.py").read_text(encoding="utf-8"))
+        for node in ast.walk(tree):
+            if (
+                isinstance(node, ast.Assign)
+                and any(isinstance(t, ast.Name) and t.id == "name" for t in node.targets)
+                and isinstance(node.value, ast.Constant)
+            ):
+                names.add(node.value.value)
+    return names
+
+
+def _docstrings(tree: ast.Module) -> set[int]:
+    nodes = [tree, *(n for n in ast.walk(tree) if isinstance(n, (ast.FunctionDef, ast.ClassDef)))]
+    return {
+        id(n.body[0].value)
+        for n in nodes
+        if n.body and isinstance(n.body[0], ast.Expr) and isinstance(n.body[0].value, ast.Constant)
+    }
+
+
+def test_the_pipeline_names_no_plant_kind():
+    # diagnose() runs the same stages for every kind and asks the kind object what
+    # each stage does: no `kind == "levitator"` branch, no import of a kind's module
+    # (maglevid.plants.amb, diagnose.levitator, physics.amb) at run time.
+    assert KIND_MODULES == ["amb", "levitator", "mimo", "suspension"]
+    names = _kind_names()
+    assert names == {"amb-two-coil", "intersampled-suspension", "levitator", "mimo"}
+    path = SRC / "maglevid" / "diagnose" / "pipeline.py"
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    docs = _docstrings(tree)
+    words = names | set(KIND_MODULES)
+    bad = [
+        f"pipeline.py:{n.lineno} says {n.value!r}"
+        for n in ast.walk(tree)
+        if isinstance(n, ast.Constant) and isinstance(n.value, str) and id(n) not in docs
+        if any(w in n.value.lower() for w in names | {"levitator", "suspension"})
+    ]
+    bad += [
+        f"pipeline.py:{i.line} imports {i.target}"
+        for i in IMPORTS
+        if i.importer == "maglevid.diagnose.pipeline"
+        and words & set(_as_module(i.target).split(".")[1:])
+    ]
+    assert not bad, "the pipeline names plant kinds:\n" + "\n".join(bad)

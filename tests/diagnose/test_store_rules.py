@@ -153,11 +153,13 @@ def test_an_overflow_in_the_fault_isolation_is_a_note(tmp_path, recording, monke
     # (math.exp of a runaway log-factor). The gate now refuses pure noise; any
     # overflow left in the isolation is a note at the pipeline's boundary.
     import maglevid.diagnose.pipeline as pipeline
+    import maglevid.plants.amb
 
     def overflow(*args, **kwargs):
         raise OverflowError("math range error")
 
-    monkeypatch.setattr(pipeline, "isolate_fault", overflow)
+    # The isolation stage of a two-coil AMB lives in its plant-kind module (issue 19).
+    monkeypatch.setattr(maglevid.plants.amb, "isolate_fault", overflow)
     diag = pipeline.diagnose(recording)
     assert any("fault isolation not possible: math range error" in n for n in diag.notes)
 

@@ -23,6 +23,13 @@ A recording may state its kind (``metadata["plant_kind"]`` or
 the inference, and the reason says which it was. The AMB method is never chosen
 for a one-input levitator.
 
+Each kind is one module (``amb.py``, ``suspension.py``, ``levitator.py``,
+``mimo.py``) whose object satisfies :class:`~maglevid.plants.base.PlantKind`:
+recognition, methods and default, parameter map with units, fault hypotheses
+and their signatures, report panels, and the diagnosis stages the pipeline
+runs (docs/architecture.md, "Plant kinds"). A new kind is a new module and one
+:func:`register_kind` call.
+
 Examples
 --------
 >>> import numpy as np
@@ -34,88 +41,40 @@ Examples
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from maglevid.data import ClosedLoopData
-from maglevid.exceptions import DataError
+from maglevid.plants import amb, levitator, mimo, suspension
+from maglevid.plants.amb import DIAGNOSED_PARAMETERS
+from maglevid.plants.base import (
+    KINDS,
+    DiagnosisRun,
+    DiagnosisStages,
+    PlantKind,
+    kind_of,
+    register_kind,
+    stated_kind,
+)
 
 __all__ = [
+    "DIAGNOSED_PARAMETERS",
     "KINDS",
+    "DiagnosisRun",
+    "DiagnosisStages",
     "PlantKind",
     "choose_method",
     "infer_kind",
+    "kind_of",
+    "register_kind",
     "stated_kind",
     "unidentifiable_reason",
 ]
 
-
-@dataclass(frozen=True)
-class PlantKind:
-    """A kind of plant: its name, what it is, and its default identification method."""
-
-    name: str
-    description: str
-    default_method: str
-    method_reason: str
-
-
-KINDS: dict[str, PlantKind] = {
-    k.name: k
-    for k in (
-        PlantKind(
-            "amb-two-coil",
-            "two-coil voltage-controlled active magnetic bearing axis (Gosiewski & Paszowski)",
-            "physical",
-            "identifies the plant u -> y directly and transforms it to physical coordinates: "
-            "exact whatever the controller and observer, and consistent under measurement "
-            "noise through instruments made from the known excitation r",
-        ),
-        PlantKind(
-            "intersampled-suspension",
-            "suspension with outputs inter-sampled p times per control period (Sun et al.)",
-            "intersample",
-            "the direct inter-sampling method (Sun et al.) identifies the unstable plant "
-            "from u and y alone",
-        ),
-        PlantKind(
-            "levitator",
-            "one-coil levitator (steel ball or permanent magnet under an electromagnet)",
-            "levitator",
-            "the levitator model family (force and inductance laws, flux lag) fitted as "
-            "grey boxes on the levitating segments, the model chosen by multi-step "
-            "prediction on held-out segments; one consensus pole whose interval covers "
-            "the spread between segments and models",
-        ),
-        PlantKind(
-            "mimo",
-            "generic multi-input multi-output plant",
-            "n4sid",
-            "no physical model of this plant in maglevid: a black-box subspace model (N4SID) "
-            "of u -> y",
-        ),
-    )
-}
-
-
-def _mapping(obj: Any) -> Mapping[str, Any]:
-    return obj if isinstance(obj, Mapping) else {}
-
-
-def stated_kind(data: ClosedLoopData) -> str | None:
-    """The kind the recording states (``loop["plant_kind"]``, else ``metadata["plant_kind"]``)."""
-    for source in (_mapping(data.loop), _mapping(data.metadata)):
-        kind = source.get("plant_kind")
-        if kind is not None:
-            if kind not in KINDS:
-                raise DataError(
-                    f"the recording states plant_kind {kind!r}; expected one of {', '.join(KINDS)}"
-                )
-            return str(kind)
-    return None
+# Recognition tries the kinds in this order (the generic MIMO kind last).
+for _module in (amb, suspension, levitator, mimo):
+    register_kind(_module.KIND)
 
 
 def infer_kind(data: ClosedLoopData) -> tuple[str, str]:
@@ -126,38 +85,15 @@ def infer_kind(data: ClosedLoopData) -> tuple[str, str]:
     (kind, reason) : (str, str)
         ``kind`` is a key of :data:`KINDS`.
     """
-    kind = stated_kind(data)
-    if kind is not None:
-        return kind, f"the recording states plant_kind = {kind!r}"
-    shape = f"{data.ny} output(s), {data.nu} input(s), p = {data.p}"
-    if _mapping(data.loop).get("nominal"):
-        return "amb-two-coil", f"AMB design parameters in loop['nominal'] ({shape})"
-    if data.p > 1:
-        return "intersampled-suspension", f"outputs inter-sampled ({shape})"
-    if data.nu == 1 and data.ny in (1, 2):
-        return "levitator", _levitator_reason(data, shape)
-    if data.ny == 3 and data.nu == 2:
-        return "amb-two-coil", f"outputs [x, i1, i2] and two coil voltages ({shape})"
-    return "mimo", f"no physical model matches {shape}"
-
-
-def _levitator_reason(data: ClosedLoopData, shape: str) -> str:
-    outputs = "[gap, current]" if data.ny == 2 else "[gap]"
-    plant = _mapping(_mapping(data.metadata).get("plant"))
-    law = plant.get("inductance_model")
-    return f"one input and outputs {outputs} ({shape}" + (f"; stated law {law})" if law else ")")
+    kind, why = kind_of(data)
+    return kind.name, why
 
 
 def choose_method(data: ClosedLoopData) -> tuple[str, str]:
     """The default identification method for this recording, and why (kind and method)."""
-    kind, why_kind = infer_kind(data)
-    k = KINDS[kind]
-    method = k.default_method
-    reason = k.method_reason
-    if kind == "levitator" and data.ny == 1:
-        method = "pem"
-        reason = "a levitator log without the coil current: direct prediction error u -> gap"
-    return method, f"plant kind {kind} ({why_kind}); method {method}: {reason}"
+    kind, why_kind = kind_of(data)
+    method, reason = kind.choose_method(data)
+    return method, f"plant kind {kind.name} ({why_kind}); method {method}: {reason}"
 
 
 #: A command explained by the outputs to this R^2 is an exact linear feedback law.

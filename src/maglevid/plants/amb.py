@@ -1,0 +1,540 @@
+"""The two-coil voltage-controlled AMB axis (Gosiewski & Paszowski) as a plant kind.
+
+Recognised by AMB design parameters in ``loop["nominal"]`` or by outputs
+``[x, i1, i2]`` with two coil voltages; identified by :data:`DEFAULT_METHOD`
+(one constant: the default of ``maglevid identify`` and ``maglevid diagnose``
+for this kind); diagnosed in v-space: the physical parameters of eq. (4) are
+compared with the baseline, and the fault hypotheses of
+:data:`maglevid.diagnose.isolate.HYPOTHESES` are fitted to v1..v9 linearised at
+the settled operating point (:func:`measured_operating_point`).
+
+The stages (:class:`AMBStages`) are also the route of a recording without
+v1..v9 (an inter-sampled suspension, a generic MIMO plant, a levitator fitted by
+``pem``): such a recording is compared on the parameters it shares with the
+baseline and not isolated (no v-space model of its faults).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, fields, replace
+from types import MappingProxyType
+from typing import Any
+
+import numpy as np
+
+from maglevid.data import ClosedLoopData
+from maglevid.diagnose.checks import run_checks
+from maglevid.diagnose.compare import compare_parameters
+from maglevid.diagnose.diagnosis import Diagnosis, QualityCheck
+from maglevid.diagnose.isolate import (
+    HYPOTHESES,
+    MODEL_ERROR_FLOOR,
+    SENSOR_GAINS,
+    IsolationResult,
+    MeasuredOperatingPoint,
+    isolate_fault,
+    v_with_sensor_gains,
+)
+from maglevid.diagnose.resolve import plan_unresolved, tolerance_of, unresolved_parameters
+from maglevid.exceptions import DataError, MaglevidError
+from maglevid.jsonable import thaw
+from maglevid.lti import StateSpace
+from maglevid.physics.amb import V_NAMES, AMBParameters, amb_state_space, parameters_from_v
+from maglevid.physics.units import parameter_unit
+from maglevid.plants.base import BaseKind, DiagnosisRun, as_mapping, shape_of
+
+__all__ = [
+    "DEFAULT_METHOD",
+    "DIAGNOSED_PARAMETERS",
+    "KIND",
+    "MODEL_ERROR_FLOOR",
+    "AMBStages",
+    "AMBTwoCoil",
+    "estimate_model_error",
+    "measured_operating_point",
+]
+
+#: The default identification method of a two-coil AMB recording (``maglevid
+#: identify`` and ``maglevid diagnose`` without ``--method``).
+DEFAULT_METHOD = "physical"
+
+#: Physical parameters compared with the baseline (the report's forest plot).
+DIAGNOSED_PARAMETERS: tuple[str, ...] = (
+    "R1", "R2", "L1", "L2", "Ls1", "Ls2", "ki1", "ki2", "kw1", "kw2", "x0", "K1", "K2",
+)  # fmt: skip
+
+_BASELINE_FIELDS = {f.name for f in fields(AMBParameters)}
+
+
+def _baseline_from_loop(data: ClosedLoopData) -> AMBParameters | None:
+    nominal = data.loop.get("nominal") if hasattr(data.loop, "get") else None
+    if not nominal:
+        return None
+    return AMBParameters(
+        **{k: float(v) for k, v in dict(nominal).items() if k in _BASELINE_FIELDS}
+    )
+
+
+def _physical_dict(p: AMBParameters) -> dict[str, float]:
+    out = {k: float(getattr(p, k)) for k in _BASELINE_FIELDS}
+    out.update(p.derived())
+    out.update(dict(zip(V_NAMES, p.v().tolist())))
+    return out
+
+
+def _baseline_from_history(
+    store: Any,
+    machine: str,
+    method: str,
+    fallback: AMBParameters | None,
+    notes: list[str],
+    *,
+    before: Any = None,
+    exclude_recording: str | None = None,
+) -> tuple[dict[str, tuple[float, float]], AMBParameters | None, np.ndarray | None, str]:
+    try:
+        est = store.latest_estimates(
+            machine, method=method, before=before, exclude_recording=exclude_recording
+        )
+    except MaglevidError:  # a machine new to the store
+        est = {}
+    if not est:
+        notes.append(
+            f"no earlier diagnosis of {machine!r} in the history: compared with the design"
+        )
+        return {}, fallback, None, "design (no history yet)"
+    vals = {k: (e.value, e.std_error if e.std_error is not None else 0.0) for k, e in est.items()}
+    try:
+        params = AMBParameters(
+            **{k: vals[k][0] for k in _BASELINE_FIELDS if k in vals},
+            **{k: getattr(fallback, k) for k in ("m", "i0") if fallback is not None},
+        )
+    except (MaglevidError, TypeError) as exc:
+        notes.append(f"the stored baseline is not a valid parameter set ({exc}); using the design")
+        params = fallback
+    v_cov = None
+    if all(k in vals for k in V_NAMES):
+        v_cov = np.diag([vals[k][1] ** 2 for k in V_NAMES])
+    return vals, params, v_cov, "earlier identification (history)"
+
+
+def measured_operating_point(data: ClosedLoopData) -> MeasuredOperatingPoint | None:
+    """Where the bearing sat in the recording: the mean levels of its logged deviations.
+
+    A recording from a bearing under its controller logs ``y = [x, i1 - i0, i2 - i0]``
+    (deviations from the design point, ``loop["operating_point"]["i0"]``). Their
+    means are the settled displacement and coil currents the fault moved the
+    bearing to (the nominal bias voltages hold the design point only in the
+    nominal bearing). ``None`` when the recording does not say it logs
+    deviations from a design point.
+    """
+    op = data.loop.get("operating_point") if hasattr(data.loop, "get") else None
+    if not op or "i0" not in op or data.y.shape[1] != 3:
+        return None
+    x, d1, d2 = (float(m) for m in np.mean(data.y, axis=0))
+    return MeasuredOperatingPoint(x, d1, d2, "mean levels of the recording")
+
+
+def estimate_model_error(data: ClosedLoopData, p: AMBParameters | None) -> float:
+    """Relative model error of each identified v_i for this recording.
+
+    The linearisation of eq. (1) misses terms of second order in the
+    excursions: relative to v they are of the order of the largest relative
+    excursion ``max(std x / x0, std i1 / i0, std i2 / i0)`` (measured: noise-free
+    nonlinear records at 0.3-0.4 % excursion give v within 0.15 % of the
+    linearisation at the settled point). Never below :data:`MODEL_ERROR_FLOOR`.
+    """
+    if p is None or data.y.shape[1] != 3:
+        return MODEL_ERROR_FLOOR
+    sd = np.std(data.y, axis=0) / np.array([p.x0, p.i0, p.i0])
+    return float(max(MODEL_ERROR_FLOOR, np.max(sd)))
+
+
+def _physical_model_errors(v: np.ndarray, eps: float, m: float, i0: float) -> dict[str, float]:
+    """Model-error std of each physical parameter: eq. (4) inverted, J diag(eps v) J^T."""
+    base = parameters_from_v(v, m=m, i0=i0)
+    J = np.empty((len(base), 9))
+    for i in range(9):
+        h = 1e-6 * abs(v[i])
+        vp, vm = v.copy(), v.copy()
+        vp[i] += h
+        vm[i] -= h
+        hi, lo = parameters_from_v(vp, m=m, i0=i0), parameters_from_v(vm, m=m, i0=i0)
+        J[:, i] = [(hi[k] - lo[k]) / (2 * h) for k in base]
+    sd = np.sqrt(np.einsum("ij,j,ij->i", J, (eps * v) ** 2, J))
+    out = dict(zip(base, sd.tolist()))
+    out.update({k: float(eps * abs(vi)) for k, vi in zip(V_NAMES, v)})
+    return out
+
+
+def _excitation_rms(data: ClosedLoopData) -> float | None:
+    """RMS of the known excitation r [V] (largest channel), when the recording has one."""
+    if data.r is None:
+        return None
+    rms = float(np.max(np.std(np.asarray(data.r), axis=0)))
+    return rms if rms > 0 else None
+
+
+def _free_estimate_reasons(changes: list[Any]) -> list[str]:
+    """The free estimates (every parameter fitted) that are significant twice over."""
+    return [
+        f"free estimate (every parameter fitted): {c.name} = {c.estimate:.5g} vs baseline "
+        f"{c.baseline:.5g}, {c.change_percent:+.1f} % "
+        f"(95 % CI {100 * c.change_ci[0] / c.baseline:+.1f} … "
+        f"{100 * c.change_ci[1] / c.baseline:+.1f} %, tolerance ±{100 * c.tolerance:.0f} %)"
+        for c in changes
+        if c.significant
+    ]
+
+
+def _inconclusive(head: str, unresolved: list[Any]) -> tuple[str, str]:
+    names = ", ".join(u.parameter for u in unresolved[:4]) + (
+        f" and {len(unresolved) - 4} more" if len(unresolved) > 4 else ""
+    )
+    return (
+        f"Inconclusive: {head}, but the data cannot resolve the tolerance of {names}: "
+        + unresolved[0].advice(),
+        "inconclusive",
+    )
+
+
+def _verdict_without_isolation(
+    changes: list[Any], reasons: list[str]
+) -> tuple[str, str, list[str]]:
+    sig = [c for c in changes if c.significant]
+    if sig:
+        names = ", ".join(c.name for c in sig)
+        return f"Significant change: {names}", "unexplained_change", reasons
+    wide = [
+        c.name
+        for c in changes
+        if c.baseline and (c.change_ci[1] - c.change_ci[0]) / 2 > c.tolerance * abs(c.baseline)
+    ]
+    if wide:
+        return (
+            f"Inconclusive: no significant change, but the intervals of {', '.join(wide)} are "
+            "wider than their tolerance (a longer record or more excitation would resolve them)",
+            "inconclusive",
+            reasons,
+        )
+    return "No significant change", "no_change", reasons
+
+
+def _verdict(
+    changes: list[Any],
+    iso: IsolationResult | None,
+    tolerances: Mapping[str, float] | float,
+    unresolved: list[Any],
+) -> tuple[str, str, list[str]]:
+    """Verdict, code and reasons (see docs/diagnosis.md, "Verdicts").
+
+    ``unresolved`` holds the single-cause hypotheses whose interval is wider
+    than their tolerance (:func:`maglevid.diagnose.resolve.unresolved_parameters`).
+    The headline number of a fault is the constrained fit ("only R1 changed");
+    the free estimates follow in the reasons, labelled as such.
+    """
+    reasons = _free_estimate_reasons(changes)
+    if iso is None:
+        return _verdict_without_isolation(changes, reasons)
+    best, none = iso.best, iso.no_change
+    me = f" (model error ±{100 * iso.model_error:.2g} % of each v_i included)"
+    if not best.parameters:
+        reasons.append(
+            f"every v_i is consistent with the baseline: chi2 = {none.chi2:.3g} "
+            f"with {none.dof} dof (p = {none.p_value:.2g}){me}"
+        )
+        if unresolved:
+            return (*_inconclusive("no change detected", unresolved), reasons)
+        return "No significant change", "no_change", reasons
+    if not iso.explained:
+        reasons.append(
+            f"no single physical cause (or pair) explains the changes within their model error: "
+            f"best {best.describe()}, chi2 = {best.chi2:.3g} with {best.dof} dof "
+            f"(p = {best.p_value:.2g}){me}"
+        )
+        if any(c.significant for c in changes):
+            return "Unexplained change in the bearing's dynamics", "unexplained_change", reasons
+        if unresolved:
+            return (*_inconclusive("the dynamics changed", unresolved), reasons)
+        return (
+            "Change within tolerance: the dynamics moved, but no parameter beyond its tolerance",
+            "within_tolerance",
+            reasons,
+        )
+    names = " and ".join(best.parameters)
+    reasons.insert(
+        0,
+        f"only {names} changed fits all nine v_i: chi2 = {best.chi2:.3g} with {best.dof} dof "
+        f"(p = {best.p_value:.2g}); 'nothing changed' is rejected (chi2 = {none.chi2:.3g}, "
+        f"{none.dof} dof, p = {none.p_value:.2g}; against the best single cause "
+        f"p = {iso.single_cause_p_value:.2g}){me}",
+    )
+    for h in iso.indistinguishable:
+        reasons.append(f"cannot be told apart from: {h.describe()} (chi2 = {h.chi2:.3g})")
+    named = [u for u in unresolved if u.parameter in best.parameters]
+    if named:
+        return (*_inconclusive(f"the data point to {best.describe()}", named), reasons)
+    label = f"(fit with only {names} changed)"
+    factors = zip(best.parameters, best.factors)
+    if any(abs(f - 1) > tolerance_of(k, tolerances) for k, f in factors):
+        return f"Fault {label}: {best.describe()}", "fault", reasons
+    return f"Change within tolerance {label}: {best.describe()}", "within_tolerance", reasons
+
+
+def _percentage_index(ident: StateSpace | None, base: StateSpace | None) -> dict[str, Any] | None:
+    if ident is None or base is None:
+        return None
+    from maglevid.diagnose.percentage import percentage_index
+
+    return {
+        "A_p": percentage_index(ident.A, base.A, zero_tol=1e-10),
+        "B_p": percentage_index(ident.B, base.B, zero_tol=1e-10),
+    }
+
+
+@dataclass
+class _Baseline:
+    """The baseline of a v-space diagnosis: parameters, values compared, covariance, source."""
+
+    params: AMBParameters | None
+    values: dict[str, tuple[float, float]]
+    source: str
+    design: AMBParameters | None
+    v_cov: np.ndarray | None = None
+
+
+@dataclass
+class _Compared:
+    """What the compare stage hands the isolate stage."""
+
+    changes: list[Any]
+    estimates: dict[str, float]
+    operating_point: MeasuredOperatingPoint | None
+    model_error: float
+    has_v: bool
+
+
+_Values = dict[str, tuple[float, float]]
+
+
+def _given_baseline(baseline: Any, notes: list[str]) -> tuple[AMBParameters | None, _Values, str]:
+    """The baseline the caller gave: parameters, or values (a full set also isolates)."""
+    if isinstance(baseline, AMBParameters):
+        values = {k: (v, 0.0) for k, v in _physical_dict(baseline).items()}
+        return baseline, values, "given parameters"
+    base_vals = {k: (float(v), 0.0) for k, v in baseline.items()}
+    try:
+        params = AMBParameters(
+            **{k: float(v) for k, v in baseline.items() if k in _BASELINE_FIELDS}
+        )
+    except (MaglevidError, TypeError):
+        notes.append("the baseline is not a full parameter set: no fault isolation")
+        return None, base_vals, "given values"
+    values = {**{k: (v, 0.0) for k, v in _physical_dict(params).items()}, **base_vals}
+    return params, values, "given values"
+
+
+class AMBStages:
+    """The v-space diagnosis: quality, baseline, compare, isolate (see the module)."""
+
+    drift_parameters: tuple[str, ...] = DIAGNOSED_PARAMETERS
+
+    def quality(self, run: DiagnosisRun) -> tuple[QualityCheck, ...]:
+        run.identify_options = dict(run.method_options or {})
+        return run_checks(run.data)
+
+    def baseline(self, run: DiagnosisRun) -> None:
+        """Resolve the baseline before identifying (a bad baseline is the caller's error)."""
+        baseline, design = run.baseline, _baseline_from_loop(run.data)
+        v_cov = None
+        if isinstance(baseline, (AMBParameters, Mapping)):
+            params, values, source = _given_baseline(baseline, run.notes)
+        elif baseline == "nominal":
+            if design is None:
+                raise DataError(
+                    "baseline='nominal' needs the design parameters in the recording "
+                    "(loop['nominal']); give the baseline explicitly or use a history"
+                )
+            params, source = design, "design (nominal parameters in the recording)"
+            values = {k: (v, 0.0) for k, v in _physical_dict(design).items()}
+        elif baseline == "history":
+            if run.store is None or run.machine is None:
+                raise DataError("baseline='history' needs `history` (a store) and `machine`")
+            values, params, v_cov, source = _baseline_from_history(
+                run.store, run.machine, run.method, design, run.notes,
+                before=run.when, exclude_recording=run.common["recording_hash"],
+            )  # fmt: skip
+            if not values and design is not None:
+                values = {k: (v, 0.0) for k, v in _physical_dict(design).items()}
+        else:
+            raise DataError(
+                "`baseline` must be 'nominal', 'history', AMBParameters or a mapping; "
+                f"got {baseline!r}"
+            )
+        run.base = _Baseline(params, values, source, design, v_cov)
+
+    def compare(self, run: DiagnosisRun) -> None:
+        """The diagnosed parameters against the baseline, with the model-error term."""
+        result, base, data = run.result, run.base, run.data
+        est = result.parameters
+        se = result.std_errors()
+        compared = {k: (est[k], se[k]) for k in DIAGNOSED_PARAMETERS if k in est}
+        ref = base.params or base.design
+        eps = estimate_model_error(data, ref)
+        model_errors: dict[str, float] = {}
+        has_v = all(k in est for k in V_NAMES)
+        if has_v and ref is not None:
+            v_now = np.array([est[k] for k in V_NAMES])
+            try:
+                model_errors = _physical_model_errors(v_now, eps, ref.m, ref.i0)
+            except MaglevidError as exc:
+                run.notes.append(f"no model-error term for the parameters: {exc}")
+        changes = compare_parameters(
+            compared, base.values, tolerances=run.tolerances, level=run.level,
+            model_errors=model_errors,
+        )  # fmt: skip
+        run.compared = _Compared(changes, est, measured_operating_point(data), eps, has_v)
+
+    def _isolation(self, run: DiagnosisRun) -> IsolationResult | None:
+        """The fault hypotheses fitted to v1..v9 at the settled operating point."""
+        c, base, result = run.compared, run.base, run.result
+        if base.params is None or not c.has_v or result.covariance is None:
+            return None
+        idx = [list(c.estimates).index(k) for k in V_NAMES]
+        v_hat = np.array([c.estimates[k] for k in V_NAMES])
+        v_cov = result.covariance[np.ix_(idx, idx)]
+        try:
+            return isolate_fault(
+                v_hat, v_cov, base.params, baseline_covariance=base.v_cov,
+                hypotheses=list(HYPOTHESES), alpha=run.alpha,
+                operating_point=c.operating_point, model_error=c.model_error,
+            )  # fmt: skip
+        except (MaglevidError, ArithmeticError, np.linalg.LinAlgError) as exc:
+            # ArithmeticError: an overflow in the hypothesis fits (issue 17: pure
+            # noise gave an OverflowError traceback); the quality gate now refuses
+            # such records before, and this keeps any other one a note.
+            run.notes.append(f"fault isolation not possible: {exc or type(exc).__name__}")
+            return None
+
+    def isolate(self, run: DiagnosisRun) -> Diagnosis:
+        """Fault isolation, what the data cannot resolve, and the verdict."""
+        c, base, data, tol = run.compared, run.base, run.data, run.tolerances
+        iso = self._isolation(run)
+        unresolved = []
+        if iso is not None:
+            unresolved = unresolved_parameters(
+                iso, tol, level=run.level, duration_s=data.n_samples * data.dt,
+                excitation_rms=_excitation_rms(data),
+            )  # fmt: skip
+            unresolved, why = plan_unresolved(
+                unresolved, iso, data, run.result, tolerances=tol, level=run.level
+            )
+            run.notes.extend([why] if why else [])
+        verdict, code, reasons = _verdict(c.changes, iso, tol, unresolved)
+        op = c.operating_point
+        if op is not None:
+            reasons.append(
+                f"operating point from the recording's mean levels: x = {1e6 * op.x:+.3g} um, "
+                f"coil currents {1e3 * op.dI1:+.3g} mA and {1e3 * op.dI2:+.3g} mA from the "
+                "design bias; every hypothesis is linearised there"
+            )
+        base_model = amb_state_space(base.params) if base.params is not None else None
+        ident_model = run.result.continuous_model
+        return Diagnosis(
+            verdict=verdict,
+            verdict_code=code,
+            reasons=tuple(reasons),
+            identification=run.result,
+            changes=tuple(c.changes),
+            isolation=iso,
+            quality=run.quality,
+            baseline={
+                "source": base.source,
+                "parameters": {k: list(v) for k, v in base.values.items()},
+                "loop": thaw(data.loop),
+            },
+            baseline_model=base_model,
+            identified_model=ident_model,
+            percentage_index=_percentage_index(ident_model, base_model),
+            notes=tuple(run.notes),
+            resolution=tuple(u.to_dict() for u in unresolved),
+            **run.common,
+        )
+
+
+#: The v-space stages, shared with the kinds that have no diagnosis of their own.
+STAGES = AMBStages()
+
+
+class AMBTwoCoil(BaseKind):
+    """The two-coil voltage-controlled AMB axis (see the module)."""
+
+    name = "amb-two-coil"
+    description = (
+        "two-coil voltage-controlled active magnetic bearing axis (Gosiewski & Paszowski)"
+    )
+    default_method = DEFAULT_METHOD
+    method_reason = (
+        "identifies the plant u -> y directly and transforms it to physical coordinates: "
+        "exact whatever the controller and observer, and consistent under measurement "
+        "noise through instruments made from the known excitation r"
+    )
+    methods = (
+        DEFAULT_METHOD, "ml", "deadbeat-arx", "deadbeat-iv", "okid-era", "indirect",
+        "two-stage", "pem", "n4sid", "moesp", "pbsid", "ssarx",
+    )  # fmt: skip
+    parameters: Mapping[str, str] = MappingProxyType(
+        {k: str(parameter_unit(k)) for k in (*DIAGNOSED_PARAMETERS, *V_NAMES)}
+    )
+    hypotheses: Mapping[str, str] = MappingProxyType(
+        {
+            name: f"{what}: up = {up}; down = {down}"
+            for name, (what, up, down) in HYPOTHESES.items()
+        }
+    )
+    report_panels = (
+        "verdict", "parameters", "percentage", "poles", "responses", "trends", "quality",
+        "method",
+    )  # fmt: skip
+
+    def recognise(self, data: ClosedLoopData) -> str | None:
+        if as_mapping(data.loop).get("nominal"):
+            return f"AMB design parameters in loop['nominal'] ({shape_of(data)})"
+        if data.p == 1 and data.ny == 3 and data.nu == 2:
+            return f"outputs [x, i1, i2] and two coil voltages ({shape_of(data)})"
+        return None
+
+    def stages(self, method: str) -> AMBStages:
+        return STAGES
+
+    def signature(  # type: ignore[override]
+        self,
+        hypothesis: str,
+        baseline: AMBParameters,
+        operating_point: MeasuredOperatingPoint | None = None,
+        *,
+        step: float = 0.01,
+    ) -> dict[str, float]:
+        """Relative change of each v_i when only ``hypothesis`` moves by ``step`` (1 %).
+
+        Linearised at ``operating_point`` (the settled point a recording measured;
+        default the design point), by the same model the isolation fits
+        (:func:`maglevid.diagnose.isolate.v_with_sensor_gains`).
+        """
+        if hypothesis not in HYPOTHESES:
+            raise DataError(
+                f"no fault hypothesis {hypothesis!r}; expected one of {', '.join(HYPOTHESES)}"
+            )
+        v0 = v_with_sensor_gains(baseline, operating_point=operating_point)
+        if hypothesis in SENSOR_GAINS:
+            v1 = v_with_sensor_gains(
+                baseline, **{hypothesis: 1.0 + step}, operating_point=operating_point
+            )
+        else:
+            moved = replace(baseline, **{hypothesis: getattr(baseline, hypothesis) * (1 + step)})
+            v1 = v_with_sensor_gains(moved, operating_point=operating_point)
+        return dict(zip(V_NAMES, (v1 / v0 - 1.0).tolist()))
+
+
+KIND = AMBTwoCoil()
