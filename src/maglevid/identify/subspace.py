@@ -1206,9 +1206,24 @@ def _fit_in_memory(algorithm: str, y: Any, u: Any, kw: dict[str, Any]) -> Identi
         acc = _LagGram(m, 2 * i_rows - 1)
     else:
         acc = _HankelQR(m, 2 * i_rows)
-    for t0 in range(0, N, _CHUNK):  # the same accumulator a stream would use
-        acc.update(np.concatenate([u[t0 : t0 + _CHUNK], y[t0 : t0 + _CHUNK]], axis=1))
+    _feed(acc, u, y)  # the same accumulator a stream would use
     return _fit(acc, nu, ny, opt, i_rows, (y, u))
+
+
+def _feed(acc: _LagGram | _HankelQR, u: np.ndarray, y: np.ndarray) -> None:
+    """Pass ``z = [u, y]`` to ``acc`` in chunks, through one reused buffer.
+
+    The accumulators keep no view of a chunk (they copy what they keep), so one
+    cache-sized buffer serves every chunk: no allocation per chunk.
+    """
+    N, nu = u.shape
+    buf = np.empty((min(N, _CHUNK), nu + y.shape[1]))
+    for t0 in range(0, N, _CHUNK):
+        t1 = min(N, t0 + _CHUNK)
+        z = buf[: t1 - t0]
+        z[:, :nu] = u[t0:t1]
+        z[:, nu:] = y[t0:t1]
+        acc.update(z)
 
 
 # ------------------------------------------------------------- public API
