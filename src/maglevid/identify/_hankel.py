@@ -54,6 +54,7 @@ rounding, whatever the chunk boundaries:
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Iterator
 
 import numpy as np
@@ -188,16 +189,12 @@ class _LagGram:
     def _fold(self) -> np.ndarray:
         """The lag-tau blocks of the grouped products ``W``, ``C``, summed per lag."""
         m, p = self.m, self._p
-        W4 = self._W.reshape(p, m, p, m)
-        C4 = self._C.reshape(p, m, p, m)
-        out = np.zeros_like(self._S)
-        for tau in range(self.L + 1):
-            a = np.arange(max(p - tau, 0))
-            out[tau] = W4[a, :, a + tau, :].sum(axis=0)
-            if tau:
-                a = np.arange(p - tau, p)
-                out[tau] += C4[a, :, a + tau - p, :].sum(axis=0)
-        return out
+        # E[a, :, c, :] = block (a, c) of [W, C]: the partner of start a at lag tau is
+        # column block c = a + tau (c >= p: the next group, C).
+        E = np.concatenate([self._W.reshape(p, m, p, m), self._C.reshape(p, m, p, m)], axis=2)
+        a = np.arange(p)[None, :]
+        tau = np.arange(self.L + 1)[:, None]
+        return E[a, :, a + tau, :].sum(axis=1)  # (L+1, m, m)
 
     def min_samples(self) -> int:
         """Samples needed for the edge formula (head and tail disjoint from the middle)."""
@@ -224,7 +221,7 @@ class _LagGram:
         Dt = np.einsum("qi,qtj->qtij", tail, tail[np.minimum(q_t + tau_g, L - 1)])
         Tc = np.zeros((L + 1, w, m, m))
         np.cumsum(Dt, axis=0, out=Tc[1:])
-        a, b = np.triu_indices(w)
+        a, b = _upper_blocks(w)
         tau = b - a
         blk = self.S[tau] - Hc[a, tau] + Tc[L - w + 1 + a, tau]
         G = np.empty((w * m, w * m))
@@ -232,6 +229,15 @@ class _LagGram:
         G4[b, :, a, :] = blk.transpose(0, 2, 1)
         G4[a, :, b, :] = blk  # after the transposes: the diagonal blocks as computed
         return G
+
+
+@functools.lru_cache(maxsize=64)
+def _upper_blocks(w: int) -> tuple[np.ndarray, np.ndarray]:
+    """Block indices ``(a, b)``, ``a <= b < w`` (``np.triu_indices``, cached: 0.1-2 ms each)."""
+    a, b = np.triu_indices(w)
+    a.flags.writeable = False
+    b.flags.writeable = False
+    return a, b
 
 
 class _HankelQR:

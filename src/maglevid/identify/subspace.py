@@ -120,15 +120,19 @@ class _Stats:
 
     def u_rows(self, t0: int, t1: int) -> np.ndarray:
         """Row indices of u(t0..t1-1) (time-major, z = [u, y])."""
-        m = self.m
-        return np.array([t * m + c for t in range(t0, t1) for c in range(self.nu)], dtype=int)
+        return _channel_rows(self.m, 0, self.nu, t0, t1)
 
     def y_rows(self, t0: int, t1: int) -> np.ndarray:
-        m, nu = self.m, self.nu
-        return np.array([t * m + nu + c for t in range(t0, t1) for c in range(self.ny)], dtype=int)
+        """Row indices of y(t0..t1-1)."""
+        return _channel_rows(self.m, self.nu, self.ny, t0, t1)
 
     def rows(self, idx: np.ndarray) -> np.ndarray:
         return self.F[idx]
+
+
+def _channel_rows(m: int, c0: int, nc: int, t0: int, t1: int) -> np.ndarray:
+    """Rows ``t m + c0 + c`` for ``t0 <= t < t1``, ``c < nc`` (time-major), ascending."""
+    return (np.arange(t0, t1)[:, None] * m + np.arange(c0, c0 + nc)[None, :]).ravel()
 
 
 def _auto_max_horizon(n_samples: int, m: int, cap: int) -> int:
@@ -941,9 +945,60 @@ def _fit(
     st = _stats_from(acc, nu, ny, i_rows)
     rank_tol = _DEFAULT_RANK_TOL[st.factorization] if opt.rank_tol is None else opt.rank_tol
     rcond = _PROJ_RCOND[st.factorization]
-    i_min = _min_horizon(opt.order, ny)
+    i, horizon_rule = _choose_horizon(st, opt, i_rows, extras, notes)
+    st = replace(st, F=st.F[: 2 * i * st.m])  # the rows of window 2i
+    core = _subspace_step(st, i, opt, rank_tol, rcond)
+    _check_order(core, st, rank_tol, notes, stacklevel + 1)
+    model, BD_scaled = _system(st, i, core, opt, rcond, data, extras)
+    fit: dict[str, float] = {}
+    residuals = None
+    if opt.noise_model:
+        residuals = _noise_model(st, i, model, core, BD_scaled, data, fit, extras, notes, rcond)
+    else:
+        notes.append(
+            "noise model not computed (noise_model=False): no noise covariances, Kalman "
+            "gain, residuals or fit percentages"
+        )
+    if not model.is_stable():
+        notes.append(
+            "the model is unstable (poles outside the unit circle); it is reported as found"
+        )
+    continuous = None
+    try:
+        continuous = undiscretize(model)
+    except ModelError as exc:
+        notes.append(f"no continuous-time model: {exc}")
+    extras.update(
+        horizon=i,
+        order=core.n,
+        order_gap_ratio=core.gap,
+        factor_rank=st.rank,
+        hankel_rows=st.j,
+        channel_scale=st.scale,
+    )
+    logger.debug("%s: order %d, horizon %d, j=%d", opt.algorithm, core.n, i, st.j)
+    return IdentificationResult(
+        method=opt.algorithm,
+        model=model,
+        parameters={f"a{k + 1}": float(v) for k, v in enumerate(_char_poly(model.A))},
+        covariance=None,
+        n_samples=st.n_samples,
+        options=_used_options(opt, st, i, core, horizon_rule, rank_tol, i_rows),
+        residuals=residuals,
+        fit=fit,
+        singular_values=core.s,
+        notes=tuple(notes),
+        continuous_model=continuous,
+        extras=extras,
+    )
 
-    # ---- horizon
+
+def _choose_horizon(
+    st: _Stats, opt: _Options, i_rows: int, extras: dict[str, Any], notes: list[str]
+) -> tuple[int, str]:
+    """Horizon ``i`` (given, or ARX order + 1 by AIC) and its rule; checks it against the order."""
+    ny = st.ny
+    i_min = _min_horizon(opt.order, ny)
     if opt.horizon is not None:
         i = opt.horizon
         horizon_rule = "given"
@@ -967,39 +1022,34 @@ def _fit(
             f"`horizon`={i} is too short for order={opt.order} with {ny} output(s): "
             f"need (horizon - 1) * ny >= order, i.e. horizon >= {i_min}"
         )
-    F_full = st.F
-    st = _Stats(
-        F=F_full[: 2 * i * st.m],
-        nu=nu,
-        ny=ny,
-        i_rows=i_rows,
-        j=st.j,
-        n_samples=st.n_samples,
-        scale=st.scale,
-        mean=st.mean,
-        rank=st.rank,
-        factorization=st.factorization,
-    )
     if opt.order is not None and opt.order > (i - 1) * ny:
         raise DataError(
             f"`order`={opt.order} exceeds (horizon - 1) * ny = {(i - 1) * ny}; "
             f"increase `horizon` to at least {i_min}"
         )
+    return i, horizon_rule
 
-    # ---- subspace step: A, C (and B, D for simple N4SID)
+
+def _subspace_step(st: _Stats, i: int, opt: _Options, rank_tol: float, rcond: float) -> _Core:
+    """A, C (and B, D for simple N4SID), the order and its singular values."""
     if opt.algorithm == "moesp":
-        core = _moesp_core(st, i, opt.weighting, opt.order, rank_tol, rcond, opt.noise_model)
-    else:
-        core = _n4sid_core(
-            st,
-            i,
-            opt.weighting,
-            opt.variant or "robust",
-            opt.order,
-            rank_tol,
-            rcond,
-            opt.feedthrough,
-        )
+        return _moesp_core(st, i, opt.weighting, opt.order, rank_tol, rcond, opt.noise_model)
+    return _n4sid_core(
+        st,
+        i,
+        opt.weighting,
+        opt.variant or "robust",
+        opt.order,
+        rank_tol,
+        rcond,
+        opt.feedthrough,
+    )
+
+
+def _check_order(
+    core: _Core, st: _Stats, rank_tol: float, notes: list[str], stacklevel: int
+) -> None:
+    """Notes on an automatic order; a warning when the factorisation cannot resolve it."""
     n = core.n
     if core.order_auto:
         notes.append(
@@ -1022,16 +1072,27 @@ def _fit(
         )
         warnings.warn(msg, IllConditionedWarning, stacklevel=stacklevel)
         notes.append(msg)
+
+
+def _system(
+    st: _Stats,
+    i: int,
+    core: _Core,
+    opt: _Options,
+    rcond: float,
+    data: tuple[np.ndarray, np.ndarray] | None,
+    extras: dict[str, Any],
+) -> tuple[StateSpace, tuple[np.ndarray, np.ndarray]]:
+    """B, D, and the model in physical units; also ``(B, D)`` in scaled units."""
+    nu = st.nu
     A, Cs = core.A, core.C
-    if core.B is not None:
+    if core.B is not None and core.D is not None:
         Bs, Ds = core.B, core.D
     elif opt.algorithm == "moesp":
         Bs, Ds = _bd_moesp(st, i, A, Cs, opt.feedthrough, rcond)
     else:
         Bs, Ds = _bd_robust(core.K_hat, A, Cs, i, nu, opt.feedthrough)
-    assert Ds is not None
-
-    # ---- back to physical units: z_s = z / scale.
+    # Back to physical units: z_s = z / scale.
     s_u, s_y = st.scale[:nu], st.scale[nu:]
     C = Cs * s_y[:, None]
     B = Bs / s_u[None, :]
@@ -1045,41 +1106,21 @@ def _fit(
         B, D, x0 = _bd_regression(A, C, data[0], data[1], opt.feedthrough)
         extras["x0"] = x0
         Bs, Ds = B * s_u[None, :], (D / s_y[:, None]) * s_u[None, :]
-    model = StateSpace(A, B, C, D, opt.dt)
+    return StateSpace(A, B, C, D, opt.dt), (Bs, Ds)
 
-    # ---- noise model and fit (one-step-ahead; never an open-loop simulation)
-    fit: dict[str, float] = {}
-    residuals = None
-    if opt.noise_model:
-        residuals = _noise_model(st, i, model, core, (Bs, Ds), data, fit, extras, notes, rcond)
-    else:
-        notes.append(
-            "noise model not computed (noise_model=False): no noise covariances, Kalman "
-            "gain, residuals or fit percentages"
-        )
-    if not model.is_stable():
-        notes.append(
-            "the model is unstable (poles outside the unit circle); it is reported as found"
-        )
 
-    continuous = None
-    try:
-        continuous = undiscretize(model)
-    except ModelError as exc:
-        notes.append(f"no continuous-time model: {exc}")
-
-    a = _char_poly(A)
-    params = {f"a{k + 1}": float(v) for k, v in enumerate(a)}
-    extras.update(
-        horizon=i,
-        order=n,
-        order_gap_ratio=core.gap,
-        factor_rank=st.rank,
-        hankel_rows=st.j,
-        channel_scale=st.scale,
-    )
+def _used_options(
+    opt: _Options,
+    st: _Stats,
+    i: int,
+    core: _Core,
+    horizon_rule: str,
+    rank_tol: float,
+    i_rows: int,
+) -> dict[str, Any]:
+    """Every option of the fit as used (``IdentificationResult.options``)."""
     options = {
-        "order": n,
+        "order": core.n,
         "order_rule": "auto" if core.order_auto else "given",
         "horizon": i,
         "horizon_rule": horizon_rule,
@@ -1095,21 +1136,7 @@ def _fit(
     }
     if opt.variant is not None:
         options["variant"] = opt.variant
-    logger.debug("%s: order %d, horizon %d, j=%d", opt.algorithm, n, i, st.j)
-    return IdentificationResult(
-        method=opt.algorithm,
-        model=model,
-        parameters=params,
-        covariance=None,
-        n_samples=st.n_samples,
-        options=options,
-        residuals=residuals,
-        fit=fit,
-        singular_values=core.s,
-        notes=tuple(notes),
-        continuous_model=continuous,
-        extras=extras,
-    )
+    return options
 
 
 def _noise_model(
