@@ -1222,9 +1222,9 @@ def _plan_in_memory(N: int, m: int, ny: int, opt: _Options) -> int:
 
 def _fit_in_memory(algorithm: str, y: Any, u: Any, kw: dict[str, Any]) -> IdentificationResult:
     opt = _options(algorithm, **kw)
-    y = as_signal(y, "y", min_samples=2)
+    y = as_signal(y, "y", min_samples=2, copy=False)  # read only; no reference is kept
     N = y.shape[0]
-    u = as_signal(u, "u", n_samples=N)
+    u = as_signal(u, "u", n_samples=N, copy=False)
     ny, nu = y.shape[1], u.shape[1]
     m = nu + ny
     i_rows = _plan_in_memory(N, m, ny, opt)
@@ -1568,8 +1568,8 @@ class SubspaceAccumulator:
 
     def update(self, y: Any, u: Any) -> SubspaceAccumulator:
         """Add the next chunk: ``y`` (c, ny) and ``u`` (c, nu), time first. Returns self."""
-        y = as_signal(y, "y", n_channels=self.ny)
-        u = as_signal(u, "u", n_samples=y.shape[0], n_channels=self.nu)
+        y = as_signal(y, "y", n_channels=self.ny, copy=False)  # copied into z below
+        u = as_signal(u, "u", n_samples=y.shape[0], n_channels=self.nu, copy=False)
         self._acc.update(np.concatenate([u, y], axis=1))
         return self
 
