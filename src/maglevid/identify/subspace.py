@@ -785,23 +785,35 @@ def _predictor_residuals(
     G = G.reshape(b * m, b * ny)
     E = np.einsum("pjk,km->pmj", Fp[b - 1 :: -1][:b], M).reshape(b * m, n)  # F^{b-1-p} M
     Phi = -np.einsum("lj,qjk->kql", C, Fp[:b]).reshape(n, b * ny)  # -C F^q
+    # The rows of E and G that multiply u and y: the record viewed as (N/b) x (b nu) and
+    # (N/b) x (b ny) blocks without interleaving z = [u, y] (a strided copy that cost
+    # as much as the products).
+    Eu, Ey = _split_rows(E, b, nu, ny)
+    Gu, Gy = _split_rows(G, b, nu, ny)
+    y = np.ascontiguousarray(y)
+    u = np.ascontiguousarray(u)
+    N = y.shape[0]
+    n_full = N - N % b  # samples in whole blocks; _CHUNK is a multiple of b
     e = np.empty_like(y)
     x = np.zeros(n)
-    for t0 in range(0, y.shape[0], _CHUNK):
-        t1 = min(y.shape[0], t0 + _CHUNK)
-        nb = -(-(t1 - t0) // b)
-        Z = np.zeros((nb * b, m))
-        Z[: t1 - t0, :nu] = u[t0:t1]
-        Z[: t1 - t0, nu:] = y[t0:t1]
-        Zb = Z.reshape(nb, b * m)
-        S, x = linear_recursion(Fp[b], Zb @ E, x)  # block states s_k, and x(t1)
-        # The padded tail (zeros in z) leaves x(t1) one partial block too far: redo it.
-        rem = (t1 - t0) - (nb - 1) * b
-        if rem < b:
-            x = Fp[rem] @ S[-1] + Zb[-1, : rem * m] @ E[(b - rem) * m :]
-        Eb = Zb @ G + S @ Phi
-        e[t0:t1] = Eb.reshape(nb * b, ny)[: t1 - t0]
+    for t0 in range(0, n_full, _CHUNK):
+        t1 = min(n_full, t0 + _CHUNK)
+        Ub = u[t0:t1].reshape(-1, b * nu)
+        Yb = y[t0:t1].reshape(-1, b * ny)
+        S, x = linear_recursion(Fp[b], Ub @ Eu + Yb @ Ey, x)  # block states s_k, and x(t1)
+        e[t0:t1] = (Ub @ Gu + Yb @ Gy + S @ Phi).reshape(-1, ny)
+    if n_full < N:  # the last, partial block: zero-padded inputs, its start state x
+        Z = np.zeros((b, m))
+        Z[: N - n_full, :nu] = u[n_full:]
+        Z[: N - n_full, nu:] = y[n_full:]
+        e[n_full:] = (Z.reshape(1, b * m) @ G + x @ Phi).reshape(b, ny)[: N - n_full]
     return e
+
+
+def _split_rows(X: np.ndarray, b: int, nu: int, ny: int) -> tuple[np.ndarray, np.ndarray]:
+    """Rows of ``X`` (b m x c, time-major rows of ``z = [u, y]``) for ``u`` and for ``y``."""
+    X3 = X.reshape(b, nu + ny, X.shape[1])
+    return X3[:, :nu].reshape(b * nu, -1), X3[:, nu:].reshape(b * ny, -1)
 
 
 def _bd_regression(
