@@ -101,15 +101,17 @@ def _new_pending(pending: np.ndarray, z: np.ndarray, span: int) -> np.ndarray:
 class _Moments:
     """Running channel sums (for scaling and for the mean in fit percentages)."""
 
-    def __init__(self, m: int) -> None:
+    def __init__(self, m: int, squares: bool = True) -> None:
         self.n = 0
         self.sum = np.zeros(m)
         self.sumsq = np.zeros(m)
+        self.squares = squares  # False: the owner fills in sumsq (``_LagGram``: from S_0)
 
     def update(self, z: np.ndarray) -> None:
         self.n += z.shape[0]
         self.sum += np.einsum("ij->j", z)  # 5x faster than z.sum(axis=0) on (N, 5)
-        self.sumsq += np.einsum("ij,ij->j", z, z)
+        if self.squares:
+            self.sumsq += np.einsum("ij,ij->j", z, z)
 
     def rms(self) -> np.ndarray:
         return np.sqrt(self.sumsq / max(self.n, 1))
@@ -139,11 +141,20 @@ class _LagGram:
         self._C = np.zeros((pm, pm))  # sum_k P_k^T P_{k+1}
         self.head = np.empty((0, m))
         self.pending = np.empty((0, m))
-        self.moments = _Moments(m)
+        self._moments = _Moments(m, squares=False)
 
     @property
     def n(self) -> int:
-        return self.moments.n
+        return self._moments.n
+
+    @property
+    def moments(self) -> _Moments:
+        """Channel sums; the sums of squares are the diagonal of ``S_0`` (every start
+        whose L successors exist) plus the last ``L`` samples: no pass of their own."""
+        mo = self._moments
+        tail = self.pending
+        mo.sumsq = np.diagonal(self.S[0]).copy() + np.einsum("ij,ij->j", tail, tail)
+        return mo
 
     @property
     def S(self) -> np.ndarray:
@@ -157,7 +168,7 @@ class _LagGram:
         for X, n_st in _pieces(self.pending, z, L):
             self._accumulate(X, n_st)
         self.pending = _new_pending(self.pending, z, L)
-        self.moments.update(z)
+        self._moments.update(z)
 
     def _accumulate(self, X: np.ndarray, n_starts: int) -> None:
         # S_tau += sum_{s < n_starts} z(s) z(s+tau)^T, tau = 0..L, as two GEMMs per block.
