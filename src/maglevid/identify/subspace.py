@@ -1211,10 +1211,13 @@ def _noise_model(
 
 def _centred_sumsq(y: np.ndarray) -> np.ndarray:
     """``sum_t (y(t) - mean)^2`` per channel, chunk by chunk (no record-sized temporary)."""
-    mean = y.mean(axis=0)
-    out = np.zeros(y.shape[1])
-    for t0 in range(0, y.shape[0], _CHUNK):
-        yc = y[t0 : t0 + _CHUNK] - mean
+    N, ny = y.shape
+    mean = np.einsum("ij->j", y) / N  # (einsum: axis-0 reductions of (N, 3) are slow)
+    tiled = np.tile(mean, min(N, _CHUNK))  # the subtraction on the flat chunk, contiguous
+    out = np.zeros(ny)
+    for t0 in range(0, N, _CHUNK):
+        chunk = y[t0 : t0 + _CHUNK]
+        yc = (chunk.reshape(-1) - tiled[: chunk.size]).reshape(-1, ny)
         out += np.einsum("ij,ij->j", yc, yc)
     return out
 
