@@ -29,8 +29,18 @@ CHUNKINGS = {
 
 
 @pytest.mark.parametrize("chunks", list(CHUNKINGS.values()), ids=list(CHUNKINGS))
-@pytest.mark.parametrize("max_lag", [1, 3, 8])
-def test_lag_gram_equals_the_gram_of_the_hankel_rows_for_every_window(chunks, max_lag):
+@pytest.mark.parametrize(
+    ("max_lag", "group_block"), [(0, 2048), (1, 2048), (3, 2), (8, 3), (19, 2)]
+)
+def test_lag_gram_equals_the_gram_of_the_hankel_rows_for_every_window(
+    chunks, max_lag, group_block, monkeypatch
+):
+    """Reference: ``H^T H`` of the explicit Hankel rows. The lagged sums are GEMMs over
+    groups of L samples, ``group_block`` groups at a time (small blocks: several per
+    chunk); L = 0 has no next-group product, L = 19 is horizon 10's."""
+    from maglevid.identify import _hankel as hankel_module
+
+    monkeypatch.setattr(hankel_module, "_GROUP_BLOCK", group_block)
     z = np.random.default_rng(0).standard_normal((500, 3)) + 0.5
     acc = _LagGram(3, max_lag)
     pos = 0
@@ -57,9 +67,11 @@ def test_tsqr_factor_reproduces_the_gram(chunks):
     np.testing.assert_allclose(acc.R.T @ acc.R, G, rtol=0, atol=1e-12 * np.abs(G).max())
 
 
-def test_moments_track_rms_and_mean():
+@pytest.mark.parametrize("max_lag", [0, 2, 7, 150])
+def test_moments_track_rms_and_mean(max_lag):
+    # The sums of squares come from S_0 and the last L samples (L = 150: all pending).
     z = np.random.default_rng(2).standard_normal((100, 2)) * [1.0, 3.0] + [0.0, 2.0]
-    acc = _LagGram(2, 2)
+    acc = _LagGram(2, max_lag)
     acc.update(z[:37])
     acc.update(z[37:])
     np.testing.assert_allclose(acc.moments.mean(), z.mean(axis=0), rtol=1e-12)
