@@ -188,3 +188,24 @@ def test_riccati_doubling_matches_scipy_or_declines():
         P0 = sla.solve_discrete_are(A.T, C.T, Q, R, s=S)
         np.testing.assert_allclose(P, P0, rtol=0, atol=1e-8 * np.abs(P0).max())
     assert solved >= 50  # it is the usual route, not the exception
+
+
+@pytest.mark.parametrize("offset", [0.0, 3.0, 1e4])
+def test_one_step_fit_percentages_are_those_of_the_residuals(offset):
+    """Reference: ``100 (1 - ||e|| / ||y - mean(y)||)`` per output, from the returned
+    residuals and numpy. The centred sums come from the data stage's moments unless the
+    offset makes them cancel (1e4 times the output RMS: the exact pass over the record)."""
+    from maglevid.identify.subspace import fit_moesp
+
+    rng = np.random.default_rng(5)
+    u = rng.standard_normal((3000, 2))
+    y = np.zeros((3000, 2))
+    for t in range(1, 3000):  # a stable 2 x 2 first-order system plus noise
+        y[t] = 0.8 * y[t - 1] + u[t - 1] @ [[1.0, 0.3], [-0.2, 0.5]]
+    y = y + 0.05 * rng.standard_normal(y.shape) + offset
+    res = fit_moesp(y, u, order=2, horizon=5)
+    e = np.asarray(res.residuals)
+    ref = 100.0 * (1.0 - np.linalg.norm(e, axis=0) / np.linalg.norm(y - y.mean(axis=0), axis=0))
+    np.testing.assert_allclose(
+        [res.fit["one_step_fit_percent_y1"], res.fit["one_step_fit_percent_y2"]], ref, rtol=1e-9
+    )
