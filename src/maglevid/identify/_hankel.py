@@ -137,6 +137,7 @@ class _LagGram:
         self._p = max(max_lag, 1)  # samples per group of the grouped products
         pm = self._p * m
         self._S = np.zeros((max_lag + 1, m, m))  # the starts not in a group
+        self._S_total: np.ndarray | None = None  # S, folded; None after an update
         self._W = np.zeros((pm, pm))  # sum_k P_k^T P_k
         self._C = np.zeros((pm, pm))  # sum_k P_k^T P_{k+1}
         self.head = np.empty((0, m))
@@ -159,7 +160,10 @@ class _LagGram:
     @property
     def S(self) -> np.ndarray:
         """``S_tau``, tau = 0..L, shape (L+1, m, m)."""
-        return self._S + self._fold()
+        if self._S_total is None:
+            self._S_total = self._S + self._fold()
+            self._S_total.flags.writeable = False
+        return self._S_total
 
     def update(self, z: np.ndarray) -> None:
         L = self.L
@@ -169,6 +173,7 @@ class _LagGram:
             self._accumulate(X, n_st)
         self.pending = _new_pending(self.pending, z, L)
         self._moments.update(z)
+        self._S_total = None
 
     def _accumulate(self, X: np.ndarray, n_starts: int) -> None:
         # S_tau += sum_{s < n_starts} z(s) z(s+tau)^T, tau = 0..L, as two GEMMs per block.
