@@ -40,6 +40,7 @@ from typing import Any
 
 import numpy as np
 import scipy.linalg as sla
+from scipy.linalg import lapack
 
 from maglevid._validation import as_signal, check_positive
 from maglevid.exceptions import (
@@ -79,6 +80,8 @@ _FACTORIZATIONS = ("gram", "qr")
 _BD_METHODS = ("subspace", "regression")
 
 _EPS = float(np.finfo(float).eps)
+#: LAPACK block size the workspaces of the direct calls are sized for (ILAENV gives 32).
+_NB = 64
 
 #: Default relative singular-value floor of the order choice, per factorisation:
 #: the rounding level of noise-free data (measured, docs/subspace.md) times ~100.
@@ -214,12 +217,23 @@ def _orth(X: np.ndarray, rcond: float, ref: float = 0.0) -> np.ndarray:
     # long horizon).
     if X.shape[0] == 0:
         return np.zeros((X.shape[1], 0))
-    Q, R, _ = sla.qr(X.T, mode="economic", pivoting=True, check_finite=False)
-    d = np.abs(np.diag(R))
+    # LAPACK directly, with a workspace for blocks of _NB (scipy.linalg.qr asks LAPACK
+    # for the size first: two more calls, a third of the time on these small matrices).
+    n = X.shape[0]
+    qr, _, tau, _, info = lapack.dgeqp3(X.T, lwork=2 * n + (n + 1) * _NB)
+    if info != 0:  # pragma: no cover - LAPACK argument error
+        raise RuntimeError(f"dgeqp3 failed with info={info}")
+    d = np.abs(np.diag(qr))
     if d.size == 0 or d[0] == 0.0:
         return np.zeros((X.shape[1], 0))
     q = int(np.count_nonzero(d > rcond * max(d[0], ref)))
-    return Q[:, :q]
+    if q == 0:
+        return np.zeros((X.shape[1], 0))
+    # The first q columns of Q need only the first q reflectors (H_j leaves e_i, i < j).
+    Q, _, info = lapack.dorgqr(qr[:, :q], tau[:q], lwork=q * _NB)
+    if info != 0:  # pragma: no cover
+        raise RuntimeError(f"dorgqr failed with info={info}")
+    return Q
 
 
 def _orth_extend(Q: np.ndarray, X: np.ndarray, rcond: float) -> np.ndarray:
@@ -250,8 +264,18 @@ def _regress(Y: np.ndarray, X: np.ndarray, rcond: float) -> np.ndarray:
     """Coefficients ``M`` of ``Y ~ M X`` (rows are signals): least squares, pivoted QR."""
     if X.shape[0] == 0:
         return np.zeros((Y.shape[0], 0))
-    sol = sla.lstsq(X.T, Y.T, cond=rcond, check_finite=False, lapack_driver="gelsy")[0]
-    return sol.T
+    # LAPACK gelsy directly (what scipy.linalg.lstsq(..., lapack_driver="gelsy") calls,
+    # without its workspace query): a workspace for blocks of _NB.
+    m, n = X.shape[1], X.shape[0]
+    nrhs = Y.shape[0]
+    B = np.zeros((max(m, n), nrhs))
+    B[:m] = Y.T
+    mn = min(m, n)
+    lwork = max(mn + 2 * n + _NB * (n + 1), 2 * mn + _NB * nrhs)
+    _, x, _, _, info = lapack.dgelsy(X.T, B, np.zeros(n, dtype=np.int32), rcond, lwork)
+    if info != 0:  # pragma: no cover - LAPACK argument error
+        raise RuntimeError(f"dgelsy failed with info={info}")
+    return x[:n].T
 
 
 def _pinv_apply(Gam: np.ndarray, X: np.ndarray) -> np.ndarray:
