@@ -698,6 +698,18 @@ class Runner:
 
 
 # ---------------------------------------------------------------- sections
+#: From this N on, the subspace workers get ``_big_record_limit`` instead of
+#: ``--memory-limit-gb``: the limit is on address space (RLIMIT_AS), and ctrlsys
+#: (SLICOT's Fortran workspace, OpenBLAS's buffers) reserves more than 8 GB of it at
+#: N = 1e7 although its resident peak there is ~1.5 GB (docs/performance.md).
+_SUBSPACE_BIG_N = 10**7
+
+
+def _big_record_limit(limit_gb: float) -> float:
+    """The per-worker memory limit for records of ``_SUBSPACE_BIG_N`` samples and more."""
+    return 0.0 if limit_gb <= 0 else max(limit_gb, 16.0)
+
+
 def _subspace_rows(
     run: Runner,
     *,
@@ -712,6 +724,8 @@ def _subspace_rows(
 ) -> list[dict[str, Any]]:
     rows: list[dict[str, Any]] = []
     base = {"worker": "subspace", "case": case, "n": n, "order": 4, "noise": 0.1}
+    if n >= _SUBSPACE_BIG_N:
+        base["memory_limit_gb"] = _big_record_limit(run.args.memory_limit_gb)
     for name in tools:
         limit = limits.get(name)
         if name not in skip and limit is not None and n > limit:
@@ -1876,7 +1890,14 @@ def write_report(
     L.append(
         f"- BLAS threads per process: {meta['blas_threads']} for every tool "
         "(OPENBLAS/OMP/MKL_NUM_THREADS); memory limit per worker: "
-        f"{meta['memory_limit_gb']} GB."
+        f"{meta['memory_limit_gb']} GB"
+        + (
+            f" ({_big_record_limit(meta['memory_limit_gb']):g} GB for the open-loop subspace "
+            f"records of N >= {_SUBSPACE_BIG_N:.0e}: ctrlsys reserves more address space "
+            "there than it uses)."
+            if _big_record_limit(meta["memory_limit_gb"]) != meta["memory_limit_gb"]
+            else "."
+        )
     )
     L.append(
         "- Python "

@@ -20,6 +20,8 @@ def readonly(a: np.ndarray) -> np.ndarray:
 
 def check_finite(a: np.ndarray, name: str) -> None:
     """Raise :class:`DataError` naming ``name`` and the first bad sample if ``a`` has NaN/inf."""
+    if a.dtype.kind == "f" and np.isfinite(np.add.reduce(a, axis=None)):
+        return  # a NaN or inf makes the sum NaN or inf: one pass, no boolean temporary
     bad = ~np.isfinite(a)
     if bad.any():
         idx = np.argwhere(bad)[0]
@@ -48,10 +50,13 @@ def as_signal(
     n_samples: int | None = None,
     n_channels: int | None = None,
     min_samples: int = 1,
+    copy: bool = True,
 ) -> np.ndarray:
     """Validate a time-first signal and return it as a read-only ``(N, n_channels)`` array.
 
     A 1-D array is one channel. A wrong shape is an error, never silently transposed.
+    ``copy=False`` returns the validated float array itself (no read-only copy), for
+    callers that only read it and keep no reference (a fit over a long record).
     """
     a = np.asarray(x, dtype=float)
     if a.ndim == 1:
@@ -71,7 +76,7 @@ def as_signal(
     if a.shape[0] < min_samples:
         raise DataError(f"`{name}` has {a.shape[0]} samples; at least {min_samples} are needed")
     check_finite(a, name)
-    return readonly(a)
+    return readonly(a) if copy else a
 
 
 def as_matrix(x: Any, name: str, shape: tuple[int | None, int | None] | None = None) -> np.ndarray:

@@ -29,8 +29,18 @@ CHUNKINGS = {
 
 
 @pytest.mark.parametrize("chunks", list(CHUNKINGS.values()), ids=list(CHUNKINGS))
-@pytest.mark.parametrize("max_lag", [1, 3, 8])
-def test_lag_gram_equals_the_gram_of_the_hankel_rows_for_every_window(chunks, max_lag):
+@pytest.mark.parametrize(
+    ("max_lag", "group_block"), [(0, 2048), (1, 2048), (3, 2), (8, 3), (19, 2)]
+)
+def test_lag_gram_equals_the_gram_of_the_hankel_rows_for_every_window(
+    chunks, max_lag, group_block, monkeypatch
+):
+    """Reference: ``H^T H`` of the explicit Hankel rows. The lagged sums are GEMMs over
+    groups of L samples, ``group_block`` groups at a time (small blocks: several per
+    chunk); L = 0 has no next-group product, L = 19 is horizon 10's."""
+    from maglevid.identify import _hankel as hankel_module
+
+    monkeypatch.setattr(hankel_module, "_GROUP_BLOCK", group_block)
     z = np.random.default_rng(0).standard_normal((500, 3)) + 0.5
     acc = _LagGram(3, max_lag)
     pos = 0
@@ -57,9 +67,11 @@ def test_tsqr_factor_reproduces_the_gram(chunks):
     np.testing.assert_allclose(acc.R.T @ acc.R, G, rtol=0, atol=1e-12 * np.abs(G).max())
 
 
-def test_moments_track_rms_and_mean():
+@pytest.mark.parametrize("max_lag", [0, 2, 7, 150])
+def test_moments_track_rms_and_mean(max_lag):
+    # The sums of squares come from S_0 and the last L samples (L = 150: all pending).
     z = np.random.default_rng(2).standard_normal((100, 2)) * [1.0, 3.0] + [0.0, 2.0]
-    acc = _LagGram(2, 2)
+    acc = _LagGram(2, max_lag)
     acc.update(z[:37])
     acc.update(z[37:])
     np.testing.assert_allclose(acc.moments.mean(), z.mean(axis=0), rtol=1e-12)
@@ -176,3 +188,24 @@ def test_riccati_doubling_matches_scipy_or_declines():
         P0 = sla.solve_discrete_are(A.T, C.T, Q, R, s=S)
         np.testing.assert_allclose(P, P0, rtol=0, atol=1e-8 * np.abs(P0).max())
     assert solved >= 50  # it is the usual route, not the exception
+
+
+@pytest.mark.parametrize("offset", [0.0, 3.0, 1e4])
+def test_one_step_fit_percentages_are_those_of_the_residuals(offset):
+    """Reference: ``100 (1 - ||e|| / ||y - mean(y)||)`` per output, from the returned
+    residuals and numpy. The centred sums come from the data stage's moments unless the
+    offset makes them cancel (1e4 times the output RMS: the exact pass over the record)."""
+    from maglevid.identify.subspace import fit_moesp
+
+    rng = np.random.default_rng(5)
+    u = rng.standard_normal((3000, 2))
+    y = np.zeros((3000, 2))
+    for t in range(1, 3000):  # a stable 2 x 2 first-order system plus noise
+        y[t] = 0.8 * y[t - 1] + u[t - 1] @ [[1.0, 0.3], [-0.2, 0.5]]
+    y = y + 0.05 * rng.standard_normal(y.shape) + offset
+    res = fit_moesp(y, u, order=2, horizon=5)
+    e = np.asarray(res.residuals)
+    ref = 100.0 * (1.0 - np.linalg.norm(e, axis=0) / np.linalg.norm(y - y.mean(axis=0), axis=0))
+    np.testing.assert_allclose(
+        [res.fit["one_step_fit_percent_y1"], res.fit["one_step_fit_percent_y2"]], ref, rtol=1e-9
+    )

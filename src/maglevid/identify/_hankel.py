@@ -54,6 +54,7 @@ rounding, whatever the chunk boundaries:
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Iterator
 
 import numpy as np
@@ -65,8 +66,9 @@ from maglevid.exceptions import DataError
 
 __all__: list[str] = []
 
-#: Starts per block in the lagged sums: a (block x m) slice stays in the L2 cache.
-_LAG_BLOCK = 8192
+#: Groups of ``L`` samples per GEMM in the lagged sums: 2048 x (L m) doubles (0.8 MB at
+#: L = 19, m = 5) stay in the L2/L3 cache.
+_GROUP_BLOCK = 2048
 
 
 def _pieces(pending: np.ndarray, z: np.ndarray, span: int) -> Iterator[tuple[np.ndarray, int]]:
@@ -99,15 +101,17 @@ def _new_pending(pending: np.ndarray, z: np.ndarray, span: int) -> np.ndarray:
 class _Moments:
     """Running channel sums (for scaling and for the mean in fit percentages)."""
 
-    def __init__(self, m: int) -> None:
+    def __init__(self, m: int, squares: bool = True) -> None:
         self.n = 0
         self.sum = np.zeros(m)
         self.sumsq = np.zeros(m)
+        self.squares = squares  # False: the owner fills in sumsq (``_LagGram``: from S_0)
 
     def update(self, z: np.ndarray) -> None:
         self.n += z.shape[0]
-        self.sum += z.sum(axis=0)
-        self.sumsq += np.einsum("ij,ij->j", z, z)
+        self.sum += np.einsum("ij->j", z)  # 5x faster than z.sum(axis=0) on (N, 5)
+        if self.squares:
+            self.sumsq += np.einsum("ij,ij->j", z, z)
 
     def rms(self) -> np.ndarray:
         return np.sqrt(self.sumsq / max(self.n, 1))
@@ -130,14 +134,36 @@ class _LagGram:
     def __init__(self, m: int, max_lag: int) -> None:
         self.m = m
         self.L = max_lag
-        self.S = np.zeros((max_lag + 1, m, m))
+        self._p = max(max_lag, 1)  # samples per group of the grouped products
+        pm = self._p * m
+        self._S = np.zeros((max_lag + 1, m, m))  # the starts not in a group
+        self._S_total: np.ndarray | None = None  # S, folded; None after an update
+        self._W = np.zeros((pm, pm))  # sum_k P_k^T P_k
+        self._C = np.zeros((pm, pm))  # sum_k P_k^T P_{k+1}
         self.head = np.empty((0, m))
         self.pending = np.empty((0, m))
-        self.moments = _Moments(m)
+        self._moments = _Moments(m, squares=False)
 
     @property
     def n(self) -> int:
-        return self.moments.n
+        return self._moments.n
+
+    @property
+    def moments(self) -> _Moments:
+        """Channel sums; the sums of squares are the diagonal of ``S_0`` (every start
+        whose L successors exist) plus the last ``L`` samples: no pass of their own."""
+        mo = self._moments
+        tail = self.pending
+        mo.sumsq = np.diagonal(self.S[0]).copy() + np.einsum("ij,ij->j", tail, tail)
+        return mo
+
+    @property
+    def S(self) -> np.ndarray:
+        """``S_tau``, tau = 0..L, shape (L+1, m, m)."""
+        if self._S_total is None:
+            self._S_total = self._S + self._fold()
+            self._S_total.flags.writeable = False
+        return self._S_total
 
     def update(self, z: np.ndarray) -> None:
         L = self.L
@@ -146,16 +172,45 @@ class _LagGram:
         for X, n_st in _pieces(self.pending, z, L):
             self._accumulate(X, n_st)
         self.pending = _new_pending(self.pending, z, L)
-        self.moments.update(z)
+        self._moments.update(z)
+        self._S_total = None
 
     def _accumulate(self, X: np.ndarray, n_starts: int) -> None:
-        # S_tau += sum_s z(s) z(s+tau)^T, blocked so both slices stay in cache.
-        S = self.S
-        for s0 in range(0, n_starts, _LAG_BLOCK):
-            s1 = min(n_starts, s0 + _LAG_BLOCK)
-            XT = X[s0:s1].T
-            for tau in range(self.L + 1):
-                S[tau] += XT @ X[s0 + tau : s1 + tau]
+        # S_tau += sum_{s < n_starts} z(s) z(s+tau)^T, tau = 0..L, as two GEMMs per block.
+        # Group the starts in rows of p = L samples: P_k = [z(kp), ..., z(kp+p-1)]
+        # (a reshape of the record: no copy). For s = kp + a the partner s + tau is
+        # in the same group (a + tau < p: block (a, a+tau) of W = sum_k P_k^T P_k)
+        # or in the next one (block (a, a+tau-p) of C = sum_k P_k^T P_{k+1}); W and C
+        # are folded into S_tau when S is read. Two (pm x pm) products per block of
+        # groups: 4 p m^2 flops per sample against 2 (L+1) m^2 for one (m x m)
+        # product per lag, but at GEMM speed (the one-lag products, m = 5 columns,
+        # ran at a quarter of it).
+        L, p = self.L, self._p
+        G = n_starts // p
+        if G:
+            pm = p * self.m
+            P = X[: G * p].reshape(G, pm)
+            Pn = X[p : (G + 1) * p].reshape(G, pm) if L else P  # (P: unused, L = 0)
+            for g0 in range(0, G, _GROUP_BLOCK):
+                Pb = P[g0 : g0 + _GROUP_BLOCK]
+                self._W += Pb.T @ Pb
+                if L:
+                    self._C += Pb.T @ Pn[g0 : g0 + _GROUP_BLOCK]
+        s0 = G * p  # the last starts (fewer than p): one product per lag
+        if s0 < n_starts:
+            XT = X[s0:n_starts].T
+            for tau in range(L + 1):
+                self._S[tau] += XT @ X[s0 + tau : n_starts + tau]
+
+    def _fold(self) -> np.ndarray:
+        """The lag-tau blocks of the grouped products ``W``, ``C``, summed per lag."""
+        m, p = self.m, self._p
+        # E[a, :, c, :] = block (a, c) of [W, C]: the partner of start a at lag tau is
+        # column block c = a + tau (c >= p: the next group, C).
+        E = np.concatenate([self._W.reshape(p, m, p, m), self._C.reshape(p, m, p, m)], axis=2)
+        a = np.arange(p)[None, :]
+        tau = np.arange(self.L + 1)[:, None]
+        return E[a, :, a + tau, :].sum(axis=1)  # (L+1, m, m)
 
     def min_samples(self) -> int:
         """Samples needed for the edge formula (head and tail disjoint from the middle)."""
@@ -182,7 +237,7 @@ class _LagGram:
         Dt = np.einsum("qi,qtj->qtij", tail, tail[np.minimum(q_t + tau_g, L - 1)])
         Tc = np.zeros((L + 1, w, m, m))
         np.cumsum(Dt, axis=0, out=Tc[1:])
-        a, b = np.triu_indices(w)
+        a, b = _upper_blocks(w)
         tau = b - a
         blk = self.S[tau] - Hc[a, tau] + Tc[L - w + 1 + a, tau]
         G = np.empty((w * m, w * m))
@@ -190,6 +245,15 @@ class _LagGram:
         G4[b, :, a, :] = blk.transpose(0, 2, 1)
         G4[a, :, b, :] = blk  # after the transposes: the diagonal blocks as computed
         return G
+
+
+@functools.lru_cache(maxsize=64)
+def _upper_blocks(w: int) -> tuple[np.ndarray, np.ndarray]:
+    """Block indices ``(a, b)``, ``a <= b < w`` (``np.triu_indices``, cached: 0.1-2 ms each)."""
+    a, b = np.triu_indices(w)
+    a.flags.writeable = False
+    b.flags.writeable = False
+    return a, b
 
 
 class _HankelQR:

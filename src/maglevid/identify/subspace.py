@@ -40,6 +40,7 @@ from typing import Any
 
 import numpy as np
 import scipy.linalg as sla
+from scipy.linalg import lapack
 
 from maglevid._validation import as_signal, check_positive
 from maglevid.exceptions import (
@@ -80,6 +81,8 @@ _FACTORIZATIONS = ("gram", "qr")
 _BD_METHODS = ("subspace", "regression")
 
 _EPS = float(np.finfo(float).eps)
+#: LAPACK block size the workspaces of the direct calls are sized for (ILAENV gives 32).
+_NB = 64
 
 #: Default relative singular-value floor of the order choice, per factorisation:
 #: the rounding level of noise-free data (measured, docs/subspace.md) times ~100.
@@ -121,15 +124,19 @@ class _Stats:
 
     def u_rows(self, t0: int, t1: int) -> np.ndarray:
         """Row indices of u(t0..t1-1) (time-major, z = [u, y])."""
-        m = self.m
-        return np.array([t * m + c for t in range(t0, t1) for c in range(self.nu)], dtype=int)
+        return _channel_rows(self.m, 0, self.nu, t0, t1)
 
     def y_rows(self, t0: int, t1: int) -> np.ndarray:
-        m, nu = self.m, self.nu
-        return np.array([t * m + nu + c for t in range(t0, t1) for c in range(self.ny)], dtype=int)
+        """Row indices of y(t0..t1-1)."""
+        return _channel_rows(self.m, self.nu, self.ny, t0, t1)
 
     def rows(self, idx: np.ndarray) -> np.ndarray:
         return self.F[idx]
+
+
+def _channel_rows(m: int, c0: int, nc: int, t0: int, t1: int) -> np.ndarray:
+    """Rows ``t m + c0 + c`` for ``t0 <= t < t1``, ``c < nc`` (time-major), ascending."""
+    return (np.arange(t0, t1)[:, None] * m + np.arange(c0, c0 + nc)[None, :]).ravel()
 
 
 def _auto_max_horizon(n_samples: int, m: int, cap: int) -> int:
@@ -211,12 +218,23 @@ def _orth(X: np.ndarray, rcond: float, ref: float = 0.0) -> np.ndarray:
     # long horizon).
     if X.shape[0] == 0:
         return np.zeros((X.shape[1], 0))
-    Q, R, _ = sla.qr(X.T, mode="economic", pivoting=True, check_finite=False)
-    d = np.abs(np.diag(R))
+    # LAPACK directly, with a workspace for blocks of _NB (scipy.linalg.qr asks LAPACK
+    # for the size first: two more calls, a third of the time on these small matrices).
+    n = X.shape[0]
+    qr, _, tau, _, info = lapack.dgeqp3(X.T, lwork=2 * n + (n + 1) * _NB)
+    if info != 0:  # pragma: no cover - LAPACK argument error
+        raise RuntimeError(f"dgeqp3 failed with info={info}")
+    d = np.abs(np.diag(qr))
     if d.size == 0 or d[0] == 0.0:
         return np.zeros((X.shape[1], 0))
     q = int(np.count_nonzero(d > rcond * max(d[0], ref)))
-    return Q[:, :q]
+    if q == 0:
+        return np.zeros((X.shape[1], 0))
+    # The first q columns of Q need only the first q reflectors (H_j leaves e_i, i < j).
+    Q, _, info = lapack.dorgqr(qr[:, :q], tau[:q], lwork=q * _NB)
+    if info != 0:  # pragma: no cover
+        raise RuntimeError(f"dorgqr failed with info={info}")
+    return Q
 
 
 def _orth_extend(Q: np.ndarray, X: np.ndarray, rcond: float) -> np.ndarray:
@@ -247,8 +265,18 @@ def _regress(Y: np.ndarray, X: np.ndarray, rcond: float) -> np.ndarray:
     """Coefficients ``M`` of ``Y ~ M X`` (rows are signals): least squares, pivoted QR."""
     if X.shape[0] == 0:
         return np.zeros((Y.shape[0], 0))
-    sol = sla.lstsq(X.T, Y.T, cond=rcond, check_finite=False, lapack_driver="gelsy")[0]
-    return sol.T
+    # LAPACK gelsy directly (what scipy.linalg.lstsq(..., lapack_driver="gelsy") calls,
+    # without its workspace query): a workspace for blocks of _NB.
+    m, n = X.shape[1], X.shape[0]
+    nrhs = Y.shape[0]
+    B = np.zeros((max(m, n), nrhs))
+    B[:m] = Y.T
+    mn = min(m, n)
+    lwork = max(mn + 2 * n + _NB * (n + 1), 2 * mn + _NB * nrhs)
+    _, x, _, _, info = lapack.dgelsy(X.T, B, np.zeros(n, dtype=np.int32), rcond, lwork)
+    if info != 0:  # pragma: no cover - LAPACK argument error
+        raise RuntimeError(f"dgelsy failed with info={info}")
+    return x[:n].T
 
 
 def _pinv_apply(Gam: np.ndarray, X: np.ndarray) -> np.ndarray:
@@ -782,23 +810,35 @@ def _predictor_residuals(
     G = G.reshape(b * m, b * ny)
     E = np.einsum("pjk,km->pmj", Fp[b - 1 :: -1][:b], M).reshape(b * m, n)  # F^{b-1-p} M
     Phi = -np.einsum("lj,qjk->kql", C, Fp[:b]).reshape(n, b * ny)  # -C F^q
+    # The rows of E and G that multiply u and y: the record viewed as (N/b) x (b nu) and
+    # (N/b) x (b ny) blocks without interleaving z = [u, y] (a strided copy that cost
+    # as much as the products).
+    Eu, Ey = _split_rows(E, b, nu, ny)
+    Gu, Gy = _split_rows(G, b, nu, ny)
+    y = np.ascontiguousarray(y)
+    u = np.ascontiguousarray(u)
+    N = y.shape[0]
+    n_full = N - N % b  # samples in whole blocks; _CHUNK is a multiple of b
     e = np.empty_like(y)
     x = np.zeros(n)
-    for t0 in range(0, y.shape[0], _CHUNK):
-        t1 = min(y.shape[0], t0 + _CHUNK)
-        nb = -(-(t1 - t0) // b)
-        Z = np.zeros((nb * b, m))
-        Z[: t1 - t0, :nu] = u[t0:t1]
-        Z[: t1 - t0, nu:] = y[t0:t1]
-        Zb = Z.reshape(nb, b * m)
-        S, x = linear_recursion(Fp[b], Zb @ E, x)  # block states s_k, and x(t1)
-        # The padded tail (zeros in z) leaves x(t1) one partial block too far: redo it.
-        rem = (t1 - t0) - (nb - 1) * b
-        if rem < b:
-            x = Fp[rem] @ S[-1] + Zb[-1, : rem * m] @ E[(b - rem) * m :]
-        Eb = Zb @ G + S @ Phi
-        e[t0:t1] = Eb.reshape(nb * b, ny)[: t1 - t0]
+    for t0 in range(0, n_full, _CHUNK):
+        t1 = min(n_full, t0 + _CHUNK)
+        Ub = u[t0:t1].reshape(-1, b * nu)
+        Yb = y[t0:t1].reshape(-1, b * ny)
+        S, x = linear_recursion(Fp[b], Ub @ Eu + Yb @ Ey, x)  # block states s_k, and x(t1)
+        e[t0:t1] = (Ub @ Gu + Yb @ Gy + S @ Phi).reshape(-1, ny)
+    if n_full < N:  # the last, partial block: zero-padded inputs, its start state x
+        Z = np.zeros((b, m))
+        Z[: N - n_full, :nu] = u[n_full:]
+        Z[: N - n_full, nu:] = y[n_full:]
+        e[n_full:] = (Z.reshape(1, b * m) @ G + x @ Phi).reshape(b, ny)[: N - n_full]
     return e
+
+
+def _split_rows(X: np.ndarray, b: int, nu: int, ny: int) -> tuple[np.ndarray, np.ndarray]:
+    """Rows of ``X`` (b m x c, time-major rows of ``z = [u, y]``) for ``u`` and for ``y``."""
+    X3 = X.reshape(b, nu + ny, X.shape[1])
+    return X3[:, :nu].reshape(b * nu, -1), X3[:, nu:].reshape(b * ny, -1)
 
 
 def _bd_regression(
@@ -942,9 +982,60 @@ def _fit(
     st = _stats_from(acc, nu, ny, i_rows)
     rank_tol = _DEFAULT_RANK_TOL[st.factorization] if opt.rank_tol is None else opt.rank_tol
     rcond = _PROJ_RCOND[st.factorization]
-    i_min = _min_horizon(opt.order, ny)
+    i, horizon_rule = _choose_horizon(st, opt, i_rows, extras, notes)
+    st = replace(st, F=st.F[: 2 * i * st.m])  # the rows of window 2i
+    core = _subspace_step(st, i, opt, rank_tol, rcond)
+    _check_order(core, st, rank_tol, notes, stacklevel + 1)
+    model, BD_scaled = _system(st, i, core, opt, rcond, data, extras)
+    fit: dict[str, float] = {}
+    residuals = None
+    if opt.noise_model:
+        residuals = _noise_model(st, i, model, core, BD_scaled, data, fit, extras, notes, rcond)
+    else:
+        notes.append(
+            "noise model not computed (noise_model=False): no noise covariances, Kalman "
+            "gain, residuals or fit percentages"
+        )
+    if not model.is_stable():
+        notes.append(
+            "the model is unstable (poles outside the unit circle); it is reported as found"
+        )
+    continuous = None
+    try:
+        continuous = undiscretize(model)
+    except ModelError as exc:
+        notes.append(f"no continuous-time model: {exc}")
+    extras.update(
+        horizon=i,
+        order=core.n,
+        order_gap_ratio=core.gap,
+        factor_rank=st.rank,
+        hankel_rows=st.j,
+        channel_scale=st.scale,
+    )
+    logger.debug("%s: order %d, horizon %d, j=%d", opt.algorithm, core.n, i, st.j)
+    return IdentificationResult(
+        method=opt.algorithm,
+        model=model,
+        parameters={f"a{k + 1}": float(v) for k, v in enumerate(_char_poly(model.A))},
+        covariance=None,
+        n_samples=st.n_samples,
+        options=_used_options(opt, st, i, core, horizon_rule, rank_tol, i_rows),
+        residuals=residuals,
+        fit=fit,
+        singular_values=core.s,
+        notes=tuple(notes),
+        continuous_model=continuous,
+        extras=extras,
+    )
 
-    # ---- horizon
+
+def _choose_horizon(
+    st: _Stats, opt: _Options, i_rows: int, extras: dict[str, Any], notes: list[str]
+) -> tuple[int, str]:
+    """Horizon ``i`` (given, or ARX order + 1 by AIC) and its rule; checks it against the order."""
+    ny = st.ny
+    i_min = _min_horizon(opt.order, ny)
     if opt.horizon is not None:
         i = opt.horizon
         horizon_rule = "given"
@@ -968,39 +1059,34 @@ def _fit(
             f"`horizon`={i} is too short for order={opt.order} with {ny} output(s): "
             f"need (horizon - 1) * ny >= order, i.e. horizon >= {i_min}"
         )
-    F_full = st.F
-    st = _Stats(
-        F=F_full[: 2 * i * st.m],
-        nu=nu,
-        ny=ny,
-        i_rows=i_rows,
-        j=st.j,
-        n_samples=st.n_samples,
-        scale=st.scale,
-        mean=st.mean,
-        rank=st.rank,
-        factorization=st.factorization,
-    )
     if opt.order is not None and opt.order > (i - 1) * ny:
         raise DataError(
             f"`order`={opt.order} exceeds (horizon - 1) * ny = {(i - 1) * ny}; "
             f"increase `horizon` to at least {i_min}"
         )
+    return i, horizon_rule
 
-    # ---- subspace step: A, C (and B, D for simple N4SID)
+
+def _subspace_step(st: _Stats, i: int, opt: _Options, rank_tol: float, rcond: float) -> _Core:
+    """A, C (and B, D for simple N4SID), the order and its singular values."""
     if opt.algorithm == "moesp":
-        core = _moesp_core(st, i, opt.weighting, opt.order, rank_tol, rcond, opt.noise_model)
-    else:
-        core = _n4sid_core(
-            st,
-            i,
-            opt.weighting,
-            opt.variant or "robust",
-            opt.order,
-            rank_tol,
-            rcond,
-            opt.feedthrough,
-        )
+        return _moesp_core(st, i, opt.weighting, opt.order, rank_tol, rcond, opt.noise_model)
+    return _n4sid_core(
+        st,
+        i,
+        opt.weighting,
+        opt.variant or "robust",
+        opt.order,
+        rank_tol,
+        rcond,
+        opt.feedthrough,
+    )
+
+
+def _check_order(
+    core: _Core, st: _Stats, rank_tol: float, notes: list[str], stacklevel: int
+) -> None:
+    """Notes on an automatic order; a warning when the factorisation cannot resolve it."""
     n = core.n
     if core.order_auto:
         notes.append(
@@ -1023,16 +1109,27 @@ def _fit(
         )
         warnings.warn(msg, IllConditionedWarning, stacklevel=stacklevel)
         notes.append(msg)
+
+
+def _system(
+    st: _Stats,
+    i: int,
+    core: _Core,
+    opt: _Options,
+    rcond: float,
+    data: tuple[np.ndarray, np.ndarray] | None,
+    extras: dict[str, Any],
+) -> tuple[StateSpace, tuple[np.ndarray, np.ndarray]]:
+    """B, D, and the model in physical units; also ``(B, D)`` in scaled units."""
+    nu = st.nu
     A, Cs = core.A, core.C
-    if core.B is not None:
+    if core.B is not None and core.D is not None:
         Bs, Ds = core.B, core.D
     elif opt.algorithm == "moesp":
         Bs, Ds = _bd_moesp(st, i, A, Cs, opt.feedthrough, rcond)
     else:
         Bs, Ds = _bd_robust(core.K_hat, A, Cs, i, nu, opt.feedthrough)
-    assert Ds is not None
-
-    # ---- back to physical units: z_s = z / scale.
+    # Back to physical units: z_s = z / scale.
     s_u, s_y = st.scale[:nu], st.scale[nu:]
     C = Cs * s_y[:, None]
     B = Bs / s_u[None, :]
@@ -1046,41 +1143,21 @@ def _fit(
         B, D, x0 = _bd_regression(A, C, data[0], data[1], opt.feedthrough)
         extras["x0"] = x0
         Bs, Ds = B * s_u[None, :], (D / s_y[:, None]) * s_u[None, :]
-    model = StateSpace(A, B, C, D, opt.dt)
+    return StateSpace(A, B, C, D, opt.dt), (Bs, Ds)
 
-    # ---- noise model and fit (one-step-ahead; never an open-loop simulation)
-    fit: dict[str, float] = {}
-    residuals = None
-    if opt.noise_model:
-        residuals = _noise_model(st, i, model, core, (Bs, Ds), data, fit, extras, notes, rcond)
-    else:
-        notes.append(
-            "noise model not computed (noise_model=False): no noise covariances, Kalman "
-            "gain, residuals or fit percentages"
-        )
-    if not model.is_stable():
-        notes.append(
-            "the model is unstable (poles outside the unit circle); it is reported as found"
-        )
 
-    continuous = None
-    try:
-        continuous = undiscretize(model)
-    except ModelError as exc:
-        notes.append(f"no continuous-time model: {exc}")
-
-    a = _char_poly(A)
-    params = {f"a{k + 1}": float(v) for k, v in enumerate(a)}
-    extras.update(
-        horizon=i,
-        order=n,
-        order_gap_ratio=core.gap,
-        factor_rank=st.rank,
-        hankel_rows=st.j,
-        channel_scale=st.scale,
-    )
+def _used_options(
+    opt: _Options,
+    st: _Stats,
+    i: int,
+    core: _Core,
+    horizon_rule: str,
+    rank_tol: float,
+    i_rows: int,
+) -> dict[str, Any]:
+    """Every option of the fit as used (``IdentificationResult.options``)."""
     options = {
-        "order": n,
+        "order": core.n,
         "order_rule": "auto" if core.order_auto else "given",
         "horizon": i,
         "horizon_rule": horizon_rule,
@@ -1096,21 +1173,7 @@ def _fit(
     }
     if opt.variant is not None:
         options["variant"] = opt.variant
-    logger.debug("%s: order %d, horizon %d, j=%d", opt.algorithm, n, i, st.j)
-    return IdentificationResult(
-        method=opt.algorithm,
-        model=model,
-        parameters=params,
-        covariance=None,
-        n_samples=st.n_samples,
-        options=options,
-        residuals=residuals,
-        fit=fit,
-        singular_values=core.s,
-        notes=tuple(notes),
-        continuous_model=continuous,
-        extras=extras,
-    )
+    return options
 
 
 def _noise_model(
@@ -1161,7 +1224,7 @@ def _noise_model(
             y, u = data
             residuals = _predictor_residuals(model, K, y, u)
             num = np.sqrt(np.einsum("ij,ij->j", residuals, residuals))
-            den = np.sqrt(_centred_sumsq(y))
+            den = np.sqrt(_output_sumsq(st, y))
             with np.errstate(divide="ignore", invalid="ignore"):
                 f = 100.0 * (1.0 - num / den)
             fit["one_step_fit_percent"] = float(np.mean(f))
@@ -1171,12 +1234,30 @@ def _noise_model(
     return residuals
 
 
+def _output_sumsq(st: _Stats, y: np.ndarray) -> np.ndarray:
+    """``sum_t (y(t) - mean)^2`` per output: from the data stage's moments when exact enough.
+
+    ``N (rms^2 - mean^2)`` loses ``log10(rms^2 / var)`` digits to cancellation; while that
+    is under 6 (relative error ~1e-10, far below what a fit percentage shows) no pass over
+    the record is needed, else the centred pass runs.
+    """
+    N, nu = st.n_samples, st.nu
+    ms, mean = st.scale[nu:] ** 2, st.mean[nu:]
+    var = ms - mean**2
+    if np.all(var > 1e-6 * ms):
+        return N * var
+    return _centred_sumsq(y)
+
+
 def _centred_sumsq(y: np.ndarray) -> np.ndarray:
     """``sum_t (y(t) - mean)^2`` per channel, chunk by chunk (no record-sized temporary)."""
-    mean = y.mean(axis=0)
-    out = np.zeros(y.shape[1])
-    for t0 in range(0, y.shape[0], _CHUNK):
-        yc = y[t0 : t0 + _CHUNK] - mean
+    N, ny = y.shape
+    mean = np.einsum("ij->j", y) / N  # (einsum: axis-0 reductions of (N, 3) are slow)
+    tiled = np.tile(mean, min(N, _CHUNK))  # the subtraction on the flat chunk, contiguous
+    out = np.zeros(ny)
+    for t0 in range(0, N, _CHUNK):
+        chunk = y[t0 : t0 + _CHUNK]
+        yc = (chunk.reshape(-1) - tiled[: chunk.size]).reshape(-1, ny)
         out += np.einsum("ij,ij->j", yc, yc)
     return out
 
@@ -1196,9 +1277,9 @@ def _plan_in_memory(N: int, m: int, ny: int, opt: _Options) -> int:
 
 def _fit_in_memory(algorithm: str, y: Any, u: Any, kw: dict[str, Any]) -> IdentificationResult:
     opt = _options(algorithm, **kw)
-    y = as_signal(y, "y", min_samples=2)
+    y = as_signal(y, "y", min_samples=2, copy=False)  # read only; no reference is kept
     N = y.shape[0]
-    u = as_signal(u, "u", n_samples=N)
+    u = as_signal(u, "u", n_samples=N, copy=False)
     ny, nu = y.shape[1], u.shape[1]
     m = nu + ny
     i_rows = _plan_in_memory(N, m, ny, opt)
@@ -1207,9 +1288,24 @@ def _fit_in_memory(algorithm: str, y: Any, u: Any, kw: dict[str, Any]) -> Identi
         acc = _LagGram(m, 2 * i_rows - 1)
     else:
         acc = _HankelQR(m, 2 * i_rows)
-    for t0 in range(0, N, _CHUNK):  # the same accumulator a stream would use
-        acc.update(np.concatenate([u[t0 : t0 + _CHUNK], y[t0 : t0 + _CHUNK]], axis=1))
+    _feed(acc, u, y)  # the same accumulator a stream would use
     return _fit(acc, nu, ny, opt, i_rows, (y, u))
+
+
+def _feed(acc: _LagGram | _HankelQR, u: np.ndarray, y: np.ndarray) -> None:
+    """Pass ``z = [u, y]`` to ``acc`` in chunks, through one reused buffer.
+
+    The accumulators keep no view of a chunk (they copy what they keep), so one
+    cache-sized buffer serves every chunk: no allocation per chunk.
+    """
+    N, nu = u.shape
+    buf = np.empty((min(N, _CHUNK), nu + y.shape[1]))
+    for t0 in range(0, N, _CHUNK):
+        t1 = min(N, t0 + _CHUNK)
+        z = buf[: t1 - t0]
+        z[:, :nu] = u[t0:t1]
+        z[:, nu:] = y[t0:t1]
+        acc.update(z)
 
 
 # ------------------------------------------------------------- public API
@@ -1527,8 +1623,8 @@ class SubspaceAccumulator:
 
     def update(self, y: Any, u: Any) -> SubspaceAccumulator:
         """Add the next chunk: ``y`` (c, ny) and ``u`` (c, nu), time first. Returns self."""
-        y = as_signal(y, "y", n_channels=self.ny)
-        u = as_signal(u, "u", n_samples=y.shape[0], n_channels=self.nu)
+        y = as_signal(y, "y", n_channels=self.ny, copy=False)  # copied into z below
+        u = as_signal(u, "u", n_samples=y.shape[0], n_channels=self.nu, copy=False)
         self._acc.update(np.concatenate([u, y], axis=1))
         return self
 
