@@ -57,6 +57,7 @@ import scipy.linalg as sla
 from maglevid._validation import as_signal, check_positive
 from maglevid.exceptions import DataError, IdentificationError, ModelError
 from maglevid.identify._hankel import _LagGram, factor_gram, lower_factor
+from maglevid.identify._structured import fit_bearing_structure
 from maglevid.identify.physical import to_physical_coordinates
 from maglevid.identify.result import IdentificationResult
 from maglevid.identify.subspace import (
@@ -73,7 +74,7 @@ from maglevid.identify.subspace import (
 )
 from maglevid.identify.uncertainty import one_step_fit_percent
 from maglevid.lti import StateSpace, undiscretize
-from maglevid.physics.amb import V_NAMES, v_from_matrices
+from maglevid.physics.amb import C_AMB, V_NAMES, amb_matrices, v_from_matrices
 
 __all__ = ["DEFAULT_MAX_PAST", "METHODS", "PredictorAccumulator", "fit_pbsid", "fit_ssarx"]
 
@@ -90,6 +91,11 @@ _SSARX_FUTURE = 40
 _ALGORITHMS = ("pbsid", "ssarx")
 _WEIGHTINGS = ("cca", "none")
 _COORDINATES = ("identified", "physical")
+_PHYSICAL_FITS = ("transform", "structured")
+#: Default window (lags) of the structured fit (P11): the bearing's predictor has
+#: a pole at ~0.98 (the unstable pole's mirror), and 0.98^160 = 4e-2 where the
+#: VARX's 80 lags leave 0.2 (docs/subspace.md, "Structured fit").
+DEFAULT_STRUCTURE_PAST = 160
 #: Relative singular-value floor of the order choice (Gram route, as MOESP's).
 _DEFAULT_RANK_TOL = 1e-6
 #: Relative rank threshold of the least-squares steps.
@@ -307,6 +313,8 @@ class _Options:
     rank_tol: float
     remove_mean: bool
     coordinates: str
+    physical_fit: str = "transform"
+    structure_past: int | None = None
 
 
 def _options(algorithm: str, **kw: Any) -> _Options:
@@ -324,7 +332,32 @@ def _options(algorithm: str, **kw: Any) -> _Options:
         rank_tol=_DEFAULT_RANK_TOL if rank_tol is None else rank_tol,
         remove_mean=bool(kw["remove_mean"]),
         coordinates=_check_choice(kw["coordinates"], "coordinates", _COORDINATES),
+        physical_fit=_check_choice(
+            kw.get("physical_fit", "transform"), "physical_fit", _PHYSICAL_FITS
+        ),
+        structure_past=_check_int(kw.get("structure_past"), "structure_past", 1),
     )
+
+
+def _resolve_structure(opt: _Options, N: int, m: int, lags: int | None = None) -> _Options:
+    """The structured fit's window: as given, else ``DEFAULT_STRUCTURE_PAST``, within the record.
+
+    The record's limit is the automatic past's (``_ROWS_PER_COLUMN`` rows per
+    Hankel column); ``lags`` caps it at what a stream's accumulator kept.
+    """
+    if opt.coordinates != "physical" or opt.physical_fit != "structured":
+        return replace(opt, structure_past=None)
+    P = opt.structure_past
+    if P is None:
+        P = min(DEFAULT_STRUCTURE_PAST, (N + 1) // (2 + 2 * _ROWS_PER_COLUMN * m))
+        if lags is not None:
+            P = min(P, lags)
+    return replace(opt, structure_past=max(P, 1))
+
+
+def _structure_lags(opt: _Options) -> int:
+    """Lags of the structured fit's window (0 when it does not run)."""
+    return opt.structure_past or 0
 
 
 def _window(opt: _Options, p: int, f: int) -> int:
@@ -347,7 +380,8 @@ def _plan(N: int, m: int, ny: int, opt: _Options) -> tuple[int, int]:
                 f"{m} channels ({_ROWS_PER_COLUMN} rows per coefficient needs at least "
                 f"{need * (2 + 2 * _ROWS_PER_COLUMN * m) - 1}); record longer, or pass `past`"
             )
-    return p_top, _window(opt, p_top, _future(opt.algorithm, opt.future, p_top)) - 1
+    lags = _window(opt, p_top, _future(opt.algorithm, opt.future, p_top)) - 1
+    return p_top, max(lags, _structure_lags(opt))
 
 
 def _future(algorithm: str, future: int | None, p: int) -> int:
@@ -363,40 +397,30 @@ def _min_past(order: int | None, ny: int) -> int:
 
 
 # ---------------------------------------------------------------- the driver
-def _fit(
-    acc: _LagGram,
-    nu: int,
-    ny: int,
-    opt: _Options,
-    p_top: int,
-    shift: np.ndarray,
-    data: tuple[np.ndarray, np.ndarray] | None,
-) -> IdentificationResult:
-    """Everything after the pass over the data (in memory and streamed alike)."""
-    notes: list[str] = []
-    extras: dict[str, Any] = {}
-    m = nu + ny
-    N = acc.n
-    center = opt.remove_mean
-    # ---- one factor of the widest window the fit may use (the AIC's and the fit's
-    # Hankel rows are the same, rows 0..N - W, as MOESP's): W = p_top + 1 or p_top + f
+def _check_window(N: int, m: int, opt: _Options, p_top: int) -> int:
+    """Samples per Hankel row of the widest window the fit may use (MOESP's rows)."""
     if opt.future is not None and opt.past is not None and opt.future > opt.past:
         raise DataError(f"`future`={opt.future} may not exceed `past`={opt.past}")
-    W = _window(opt, p_top, _future(opt.algorithm, opt.future, p_top))
+    W = max(
+        _window(opt, p_top, _future(opt.algorithm, opt.future, p_top)), _structure_lags(opt) + 1
+    )
     if N - W + 1 < 2 * W * m:
         raise DataError(
-            f"the record has {N} samples; past={p_top} needs at least "
+            f"the record has {N} samples; past={max(p_top, W - 1)} needs at least "
             f"{2 * W * m + W - 1} (2 x {W * m} Hankel columns)"
         )
-    st_all = _window_stats(acc, nu, ny, W, shift, center)
-    # ---- past p (the VARX order) and future f
+    return W
+
+
+def _choose_past(
+    st_all: _Stats, opt: _Options, p_top: int, notes: list[str], extras: dict[str, Any]
+) -> tuple[int, int, str]:
+    """``(p, f, rule)``: the VARX order (given, or AIC up to ``p_top``) and the future."""
     if opt.past is not None:
-        p = opt.past
-        past_rule = "given"
+        p, rule = opt.past, "given"
     else:
         p_hat, aic = _arx_horizon(st_all, p_top, opt.feedthrough)
-        p = max(p_hat, _min_past(opt.order, ny))
-        past_rule = "auto"
+        p, rule = max(p_hat, _min_past(opt.order, st_all.ny)), "auto"
         extras["varx_aic"] = aic
         notes.append(f"past {p} chosen automatically: VARX order by AIC over 1..{p_top}")
         if p_hat >= p_top:
@@ -407,21 +431,25 @@ def _fit(
     f = _future(opt.algorithm, opt.future, p)
     if f > p:
         raise DataError(f"`future`={f} may not exceed `past`={p} (the VARX has p lags)")
-    if opt.order is not None and opt.order > f * ny:
+    if opt.order is not None and opt.order > f * st_all.ny:
         raise DataError(
-            f"`order`={opt.order} exceeds future * ny = {f * ny}; increase `future`/`past`"
+            f"`order`={opt.order} exceeds future * ny = {f * st_all.ny}; increase `future`/`past`"
         )
-    st = replace(st_all, F=st_all.F[: _window(opt, p, f) * m])  # rows of z(0..w-1)
+    return p, f, rule
 
-    # ---- VARX (P4) and the state sequence (P5)-(P8)
+
+def _identify_states(
+    st: _Stats, opt: _Options, p: int, f: int, notes: list[str]
+) -> tuple[tuple[np.ndarray, ...], np.ndarray, int, float]:
+    """VARX (P4), state sequence (P5)-(P8), order, ``(A, B, C, D, K, Re)`` (P9), scaled."""
     if opt.algorithm == "pbsid":
         V, _ = _varx(st, p, opt.feedthrough)
         U, s, GK = _state_map_pbsid(st, V, p, f)
     else:
         U, s, GK = _state_map_ssarx(st, p, f, opt.feedthrough, opt.weighting, notes)
-    n, gap = _order(s, opt.order, f * ny, opt.rank_tol)
+    n, gap = _order(s, opt.order, f * st.ny, opt.rank_tol)
     L = (U[:, :n] / np.sqrt(s[:n])[None, :]).T @ GK  # X = S^{-1/2} U^T (Gamma K) Z_p
-    As, Bs, Cs, Dn, Ks, Re = _system_from_states(st, L, p, opt.feedthrough)  # eq. (P9)
+    system = _system_from_states(st, L, p, opt.feedthrough)  # eq. (P9)
     if opt.order is None:
         notes.append(
             f"order {n} chosen automatically: largest gap of the singular values "
@@ -432,20 +460,37 @@ def _fit(
                 f"order choice is marginal (gap ratio {gap:.3g} < 10); inspect "
                 "`singular_values` and pass `order=` explicitly"
             )
+    return system, s, n, gap
 
-    # ---- physical units (z_s = z / scale)
-    s_u, s_y = st.scale[:nu], st.scale[nu:]
-    A = As
-    B = Bs / s_u[None, :]
-    C = Cs * s_y[:, None]
-    D = (Dn * s_y[:, None]) / s_u[None, :]
-    K = Ks / s_y[None, :]
-    Re_phys = Re * np.outer(s_y, s_y)
-    model = StateSpace(A, B, C, D, opt.dt)
+
+def _unscale(
+    system: tuple[np.ndarray, ...], scale: np.ndarray, nu: int, dt: float
+) -> tuple[StateSpace, np.ndarray, np.ndarray]:
+    """Model, Kalman gain and innovation covariance in physical units (``z_s = z / scale``)."""
+    As, Bs, Cs, Dn, Ks, Re = system
+    s_u, s_y = scale[:nu], scale[nu:]
+    model = StateSpace(
+        As, Bs / s_u[None, :], Cs * s_y[:, None], (Dn * s_y[:, None]) / s_u[None, :], dt
+    )
+    return model, Ks / s_y[None, :], Re * np.outer(s_y, s_y)
+
+
+def _coordinates(
+    model: StateSpace,
+    K: np.ndarray,
+    Re: np.ndarray,
+    st_all: _Stats,
+    opt: _Options,
+    notes: list[str],
+    extras: dict[str, Any],
+) -> tuple[StateSpace, StateSpace | None, np.ndarray, np.ndarray, dict[str, float]]:
+    """``(model, continuous, K, Re, parameters)`` in the coordinates asked for."""
     params: dict[str, float] = {}
     continuous = None
     if opt.coordinates == "physical":
         model, continuous, K, v = _bearing_coordinates(model, K)
+        if opt.physical_fit == "structured":
+            model, continuous, K, Re, v = _structured(model, K, v, st_all, opt, notes, extras)
         params.update(zip(V_NAMES, v.tolist()))
     else:
         try:
@@ -453,15 +498,53 @@ def _fit(
         except ModelError as exc:
             notes.append(f"no continuous-time model: {exc}")
     params.update({f"a{k + 1}": float(v) for k, v in enumerate(_char_poly(model.A))})
-    rho = float(np.max(np.abs(np.linalg.eigvals(model.A - K @ model.C)))) if n else 0.0
-    if not rho < 1.0:
-        notes.append(f"the identified predictor A - K C is not stable (spectral radius {rho:.4g})")
-    if not model.is_stable():
-        notes.append(
-            "the model is unstable (poles outside the unit circle); it is reported as found"
-        )
+    return model, continuous, K, Re, params
 
-    # ---- fit (one-step-ahead predictor; never an open-loop simulation)
+
+def _structured(
+    model: StateSpace,
+    K: np.ndarray,
+    v: np.ndarray,
+    st_all: _Stats,
+    opt: _Options,
+    notes: list[str],
+    extras: dict[str, Any],
+) -> tuple[StateSpace, StateSpace, np.ndarray, np.ndarray, np.ndarray]:
+    """v1..v9 and ``K`` by the structured weighted least-squares fit (P11)-(P13)."""
+    P = _structure_lags(opt)
+    sf = fit_bearing_structure(
+        st_all.F[st_all.y_rows(P, P + 1)],
+        st_all.F[_z_rows(st_all, 0, P)],
+        v0=v,
+        K0=K,
+        dt=opt.dt,
+        scale=st_all.scale,
+        j=st_all.j,
+    )
+    notes.append(
+        f"v1..v9 by the structured weighted least-squares fit over a window of {P} lags "
+        f"(docs/subspace.md (P11)-(P13); {sf.iterations} Gauss-Newton steps), started "
+        "from the transform to physical coordinates"
+    )
+    extras.update(structure_lags=P, structure_iterations=sf.iterations)
+    disc = StateSpace(sf.Ad, sf.Bd, C_AMB.copy(), np.zeros((3, 2)), opt.dt)
+    Ac, Bc = amb_matrices(sf.v)
+    cont = StateSpace(Ac, Bc, C_AMB.copy(), np.zeros((3, 2)))
+    return disc, cont, sf.K, sf.Re, sf.v
+
+
+def _fit_metrics(
+    st: _Stats,
+    model: StateSpace,
+    K: np.ndarray,
+    Re_s: np.ndarray,
+    p: int,
+    center: bool,
+    data: tuple[np.ndarray, np.ndarray] | None,
+    rho: float,
+) -> tuple[dict[str, float], np.ndarray | None]:
+    """One-step fit over the record (in memory) and the horizon predictor's fit (P9)."""
+    nu = st.nu
     fit: dict[str, float] = {}
     residuals = None
     mean_u, mean_y = st.mean[:nu], st.mean[nu:]
@@ -478,23 +561,25 @@ def _fit(
     # Fit of y(t) from the state of the last p samples, over the Hankel rows
     # (scaled units; the second moment less the mean unless the rows are centred).
     Fy = st.F[st.y_rows(p, p + 1)]
-    var_y = np.einsum("ij,ij->i", Fy, Fy) - (0.0 if center else (mean_y / s_y) ** 2)
+    var_y = np.einsum("ij,ij->i", Fy, Fy) - (0.0 if center else (mean_y / st.scale[nu:]) ** 2)
     with np.errstate(divide="ignore", invalid="ignore"):
-        hfit = 100.0 * (1.0 - np.sqrt(np.diag(Re) / np.maximum(var_y, 0.0)))
+        hfit = 100.0 * (1.0 - np.sqrt(np.diag(Re_s) / np.maximum(var_y, 0.0)))
     fit["horizon_predictor_fit_percent"] = float(np.mean(hfit))
-    extras.update(
-        kalman_gain=K,
-        innovation_covariance=Re_phys,
-        predictor_spectral_radius=rho,
-        past=p,
-        future=f,
-        order=n,
-        order_gap_ratio=gap,
-        hankel_rows=st.j,
-        factor_rank=st.rank,
-        channel_scale=st.scale,
-        mean={"u": mean_u, "y": mean_y} if center else None,
-    )
+    return fit, residuals
+
+
+def _stability_notes(model: StateSpace, K: np.ndarray, notes: list[str]) -> float:
+    rho = float(np.max(np.abs(np.linalg.eigvals(model.A - K @ model.C)))) if model.nx else 0.0
+    if not rho < 1.0:
+        notes.append(f"the identified predictor A - K C is not stable (spectral radius {rho:.4g})")
+    if not model.is_stable():
+        notes.append(
+            "the model is unstable (poles outside the unit circle); it is reported as found"
+        )
+    return rho
+
+
+def _options_used(opt: _Options, n: int, p: int, f: int, past_rule: str) -> dict[str, Any]:
     options = {
         "order": n,
         "order_rule": "given" if opt.order is not None else "auto",
@@ -509,16 +594,61 @@ def _fit(
         "coordinates": opt.coordinates,
         "factorization": "gram",
     }
+    if opt.coordinates == "physical":
+        options["physical_fit"] = opt.physical_fit
+        if opt.physical_fit == "structured":
+            options["structure_past"] = _structure_lags(opt)
     if opt.algorithm == "ssarx":
         options["weighting"] = opt.weighting
+    return options
+
+
+def _fit(
+    acc: _LagGram,
+    nu: int,
+    ny: int,
+    opt: _Options,
+    p_top: int,
+    shift: np.ndarray,
+    data: tuple[np.ndarray, np.ndarray] | None,
+) -> IdentificationResult:
+    """Everything after the pass over the data (in memory and streamed alike)."""
+    notes: list[str] = []
+    extras: dict[str, Any] = {}
+    # one factor of the widest window the fit may use (the AIC's and the fit's Hankel
+    # rows are the same, rows 0..N - W, as MOESP's)
+    W = _check_window(acc.n, nu + ny, opt, p_top)
+    st_all = _window_stats(acc, nu, ny, W, shift, opt.remove_mean)
+    p, f, past_rule = _choose_past(st_all, opt, p_top, notes, extras)
+    st = replace(st_all, F=st_all.F[: _window(opt, p, f) * st_all.m])  # rows of z(0..w-1)
+    system, s, n, gap = _identify_states(st, opt, p, f, notes)
+    model, K, Re = _unscale(system, st.scale, nu, opt.dt)
+    model, continuous, K, Re, params = _coordinates(model, K, Re, st_all, opt, notes, extras)
+    rho = _stability_notes(model, K, notes)
+    Re_s = Re / np.outer(st.scale[nu:], st.scale[nu:])
+    fit, residuals = _fit_metrics(st, model, K, Re_s, p, opt.remove_mean, data, rho)
+    mean_u, mean_y = st.mean[:nu], st.mean[nu:]
+    extras.update(
+        kalman_gain=K,
+        innovation_covariance=Re,
+        predictor_spectral_radius=rho,
+        past=p,
+        future=f,
+        order=n,
+        order_gap_ratio=gap,
+        hankel_rows=st.j,
+        factor_rank=st.rank,
+        channel_scale=st.scale,
+        mean={"u": mean_u, "y": mean_y} if opt.remove_mean else None,
+    )
     logger.debug("%s: order %d, past %d, future %d, j=%d", opt.algorithm, n, p, f, st.j)
     return IdentificationResult(
         method=opt.algorithm,
         model=model,
         parameters=params,
         covariance=None,
-        n_samples=N,
-        options=options,
+        n_samples=acc.n,
+        options=_options_used(opt, n, p, f, past_rule),
         residuals=residuals,
         fit=fit,
         singular_values=s,
@@ -576,6 +706,9 @@ class PredictorAccumulator:
         record supports, as in memory.
     remove_mean : bool
         Centre the data (offset-invariant fit; default True).
+    structure_past : int, optional
+        Lags to keep for ``physical_fit="structured"`` (default: none beyond
+        the VARX's; the structured fit then uses the lags kept).
 
     Examples
     --------
@@ -601,6 +734,7 @@ class PredictorAccumulator:
         future: int | None = None,
         max_past: int = DEFAULT_MAX_PAST,
         remove_mean: bool = True,
+        structure_past: int | None = None,
     ) -> None:
         self.ny = _check_int(ny, "ny", 1, allow_none=False)
         self.nu = _check_int(nu, "nu", 1, allow_none=False)
@@ -613,7 +747,8 @@ class PredictorAccumulator:
         p_top = self.past if self.past is not None else self.max_past
         assert p_top is not None
         lags = p_top if self.algorithm == "pbsid" else p_top + _future("ssarx", future, p_top) - 1
-        self._acc = _LagGram(self.nu + self.ny, max(lags, 1))
+        self.structure_past = _check_int(structure_past, "structure_past", 1)
+        self._acc = _LagGram(self.nu + self.ny, max(lags, self.structure_past or 0, 1))
         self._shift: np.ndarray | None = None
 
     @property
@@ -643,6 +778,7 @@ class PredictorAccumulator:
         weighting: str = "cca",
         rank_tol: float | None = None,
         coordinates: str = "identified",
+        physical_fit: str = "transform",
     ) -> IdentificationResult:
         """Identify from the data seen so far (options as in :func:`fit_pbsid`)."""
         opt = _options(
@@ -657,9 +793,12 @@ class PredictorAccumulator:
             rank_tol=rank_tol,
             remove_mean=self.remove_mean,
             coordinates=coordinates,
+            physical_fit=physical_fit,
+            structure_past=self.structure_past,
         )
         assert self.ny is not None and self.nu is not None
         N = self.n_samples
+        opt = _resolve_structure(opt, N, self.nu + self.ny, self._acc.L)
         p_top, lags = _plan(N, self.nu + self.ny, self.ny, opt)
         if self.past is None:
             p_top = min(p_top, self.max_past)
@@ -677,6 +816,7 @@ def _fit_in_memory(algorithm: str, y: Any, u: Any, kw: dict[str, Any]) -> Identi
     N = y.shape[0]
     u = as_signal(u, "u", n_samples=N)
     ny, nu = y.shape[1], u.shape[1]
+    opt = _resolve_structure(opt, N, nu + ny)
     p_top, lags = _plan(N, nu + ny, ny, opt)
     if N < 2 * lags + 1:
         raise DataError(f"the record has {N} samples; the past asked for needs {2 * lags + 1}")
@@ -705,6 +845,8 @@ def fit_pbsid(
     remove_mean: bool = True,
     coordinates: str = "identified",
     max_past: int | None = None,
+    physical_fit: str = "transform",
+    structure_past: int | None = None,
     rng: np.random.Generator | None = None,
 ) -> IdentificationResult:
     """Innovation-form state-space model by PBSID-opt, consistent in closed loop.
@@ -744,6 +886,16 @@ def fit_pbsid(
         (4 states, outputs ``[x, i1, i2]``), with ``v1..v9`` in ``parameters``.
     max_past : int, optional
         Upper limit of the automatic past (default 80, ``DEFAULT_MAX_PAST``).
+    physical_fit : {"transform", "structured"}
+        With ``coordinates="physical"``: v1..v9 read off the black-box model
+        transformed to physical coordinates (default), or ``"structured"``:
+        v1..v9 and the Kalman gain fitted to the window's Gram matrix by
+        weighted least squares in the bearing's structure, started from the
+        transform (docs/subspace.md (P11)-(P13); closer to maximum likelihood,
+        2-20x slower; no pass over the data).
+    structure_past : int, optional
+        Lags of the structured fit's window (default 160,
+        ``DEFAULT_STRUCTURE_PAST``, within what the record supports).
     rng : numpy.random.Generator, optional
         Unused (deterministic); accepted for a uniform ``fit_*`` API.
 
@@ -804,6 +956,8 @@ def fit_pbsid(
             remove_mean=remove_mean,
             coordinates=coordinates,
             max_past=max_past,
+            physical_fit=physical_fit,
+            structure_past=structure_past,
         ),
     )
 
@@ -822,6 +976,8 @@ def fit_ssarx(
     remove_mean: bool = True,
     coordinates: str = "identified",
     max_past: int | None = None,
+    physical_fit: str = "transform",
+    structure_past: int | None = None,
     rng: np.random.Generator | None = None,
 ) -> IdentificationResult:
     """Innovation-form state-space model by SSARX (Jansson 2003), consistent in closed loop.
@@ -834,13 +990,15 @@ def fit_ssarx(
 
     Parameters
     ----------
-    y, u, order, past, future, dt, feedthrough, rank_tol, remove_mean, coordinates, max_past, rng
+    y, u, order, past, future, dt, feedthrough, rank_tol, remove_mean, coordinates, max_past
         As in :func:`fit_pbsid`, except that ``future`` defaults to ``min(past, 40)``
         (the Hankel window is ``past + future``).
     weighting : {"cca", "none"}
         ``W1 = (ytil_f ytil_f^T)^{-1/2}`` (canonical correlations, Jansson's
         choice; default) or ``W1 = I``. Noise-free data have a singular
         corrected-future covariance; the SVD is then unweighted (noted).
+    physical_fit, structure_past, rng
+        As in :func:`fit_pbsid`.
 
     Returns, Raises
         As :func:`fit_pbsid`.
@@ -876,6 +1034,8 @@ def fit_ssarx(
             remove_mean=remove_mean,
             coordinates=coordinates,
             max_past=max_past,
+            physical_fit=physical_fit,
+            structure_past=structure_past,
         ),
     )
 
