@@ -221,3 +221,47 @@ def test_nonlinear_faulted_bearing_reads_the_fault():
     v = np.array([res.parameters[f"v{i}"] for i in range(1, 10)])
     assert np.max(np.abs(v / truth - 1.0)) < 0.08
     assert abs(v[4] / truth[4] - 1.0) < 0.05 < abs(nom.v()[4] / truth[4] - 1.0)
+
+
+# ---------------------------------------------------------- structured fit (P11)-(P13)
+def _v_error(res, truth) -> float:
+    v = np.array([res.parameters[f"v{i}"] for i in range(1, 10)])
+    return float(np.max(np.abs(v / truth - 1.0)))
+
+
+@pytest.mark.parametrize("fit", [fit_pbsid, fit_ssarx])
+def test_structured_fit_is_closer_to_the_truth_than_the_transform(bearing, fit):
+    # Truth: the simulator's v1..v9. On this record (20 000 samples, default noise)
+    # the transform leaves the largest v error at 2.7 % (PBSID-opt) / 1.6 % (SSARX,
+    # past 40); the structured weighted least squares over 160 lags brings it to
+    # 0.46 % (measured) -- asserted under 1 % and under the transform's -- in an
+    # innovation model with the bearing's own structure.
+    truth = np.asarray(bearing.metadata["truth_v"])
+    kw = dict(order=4, past=40, dt=bearing.dt, coordinates="physical")
+    ref = fit(bearing.y, bearing.u, **kw)
+    res = fit(bearing.y, bearing.u, physical_fit="structured", **kw)
+    assert _v_error(res, truth) < min(0.01, _v_error(ref, truth))
+    assert res.options["physical_fit"] == "structured" and res.options["structure_past"] == 160
+    assert res.extras["structure_lags"] == 160 and any("structured" in n for n in res.notes)
+    np.testing.assert_array_equal(res.model.C, [[1, 0, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]])
+    assert res.extras["predictor_spectral_radius"] < 1.0
+    assert res.residuals is not None and res.residuals.shape == bearing.y.shape
+
+
+def test_structured_fit_streamed_equals_in_memory(bearing):
+    kw = dict(order=4, dt=bearing.dt, coordinates="physical", physical_fit="structured")
+    ref = fit_pbsid(bearing.y, bearing.u, past=20, structure_past=60, **kw)
+    acc = PredictorAccumulator(ny=3, nu=2, past=20, structure_past=60)
+    for k in range(0, bearing.n_samples, 4999):
+        acc.update(bearing.y[k : k + 4999], bearing.u[k : k + 4999])
+    got = acc.fit(**kw)
+    # the same Gram up to summation order; the Gauss-Newton steps keep it (rtol 1e-6)
+    for name in [f"v{i}" for i in range(1, 10)]:
+        assert got.parameters[name] == pytest.approx(ref.parameters[name], rel=1e-6)
+
+
+def test_structured_fit_options_are_checked(bearing):
+    with pytest.raises(DataError, match="coordinates='physical'"):
+        fit_pbsid(bearing.y, bearing.u, order=4, physical_fit="structured")
+    with pytest.raises(DataError, match="physical_fit"):
+        fit_pbsid(bearing.y, bearing.u, order=4, coordinates="physical", physical_fit="ml")

@@ -43,6 +43,8 @@ __all__ = ["StructuredFit", "fit_bearing_structure"]
 
 #: Stop when a step lowers ``j J`` (a log-likelihood, up to 1/2) by less than this.
 _GAIN_TOL = 1e-6
+#: Floor of the weighting's innovation covariance (channels scaled to unit RMS).
+_RE_FLOOR = 1e-12
 #: Gauss-Newton steps per weighting round at most: on high-SNR records the
 #: steps crawl along a valley (K against v5/v7); 20 keep the fit near 1-3 s.
 _MAX_ITER = 20
@@ -144,8 +146,9 @@ def fit_bearing_structure(
     R, _ = residual(theta, False, W12)
     iterations = 0
     for _ in range(2):  # (P13): W from the structured residuals, then refit
-        Re = R @ R.T
-        W12 = np.linalg.inv(sla.cholesky(0.5 * (Re + Re.T), lower=True))
+        # unit-RMS channels: the floor keeps W finite on noise-free records
+        Re = R @ R.T + _RE_FLOOR * np.eye(3)
+        W12 = np.linalg.inv(sla.cholesky(Re, lower=True))
         weighted = functools.partial(residual, W12=W12)
         theta, R, it = _gauss_newton(weighted, theta, j, max_iter)
         iterations += it

@@ -345,7 +345,11 @@ def _resolve_structure(opt: _Options, N: int, m: int, lags: int | None = None) -
     The record's limit is the automatic past's (``_ROWS_PER_COLUMN`` rows per
     Hankel column); ``lags`` caps it at what a stream's accumulator kept.
     """
-    if opt.coordinates != "physical" or opt.physical_fit != "structured":
+    if opt.physical_fit == "structured" and opt.coordinates != "physical":
+        raise DataError(
+            "physical_fit='structured' fits the bearing's v1..v9: it needs coordinates='physical'"
+        )
+    if opt.physical_fit != "structured":
         return replace(opt, structure_past=None)
     P = opt.structure_past
     if P is None:
