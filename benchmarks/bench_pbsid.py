@@ -14,7 +14,7 @@ Three plants, so that the method is not tied to one:
    largest v_i error (relative) and the fit's time, for PBSID-opt and SSARX in
    physical coordinates (automatic past up to 80, and PBSID-opt up to 40;
    order 4; v1..v9 by the transform, and by the structured weighted
-   least-squares fit over 160 lags, ``physical_fit="structured"``),
+   least-squares fit over 240 lags, ``physical_fit="structured"``),
    MOESP/N4SID + physical coordinates at horizon 40, physical IV,
    SIPPY's PARSIM-K and maglevid's maximum-likelihood method where they are
    installed (else "not measured").
@@ -132,7 +132,7 @@ def _bearing_tools() -> dict[str, Callable[[Any], tuple[Any, Any] | str]]:
         "maglevid pbsid, max_past=40": predictor(fit_pbsid, max_past=40),
         "maglevid ssarx (physical coordinates)": predictor(fit_ssarx),
         # v1..v9 and K fitted to the window's Gram in the bearing's structure
-        # (docs/subspace.md (P11)-(P13)), 160 lags: no pass over the data, no ML.
+        # (docs/subspace.md (P11)-(P13)), 240 lags: no pass over the data, no ML.
         STRUCTURED["pbsid"]: predictor(fit_pbsid, physical_fit="structured"),
         STRUCTURED["ssarx"]: predictor(fit_ssarx, physical_fit="structured"),
         "maglevid moesp + physical coordinates": subspace(fit_moesp),

@@ -229,23 +229,29 @@ def _v_error(res, truth) -> float:
     return float(np.max(np.abs(v / truth - 1.0)))
 
 
-@pytest.mark.parametrize("fit", [fit_pbsid, fit_ssarx])
-def test_structured_fit_is_closer_to_the_truth_than_the_transform(bearing, fit):
+def test_structured_fit_is_closer_to_the_truth_than_the_transform(bearing):
     # Truth: the simulator's v1..v9. On this record (20 000 samples, default noise)
     # the transform leaves the largest v error at 2.7 % (PBSID-opt) / 1.6 % (SSARX,
-    # past 40); the structured weighted least squares over 160 lags brings it to
-    # 0.46 % (measured) -- asserted under 1 % and under the transform's -- in an
+    # past 40); the structured weighted least squares over 100 lags brings both to
+    # 0.99 % (measured; asserted under 1.5 % and under the transform's), in an
     # innovation model with the bearing's own structure.
     truth = np.asarray(bearing.metadata["truth_v"])
     kw = dict(order=4, past=40, dt=bearing.dt, coordinates="physical")
-    ref = fit(bearing.y, bearing.u, **kw)
-    res = fit(bearing.y, bearing.u, physical_fit="structured", **kw)
-    assert _v_error(res, truth) < min(0.01, _v_error(ref, truth))
-    assert res.options["physical_fit"] == "structured" and res.options["structure_past"] == 160
-    assert res.extras["structure_lags"] == 160 and any("structured" in n for n in res.notes)
-    np.testing.assert_array_equal(res.model.C, [[1, 0, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]])
-    assert res.extras["predictor_spectral_radius"] < 1.0
-    assert res.residuals is not None and res.residuals.shape == bearing.y.shape
+    got = {}
+    for fit in (fit_pbsid, fit_ssarx):
+        ref = fit(bearing.y, bearing.u, **kw)
+        res = fit(bearing.y, bearing.u, physical_fit="structured", structure_past=100, **kw)
+        assert _v_error(res, truth) < min(0.015, _v_error(ref, truth))
+        assert res.options["physical_fit"] == "structured"
+        assert res.options["structure_past"] == res.extras["structure_lags"] == 100
+        assert any("structured" in n for n in res.notes)
+        np.testing.assert_array_equal(res.model.C, [[1, 0, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]])
+        assert res.extras["predictor_spectral_radius"] < 1.0
+        assert res.residuals is not None and res.residuals.shape == bearing.y.shape
+        got[fit.__name__] = np.array([res.parameters[f"v{i}"] for i in range(1, 10)])
+    # The criterion (P11) depends on the Gram only: from the two methods' different
+    # starts the Gauss-Newton steps reach the same optimum (to its stopping rule).
+    np.testing.assert_allclose(got["fit_pbsid"], got["fit_ssarx"], rtol=1e-4)
 
 
 def test_structured_fit_streamed_equals_in_memory(bearing):
@@ -255,7 +261,8 @@ def test_structured_fit_streamed_equals_in_memory(bearing):
     for k in range(0, bearing.n_samples, 4999):
         acc.update(bearing.y[k : k + 4999], bearing.u[k : k + 4999])
     got = acc.fit(**kw)
-    # the same Gram up to summation order; the Gauss-Newton steps keep it (rtol 1e-6)
+    # the same Gram up to summation order; the Gauss-Newton steps keep it (rtol 1e-6).
+    # The default window is DEFAULT_STRUCTURE_PAST (240) unless the record is short.
     for name in [f"v{i}" for i in range(1, 10)]:
         assert got.parameters[name] == pytest.approx(ref.parameters[name], rel=1e-6)
 

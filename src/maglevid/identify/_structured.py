@@ -41,8 +41,9 @@ from maglevid.physics.amb import C_AMB
 
 __all__ = ["StructuredFit", "fit_bearing_structure"]
 
-#: Stop when a step lowers ``j J`` (a log-likelihood, up to 1/2) by less than this.
-_GAIN_TOL = 1e-6
+#: Stop when a step lowers ``j J`` (twice a log-likelihood) by less than this: the
+#: optimum is then a small fraction of a standard error away.
+_GAIN_TOL = 1e-3
 #: Floor of the weighting's innovation covariance (channels scaled to unit RMS).
 _RE_FLOOR = 1e-12
 #: Gauss-Newton steps per weighting round at most: on high-SNR records the
@@ -142,18 +143,17 @@ def fit_bearing_structure(
         J = -np.einsum("ij,pjk->pik", W12, dV @ Fz).reshape(th.size, -1).T
         return R, J
 
-    W12 = np.eye(3)
-    R, _ = residual(theta, False, W12)
+    E, _ = residual(theta, False, np.eye(3))  # prediction errors of the start (scaled)
     iterations = 0
-    for _ in range(2):  # (P13): W from the structured residuals, then refit
+    for _ in range(2):  # (P13): W from the prediction errors, fit, W again, refit
         # unit-RMS channels: the floor keeps W finite on noise-free records
-        Re = R @ R.T + _RE_FLOOR * np.eye(3)
+        Re = E @ E.T + _RE_FLOOR * np.eye(3)
         W12 = np.linalg.inv(sla.cholesky(Re, lower=True))
         weighted = functools.partial(residual, W12=W12)
         theta, R, it = _gauss_newton(weighted, theta, j, max_iter)
         iterations += it
+        E = np.linalg.solve(W12, R)  # unweighted again
     _, _, _, _, _, v, Ad, Bd, Ks = _model(theta, v0, dt, sy, su)
-    E = np.linalg.solve(W12, R)  # the unweighted prediction errors (scaled)
     Re = (E @ E.T) * np.outer(sy, sy)
     return StructuredFit(v, Ks / sy[None, :], Ad, Bd, 0.5 * (Re + Re.T), iterations)
 

@@ -93,9 +93,12 @@ _WEIGHTINGS = ("cca", "none")
 _COORDINATES = ("identified", "physical")
 _PHYSICAL_FITS = ("transform", "structured")
 #: Default window (lags) of the structured fit (P11): the bearing's predictor has
-#: a pole at ~0.98 (the unstable pole's mirror), and 0.98^160 = 4e-2 where the
-#: VARX's 80 lags leave 0.2 (docs/subspace.md, "Structured fit").
-DEFAULT_STRUCTURE_PAST = 160
+#: a pole at ~0.98 (the unstable pole's mirror): 0.98^240 = 8e-3 where the VARX's
+#: 80 lags leave 0.2; on the simulator's bearing 80 / 160 / 240 lags leave the
+#: largest v error at 2.5e-2 / 3.7e-3 / 1.5e-3 (N = 1e5; docs/subspace.md,
+#: "Structured fit"). 21 parameters, not a VARX's P m ny: a long window costs
+#: no variance, only time.
+DEFAULT_STRUCTURE_PAST = 240
 #: Relative singular-value floor of the order choice (Gram route, as MOESP's).
 _DEFAULT_RANK_TOL = 1e-6
 #: Relative rank threshold of the least-squares steps.
@@ -342,8 +345,9 @@ def _options(algorithm: str, **kw: Any) -> _Options:
 def _resolve_structure(opt: _Options, N: int, m: int, lags: int | None = None) -> _Options:
     """The structured fit's window: as given, else ``DEFAULT_STRUCTURE_PAST``, within the record.
 
-    The record's limit is the automatic past's (``_ROWS_PER_COLUMN`` rows per
-    Hankel column); ``lags`` caps it at what a stream's accumulator kept.
+    The record's limit is the factor's (two Hankel rows per column of the
+    window, :func:`_check_window`): the 21 parameters need no more rows per
+    column. ``lags`` caps it at what a stream's accumulator kept.
     """
     if opt.physical_fit == "structured" and opt.coordinates != "physical":
         raise DataError(
@@ -353,7 +357,7 @@ def _resolve_structure(opt: _Options, N: int, m: int, lags: int | None = None) -
         return replace(opt, structure_past=None)
     P = opt.structure_past
     if P is None:
-        P = min(DEFAULT_STRUCTURE_PAST, (N + 1) // (2 + 2 * _ROWS_PER_COLUMN * m))
+        P = min(DEFAULT_STRUCTURE_PAST, (N + 1) // (1 + 2 * m) - 1)
         if lags is not None:
             P = min(P, lags)
     return replace(opt, structure_past=max(P, 1))
@@ -898,7 +902,7 @@ def fit_pbsid(
         transform (docs/subspace.md (P11)-(P13); closer to maximum likelihood,
         2-20x slower; no pass over the data).
     structure_past : int, optional
-        Lags of the structured fit's window (default 160,
+        Lags of the structured fit's window (default 240,
         ``DEFAULT_STRUCTURE_PAST``, within what the record supports).
     rng : numpy.random.Generator, optional
         Unused (deterministic); accepted for a uniform ``fit_*`` API.
