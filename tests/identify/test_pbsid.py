@@ -265,6 +265,10 @@ def test_structured_fit_streamed_equals_in_memory(bearing):
     # The default window is DEFAULT_STRUCTURE_PAST (240) unless the record is short.
     for name in [f"v{i}" for i in range(1, 10)]:
         assert got.parameters[name] == pytest.approx(ref.parameters[name], rel=1e-6)
+    # the streamed method keeps the lags the structured fit asks for
+    st = identify_streamed(bearing, "pbsid", chunk_size=7000, past=20, structure_past=60, **kw)
+    assert st.options["structure_past"] == 60
+    assert st.parameters["v5"] == pytest.approx(ref.parameters["v5"], rel=1e-6)
 
 
 def test_structured_fit_options_are_checked(bearing):

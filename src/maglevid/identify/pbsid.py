@@ -743,7 +743,8 @@ class PredictorAccumulator:
         Centre the data (offset-invariant fit; default True).
     structure_past : int, optional
         Lags to keep for ``physical_fit="structured"`` (default: none beyond
-        the VARX's; the structured fit then uses the lags kept).
+        the VARX's); the structured fit's window is the default 240 lags
+        capped by the lags kept and by the record (noted in ``notes``).
 
     Examples
     --------
@@ -829,11 +830,10 @@ class PredictorAccumulator:
             remove_mean=self.remove_mean,
             coordinates=coordinates,
             physical_fit=physical_fit,
-            structure_past=self.structure_past,
         )
         assert self.ny is not None and self.nu is not None
         N = self.n_samples
-        opt = _resolve_structure(opt, N, self.nu + self.ny, self._acc.L)
+        opt = _resolve_structure(opt, N, self.nu + self.ny, self._acc.L)  # window in notes
         p_top, lags = _plan(N, self.nu + self.ny, self.ny, opt)
         if self.past is None:
             p_top = min(p_top, self.max_past)
