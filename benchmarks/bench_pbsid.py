@@ -132,7 +132,7 @@ def _bearing_tools() -> dict[str, Callable[[Any], tuple[Any, Any] | str]]:
         "maglevid pbsid, max_past=40": predictor(fit_pbsid, max_past=40),
         "maglevid ssarx (physical coordinates)": predictor(fit_ssarx),
         # v1..v9 and K fitted to the window's Gram in the bearing's structure
-        # (docs/subspace.md (P11)-(P13)), 240 lags: no pass over the data, no ML.
+        # (docs/subspace.md (P11)-(P14)), 240 lags: no pass over the data, no ML.
         STRUCTURED["pbsid"]: predictor(fit_pbsid, physical_fit="structured"),
         STRUCTURED["ssarx"]: predictor(fit_ssarx, physical_fit="structured"),
         "maglevid moesp + physical coordinates": subspace(fit_moesp),

@@ -37,10 +37,13 @@ import numpy as np
 import scipy.linalg as sla
 
 from maglevid.identify.cramer_rao import NoiseModel, amb_linear_gaussian_model
-from maglevid.physics.amb import C_AMB
+from maglevid.physics.amb import C_AMB, amb_matrices
 
-__all__ = ["StructuredFit", "fit_bearing_structure"]
+__all__ = ["START_SAMPLES", "StructuredFit", "fit_bearing_structure"]
 
+#: Samples at the start of the window the predictor's initial state is
+#: reconstructed from (P14); 0 leaves it at zero (the truncated predictor).
+START_SAMPLES = 8
 #: Stop when a step lowers ``j J`` (twice a log-likelihood) by less than this: the
 #: optimum is then a small fraction of a standard error away.
 _GAIN_TOL = 1e-3
@@ -67,6 +70,15 @@ def _zoh(v: np.ndarray, dt: float) -> tuple[np.ndarray, ...]:
     """``A_d, B_d`` of eq. (4) + ZOH and their derivatives in v (cramer_rao's public model)."""
     g = amb_linear_gaussian_model(v, dt, NoiseModel(sensor_std=(1.0, 1.0, 1.0)))
     return g.A, g.B, g.dA[:9], g.dB[:9]
+
+
+def _plant(v: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """``A_d, B_d``: eq. (4) and its ZOH (eq. (7)), without derivatives."""
+    Ac, Bc = amb_matrices(v)
+    M = np.zeros((6, 6))
+    M[:4, :4], M[:4, 4:] = Ac * dt, Bc * dt
+    E = sla.expm(M)
+    return E[:4, :4], E[:4, 4:]
 
 
 def _markov(Abar: np.ndarray, Btil: np.ndarray, P: int) -> np.ndarray:
@@ -113,6 +125,23 @@ def _predictor_blocks(Abar, Btil, dAbar, dBtil, Cs, P):  # type: ignore[no-untyp
     return V, dV
 
 
+def _state_map(Ad: np.ndarray, Bs: np.ndarray, Cs: np.ndarray, k: int) -> np.ndarray:
+    """``M`` (4, 5 k): ``x(t) ~ M [z(t); ...; z(t+k-1)]`` by least squares on the plant (P14).
+
+    ``y(t+i) = Cs Ad^i x(t) + sum_{l<i} Cs Ad^{i-1-l} Bs u(t+l)`` (noise left out):
+    ``x = Gamma_k^+ (Y_k - T_k U_k)``, scaled units, ``z = [u, y]``.
+    """
+    Gam = np.concatenate([Cs @ np.linalg.matrix_power(Ad, i) for i in range(k)])
+    S = np.zeros((3 * k, 5 * k))
+    for i in range(k):
+        S[3 * i : 3 * i + 3, 5 * i + 2 : 5 * i + 5] = np.eye(3)
+        for l in range(i):
+            S[3 * i : 3 * i + 3, 5 * l : 5 * l + 2] -= (
+                Cs @ np.linalg.matrix_power(Ad, i - 1 - l) @ Bs
+            )
+    return np.linalg.pinv(Gam) @ S
+
+
 def fit_bearing_structure(
     Fy: np.ndarray,
     Fz: np.ndarray,
@@ -123,6 +152,7 @@ def fit_bearing_structure(
     scale: np.ndarray,
     j: int,
     max_iter: int = _MAX_ITER,
+    initial_state: int = START_SAMPLES,
 ) -> StructuredFit:
     """Weighted least-squares fit of v1..v9 and ``K`` to the window's Gram factor (P11)-(P13).
 
@@ -134,12 +164,30 @@ def fit_bearing_structure(
     P = Fz.shape[0] // 5
     theta = np.concatenate([np.zeros(9), (K0 * sy[None, :]).ravel()])
 
+    k0 = min(initial_state, P)
+
+    Cs = C_AMB / sy[:, None]
+
+    def start_term(th: np.ndarray) -> np.ndarray:  # C Abar^P x_hat(t-P), (P14)
+        Ad, Bd = _plant(v0 * (1.0 + th[:9]), dt)
+        Abar = Ad - th[9:].reshape(4, 3) @ Cs
+        return Cs @ np.linalg.matrix_power(Abar, P) @ _state_map(Ad, Bd * su[None, :], Cs, k0)
+
     def residual(th: np.ndarray, jac: bool, W12: np.ndarray):  # type: ignore[no-untyped-def]
         Abar, Btil, dAbar, dBtil, Cs, *_ = _model(th, v0, dt, sy, su)
         V, dV = _predictor_blocks(Abar, Btil, dAbar, dBtil, Cs, P)
+        if k0:
+            V[:, : 5 * k0] += start_term(th)
         R = W12 @ (Fy - V @ Fz)
         if not jac:
             return R, None
+        if k0:  # the start term's derivative by forward differences (a 3 x 5 k0 block)
+            base = start_term(th)
+            for i in range(th.size):
+                h = 1e-7 * max(1.0, abs(th[i]))
+                t2 = th.copy()
+                t2[i] += h
+                dV[i, :, : 5 * k0] += (start_term(t2) - base) / h
         J = -np.einsum("ij,pjk->pik", W12, dV @ Fz).reshape(th.size, -1).T
         return R, J
 

@@ -93,11 +93,12 @@ _WEIGHTINGS = ("cca", "none")
 _COORDINATES = ("identified", "physical")
 _PHYSICAL_FITS = ("transform", "structured")
 #: Default window (lags) of the structured fit (P11): the bearing's predictor has
-#: a pole at ~0.98 (the unstable pole's mirror): 0.98^240 = 8e-3 where the VARX's
-#: 80 lags leave 0.2; on the simulator's bearing 80 / 160 / 240 lags leave the
-#: largest v error at 2.5e-2 / 3.7e-3 / 1.5e-3 (N = 1e5; docs/subspace.md,
-#: "Structured fit"). 21 parameters, not a VARX's P m ny: a long window costs
-#: no variance, only time.
+#: a pole at ~0.98 (the unstable pole's mirror), 0.98^240 = 8e-3 where the VARX's
+#: 80 lags leave 0.2, and the predictor's state at the window's start is
+#: reconstructed (P14) rather than left at 0. Largest v error on the simulator's
+#: records at N = 1e5 with 160 / 240 lags: 1.7e-3 / 1.2e-3 (issue), 1.8e-5 /
+#: 1.4e-5 (paper-like); docs/subspace.md, "Structured fit". 21 parameters, not
+#: a VARX's P m ny: a long window costs no variance, only time.
 DEFAULT_STRUCTURE_PAST = 240
 #: Relative singular-value floor of the order choice (Gram route, as MOESP's).
 _DEFAULT_RANK_TOL = 1e-6
