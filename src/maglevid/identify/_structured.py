@@ -23,7 +23,11 @@ with the VARX's own covariance ``(Z_P Z_P^T)^{-1} (x) Re`` as weight (P12).
 With ``W`` the innovation covariance's inverse this is the prediction-error
 criterion of the truncated predictor (Ljung 1999, eq. (7.12)), asymptotically
 efficient for this model set when ``|lambda(Abar)|^P`` is negligible;
-``W`` is re-estimated from the structured residuals once (P13).
+``W`` is re-estimated from the structured residuals once (P13). The state at
+the window's start is not left at 0: ``C Abar^P x_hat(t-P)`` is added, with
+``x_hat`` the plant's least-squares state from the window's first
+``START_SAMPLES`` samples (P14) -- on a high-SNR record the truncation term
+otherwise dominates the residual (the bearing's ``Abar`` has a pole at ~0.98).
 Levenberg-Marquardt with Marquardt's scaling; the start is the transform's
 estimate. Memory and time do not depend on ``N``.
 """
