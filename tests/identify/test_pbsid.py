@@ -277,3 +277,23 @@ def test_structured_fit_options_are_checked(bearing):
         fit_pbsid(bearing.y, bearing.u, order=4, physical_fit="structured")
     with pytest.raises(DataError, match="physical_fit"):
         fit_pbsid(bearing.y, bearing.u, order=4, coordinates="physical", physical_fit="ml")
+
+
+def test_start_state_is_exact_on_noise_free_plant_data():
+    # (P14): x(t) = Gamma_k^+ (Y_k - T_k U_k) is exact when y = C x and x follows
+    # the plant (reference: the simulated state itself), in scaled units too.
+    from maglevid.identify._structured import _plant, _state_map
+    from maglevid.physics.amb import C_AMB
+
+    v = AMBParameters.nominal().v()
+    Ad, Bd = _plant(v, 1e-4)
+    rng = np.random.default_rng(0)
+    sy, su = np.array([1e-6, 1e-3, 1e-3]), np.array([0.5, 2.0])
+    x = rng.standard_normal(4) * [1e-6, 1e-4, 1e-3, 1e-3]
+    x0, z = x.copy(), []
+    for _ in range(8):
+        u = rng.standard_normal(2)
+        z.append(np.concatenate([u / su, C_AMB @ x / sy]))
+        x = Ad @ x + Bd @ u
+    M = _state_map(Ad, Bd * su[None, :], C_AMB / sy[:, None], 8)
+    np.testing.assert_allclose(M @ np.concatenate(z), x0, rtol=1e-8, atol=1e-20)
