@@ -412,19 +412,28 @@ def targets(results: dict[str, Any], judge: Any) -> None:
 
 
 def _v_checks(rows: list[dict[str, Any]], get: Any, tool: str, label: str, judge: Any) -> None:
-    """The v_i target for one more row kind (the structured fit), judged like the others."""
-    checks = []
+    """The v_i and pole targets for one more row kind (the structured fit), judged alike."""
+    v_checks, pole_checks = [], []
     for r in (r for r in rows if r["tool"] == tool):
+        where = f"{r['case']} {r['N']:.0e}"
         ml = get(r["case"], r["N"], "maglevid ml")
         best = ml or get(r["case"], r["N"], "maglevid physical (IV)")
         if best is not None and best.get("v_error") is not None:
             ratio = r["v_error"] / best["v_error"]
-            checks.append((f"{r['case']} {r['N']:.0e}: {ratio:.2g}x", ratio <= 2.0))
-    target = f"{label} (bearing): v_i error within 2x of the best consistent method (ML, else IV)"
-    if not checks:
-        judge.add(target, "no measurement on this run", None)
-    else:
-        judge.add(target, "; ".join(t for t, _ in checks), all(ok for _, ok in checks))
+            v_checks.append((f"{where}: {ratio:.2g}x", ratio <= 2.0))
+        pk = get(r["case"], r["N"], "SIPPY PARSIM-K")
+        if pk is not None:
+            ok = r["pole_error"] <= pk["pole_error"]
+            pole_checks.append((f"{where}: {r['pole_error']:.1e} vs {pk['pole_error']:.1e}", ok))
+    for checks, what in (
+        (v_checks, "v_i error within 2x of the best consistent method (ML, else IV)"),
+        (pole_checks, "unstable pole as accurate as the best peer (PARSIM-K)"),
+    ):
+        target = f"{label} (bearing): {what}"
+        if not checks:
+            judge.add(target, "no measurement on this run", None)
+        else:
+            judge.add(target, "; ".join(t for t, _ in checks), all(ok for _, ok in checks))
 
 
 def _measure(run_: Any, plan: dict[str, Any], args: Any) -> dict[str, Any]:
