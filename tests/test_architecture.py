@@ -284,7 +284,6 @@ MAX_FUNCTION_LINES = 150
 TOO_LONG_BEING_SPLIT: frozenset[tuple[str, str]] = frozenset(
     {
         ("diagnose/history.py", "HistoryStore.record_diagnosis"),
-        ("identify/pbsid.py", "_fit"),
         ("identify/greybox.py", "fit_greybox_levitator"),
     }
 )

@@ -221,3 +221,79 @@ def test_nonlinear_faulted_bearing_reads_the_fault():
     v = np.array([res.parameters[f"v{i}"] for i in range(1, 10)])
     assert np.max(np.abs(v / truth - 1.0)) < 0.08
     assert abs(v[4] / truth[4] - 1.0) < 0.05 < abs(nom.v()[4] / truth[4] - 1.0)
+
+
+# ---------------------------------------------------------- structured fit (P11)-(P13)
+def _v_error(res, truth) -> float:
+    v = np.array([res.parameters[f"v{i}"] for i in range(1, 10)])
+    return float(np.max(np.abs(v / truth - 1.0)))
+
+
+def test_structured_fit_is_closer_to_the_truth_than_the_transform(bearing):
+    # Truth: the simulator's v1..v9. On this record (20 000 samples, default noise)
+    # the transform leaves the largest v error at 2.7 % (PBSID-opt) / 1.6 % (SSARX,
+    # past 40); the structured weighted least squares over 100 lags (a short window
+    # to keep the test fast; 1.0 % with the default 240) brings both to 1.3 %
+    # (measured; asserted under 1.5 % and under the transform's), in an innovation
+    # model with the bearing's own structure.
+    truth = np.asarray(bearing.metadata["truth_v"])
+    kw = dict(order=4, past=40, dt=bearing.dt, coordinates="physical")
+    got = {}
+    for fit in (fit_pbsid, fit_ssarx):
+        ref = fit(bearing.y, bearing.u, **kw)
+        res = fit(bearing.y, bearing.u, physical_fit="structured", structure_past=100, **kw)
+        assert _v_error(res, truth) < min(0.015, _v_error(ref, truth))
+        assert res.options["physical_fit"] == "structured"
+        assert res.options["structure_past"] == res.extras["structure_lags"] == 100
+        assert any("structured" in n for n in res.notes)
+        np.testing.assert_array_equal(res.model.C, [[1, 0, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]])
+        assert res.extras["predictor_spectral_radius"] < 1.0
+        assert res.residuals is not None and res.residuals.shape == bearing.y.shape
+        got[fit.__name__] = np.array([res.parameters[f"v{i}"] for i in range(1, 10)])
+    # The criterion (P11) depends on the Gram only: from the two methods' different
+    # starts the Gauss-Newton steps reach the same optimum, to their stopping rule
+    # (measured 6e-4 relative, v5; far inside the 1.3 % error).
+    np.testing.assert_allclose(got["fit_pbsid"], got["fit_ssarx"], rtol=1e-3)
+
+
+def test_structured_fit_streamed_equals_in_memory(bearing):
+    kw = dict(order=4, dt=bearing.dt, coordinates="physical", physical_fit="structured")
+    ref = fit_pbsid(bearing.y, bearing.u, past=20, structure_past=60, **kw)
+    acc = PredictorAccumulator(ny=3, nu=2, past=20, structure_past=60)
+    for k in range(0, bearing.n_samples, 4999):
+        acc.update(bearing.y[k : k + 4999], bearing.u[k : k + 4999])
+    got = acc.fit(**kw)
+    # the same Gram up to summation order; the Gauss-Newton steps keep it (rtol 1e-6).
+    for name in [f"v{i}" for i in range(1, 10)]:
+        assert got.parameters[name] == pytest.approx(ref.parameters[name], rel=1e-6)
+    # the streamed method keeps the lags the structured fit asks for
+    st = identify_streamed(bearing, "pbsid", chunk_size=7000, past=20, structure_past=60, **kw)
+    assert st.options["structure_past"] == 60
+    assert st.parameters["v5"] == pytest.approx(ref.parameters["v5"], rel=1e-6)
+
+
+def test_structured_fit_options_are_checked(bearing):
+    with pytest.raises(DataError, match="coordinates='physical'"):
+        fit_pbsid(bearing.y, bearing.u, order=4, physical_fit="structured")
+    with pytest.raises(DataError, match="physical_fit"):
+        fit_pbsid(bearing.y, bearing.u, order=4, coordinates="physical", physical_fit="ml")
+
+
+def test_start_state_is_exact_on_noise_free_plant_data():
+    # (P14): x(t) = Gamma_k^+ (Y_k - T_k U_k) is exact when y = C x and x follows
+    # the plant (reference: the simulated state itself), in scaled units too.
+    from maglevid.identify._structured import _plant, _state_map
+    from maglevid.physics.amb import C_AMB
+
+    v = AMBParameters.nominal().v()
+    Ad, Bd = _plant(v, 1e-4)
+    rng = np.random.default_rng(0)
+    sy, su = np.array([1e-6, 1e-3, 1e-3]), np.array([0.5, 2.0])
+    x = rng.standard_normal(4) * [1e-6, 1e-4, 1e-3, 1e-3]
+    x0, z = x.copy(), []
+    for _ in range(8):
+        u = rng.standard_normal(2)
+        z.append(np.concatenate([u / su, C_AMB @ x / sy]))
+        x = Ad @ x + Bd @ u
+    M = _state_map(Ad, Bd * su[None, :], C_AMB / sy[:, None], 8)
+    np.testing.assert_allclose(M @ np.concatenate(z), x0, rtol=1e-8, atol=1e-20)

@@ -57,6 +57,7 @@ import scipy.linalg as sla
 from maglevid._validation import as_signal, check_positive
 from maglevid.exceptions import DataError, IdentificationError, ModelError
 from maglevid.identify._hankel import _LagGram, factor_gram, lower_factor
+from maglevid.identify._structured import fit_bearing_structure
 from maglevid.identify.options import Option, bind_defaults
 from maglevid.identify.physical import to_physical_coordinates
 from maglevid.identify.result import IdentificationResult
@@ -74,7 +75,7 @@ from maglevid.identify.subspace import (
 )
 from maglevid.identify.uncertainty import one_step_fit_percent
 from maglevid.lti import StateSpace, undiscretize
-from maglevid.physics.amb import V_NAMES, v_from_matrices
+from maglevid.physics.amb import C_AMB, V_NAMES, amb_matrices, v_from_matrices
 
 __all__ = ["DEFAULT_MAX_PAST", "METHODS", "PredictorAccumulator", "fit_pbsid", "fit_ssarx"]
 
@@ -91,10 +92,21 @@ _SSARX_FUTURE = 40
 _ALGORITHMS = ("pbsid", "ssarx")
 _WEIGHTINGS = ("cca", "none")
 _COORDINATES = ("identified", "physical")
+_PHYSICAL_FITS = ("transform", "structured")
+#: Default window (lags) of the structured fit (P11): the bearing's predictor has
+#: a pole at ~0.98 (the unstable pole's mirror), 0.98^240 = 8e-3 where the VARX's
+#: 80 lags leave 0.2, and the predictor's state at the window's start is
+#: reconstructed (P14) rather than left at 0. Largest v error on the simulator's
+#: records at N = 1e5 with 160 / 240 lags: 1.7e-3 / 1.2e-3 (issue), 1.8e-5 /
+#: 1.4e-5 (paper-like); docs/subspace.md, "Structured fit". 21 parameters, not
+#: a VARX's P m ny: a long window costs no variance, only time.
+DEFAULT_STRUCTURE_PAST = 240
 #: Relative singular-value floor of the order choice (Gram route, as MOESP's).
 _DEFAULT_RANK_TOL = 1e-6
 #: Relative rank threshold of the least-squares steps.
 _RCOND = 1e-10
+#: The normal equations are used while the Cholesky diagonal spans less than this.
+_CHOL_SPAN = 1e6
 #: CCA weighting needs the corrected future's covariance resolved to this ratio.
 _CCA_FLOOR = 1e-8
 #: Samples per chunk of the in-memory pass (as in subspace.py).
@@ -214,25 +226,50 @@ def _corrected_future(st: _Stats, V: np.ndarray, D: np.ndarray, p: int, f: int) 
     return out
 
 
+def _cholesky_solver(Zp: np.ndarray):  # type: ignore[no-untyped-def]
+    """``Y -> M`` of ``Y ~ M Zp`` by the normal equations; None if ``Zp Zp^T`` is ill-conditioned.
+
+    The normal equations square the condition number: used only while the
+    Cholesky diagonal spans less than ``_CHOL_SPAN`` (condition below 1e12 on
+    unit-RMS channels), where they lose no more than the data's own precision.
+    """
+    try:
+        c = sla.cho_factor(Zp @ Zp.T, lower=True, check_finite=False)
+    except np.linalg.LinAlgError:
+        return None
+    d = np.abs(np.diag(c[0]))
+    if not d.size or d.min() <= d.max() / _CHOL_SPAN:
+        return None
+    return lambda Y: sla.cho_solve(c, Zp @ Y.T, check_finite=False).T
+
+
+def _qr_solver(Zp: np.ndarray):  # type: ignore[no-untyped-def]
+    """``Y -> M`` of ``Y ~ M Zp``: basic least-squares solution by pivoted QR."""
+    Q, R, piv = sla.qr(Zp.T, mode="economic", pivoting=True, check_finite=False)
+    d = np.abs(np.diag(R))
+    q = int(np.count_nonzero(d > _RCOND * d[0])) if d.size and d[0] > 0 else 0
+
+    def solve(Y: np.ndarray) -> np.ndarray:
+        M = np.zeros((Y.shape[0], Zp.shape[0]))
+        M[:, piv[:q]] = sla.solve_triangular(R[:q, :q], Q[:, :q].T @ Y.T).T
+        return M
+
+    return solve
+
+
 def _ssarx_regression(
     st: _Stats, p: int, f: int, feedthrough: bool
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """VARX (P4) and ``beta`` of ``ytil_f ~ beta Z_p`` (P7), one factorisation of ``Z_p``.
 
-    The rows of ``Z_p`` are factored once by pivoted QR (``Z_p^T P = Q R``) and
-    both regressions, the VARX's ``y(p)`` and the corrected future ``ytil_f``
-    (formed with the VARX's coefficients), are solved on it.
+    The rows of ``Z_p`` are factored once and both regressions, the VARX's
+    ``y(p)`` and the corrected future ``ytil_f`` (formed with the VARX's
+    coefficients), are solved on it: by Cholesky of ``Z_p Z_p^T`` when that is
+    well conditioned (a noisy record; 3-4x faster than the QR at 1e4 samples),
+    else by pivoted QR (``Z_p^T P = Q R``, the basic solution of a rank-deficient,
+    noise-free record).
     """
-    Zp = st.F[_z_rows(st, 0, p)]
-    Q, R, piv = sla.qr(Zp.T, mode="economic", pivoting=True, check_finite=False)
-    d = np.abs(np.diag(R))
-    q = int(np.count_nonzero(d > _RCOND * d[0])) if d.size and d[0] > 0 else 0
-
-    def solve(Y: np.ndarray) -> np.ndarray:  # basic least-squares solution of Y ~ M Zp
-        M = np.zeros((Y.shape[0], Zp.shape[0]))
-        M[:, piv[:q]] = sla.solve_triangular(R[:q, :q], Q[:, :q].T @ Y.T).T
-        return M
-
+    solve = _cholesky_solver(st.F[_z_rows(st, 0, p)]) or _qr_solver(st.F[_z_rows(st, 0, p)])
     if feedthrough:
         V, D = _varx(st, p, True)
     else:
@@ -308,6 +345,8 @@ class _Options:
     rank_tol: float
     remove_mean: bool
     coordinates: str
+    physical_fit: str = "transform"
+    structure_past: int | None = None
 
 
 def _options(algorithm: str, **kw: Any) -> _Options:
@@ -325,7 +364,37 @@ def _options(algorithm: str, **kw: Any) -> _Options:
         rank_tol=_DEFAULT_RANK_TOL if rank_tol is None else rank_tol,
         remove_mean=bool(kw["remove_mean"]),
         coordinates=_check_choice(kw["coordinates"], "coordinates", _COORDINATES),
+        physical_fit=_check_choice(
+            kw.get("physical_fit", "transform"), "physical_fit", _PHYSICAL_FITS
+        ),
+        structure_past=_check_int(kw.get("structure_past"), "structure_past", 1),
     )
+
+
+def _resolve_structure(opt: _Options, N: int, m: int, lags: int | None = None) -> _Options:
+    """The structured fit's window: as given, else ``DEFAULT_STRUCTURE_PAST``, within the record.
+
+    The record's limit is the factor's (two Hankel rows per column of the
+    window, :func:`_check_window`): the 21 parameters need no more rows per
+    column. ``lags`` caps it at what a stream's accumulator kept.
+    """
+    if opt.physical_fit == "structured" and opt.coordinates != "physical":
+        raise DataError(
+            "physical_fit='structured' fits the bearing's v1..v9: it needs coordinates='physical'"
+        )
+    if opt.physical_fit != "structured":
+        return replace(opt, structure_past=None)
+    P = opt.structure_past
+    if P is None:
+        P = min(DEFAULT_STRUCTURE_PAST, (N + 1) // (1 + 2 * m) - 1)
+        if lags is not None:
+            P = min(P, lags)
+    return replace(opt, structure_past=max(P, 1))
+
+
+def _structure_lags(opt: _Options) -> int:
+    """Lags of the structured fit's window (0 when it does not run)."""
+    return opt.structure_past or 0
 
 
 def _window(opt: _Options, p: int, f: int) -> int:
@@ -348,7 +417,8 @@ def _plan(N: int, m: int, ny: int, opt: _Options) -> tuple[int, int]:
                 f"{m} channels ({_ROWS_PER_COLUMN} rows per coefficient needs at least "
                 f"{need * (2 + 2 * _ROWS_PER_COLUMN * m) - 1}); record longer, or pass `past`"
             )
-    return p_top, _window(opt, p_top, _future(opt.algorithm, opt.future, p_top)) - 1
+    lags = _window(opt, p_top, _future(opt.algorithm, opt.future, p_top)) - 1
+    return p_top, max(lags, _structure_lags(opt))
 
 
 def _future(algorithm: str, future: int | None, p: int) -> int:
@@ -364,40 +434,30 @@ def _min_past(order: int | None, ny: int) -> int:
 
 
 # ---------------------------------------------------------------- the driver
-def _fit(
-    acc: _LagGram,
-    nu: int,
-    ny: int,
-    opt: _Options,
-    p_top: int,
-    shift: np.ndarray,
-    data: tuple[np.ndarray, np.ndarray] | None,
-) -> IdentificationResult:
-    """Everything after the pass over the data (in memory and streamed alike)."""
-    notes: list[str] = []
-    extras: dict[str, Any] = {}
-    m = nu + ny
-    N = acc.n
-    center = opt.remove_mean
-    # ---- one factor of the widest window the fit may use (the AIC's and the fit's
-    # Hankel rows are the same, rows 0..N - W, as MOESP's): W = p_top + 1 or p_top + f
+def _check_window(N: int, m: int, opt: _Options, p_top: int) -> int:
+    """Samples per Hankel row of the widest window the fit may use (MOESP's rows)."""
     if opt.future is not None and opt.past is not None and opt.future > opt.past:
         raise DataError(f"`future`={opt.future} may not exceed `past`={opt.past}")
-    W = _window(opt, p_top, _future(opt.algorithm, opt.future, p_top))
+    W = max(
+        _window(opt, p_top, _future(opt.algorithm, opt.future, p_top)), _structure_lags(opt) + 1
+    )
     if N - W + 1 < 2 * W * m:
         raise DataError(
-            f"the record has {N} samples; past={p_top} needs at least "
+            f"the record has {N} samples; past={max(p_top, W - 1)} needs at least "
             f"{2 * W * m + W - 1} (2 x {W * m} Hankel columns)"
         )
-    st_all = _window_stats(acc, nu, ny, W, shift, center)
-    # ---- past p (the VARX order) and future f
+    return W
+
+
+def _choose_past(
+    st_all: _Stats, opt: _Options, p_top: int, notes: list[str], extras: dict[str, Any]
+) -> tuple[int, int, str]:
+    """``(p, f, rule)``: the VARX order (given, or AIC up to ``p_top``) and the future."""
     if opt.past is not None:
-        p = opt.past
-        past_rule = "given"
+        p, rule = opt.past, "given"
     else:
         p_hat, aic = _arx_horizon(st_all, p_top, opt.feedthrough)
-        p = max(p_hat, _min_past(opt.order, ny))
-        past_rule = "auto"
+        p, rule = max(p_hat, _min_past(opt.order, st_all.ny)), "auto"
         extras["varx_aic"] = aic
         notes.append(f"past {p} chosen automatically: VARX order by AIC over 1..{p_top}")
         if p_hat >= p_top:
@@ -408,21 +468,25 @@ def _fit(
     f = _future(opt.algorithm, opt.future, p)
     if f > p:
         raise DataError(f"`future`={f} may not exceed `past`={p} (the VARX has p lags)")
-    if opt.order is not None and opt.order > f * ny:
+    if opt.order is not None and opt.order > f * st_all.ny:
         raise DataError(
-            f"`order`={opt.order} exceeds future * ny = {f * ny}; increase `future`/`past`"
+            f"`order`={opt.order} exceeds future * ny = {f * st_all.ny}; increase `future`/`past`"
         )
-    st = replace(st_all, F=st_all.F[: _window(opt, p, f) * m])  # rows of z(0..w-1)
+    return p, f, rule
 
-    # ---- VARX (P4) and the state sequence (P5)-(P8)
+
+def _identify_states(
+    st: _Stats, opt: _Options, p: int, f: int, notes: list[str]
+) -> tuple[tuple[np.ndarray, ...], np.ndarray, int, float]:
+    """VARX (P4), state sequence (P5)-(P8), order, ``(A, B, C, D, K, Re)`` (P9), scaled."""
     if opt.algorithm == "pbsid":
         V, _ = _varx(st, p, opt.feedthrough)
         U, s, GK = _state_map_pbsid(st, V, p, f)
     else:
         U, s, GK = _state_map_ssarx(st, p, f, opt.feedthrough, opt.weighting, notes)
-    n, gap = _order(s, opt.order, f * ny, opt.rank_tol)
+    n, gap = _order(s, opt.order, f * st.ny, opt.rank_tol)
     L = (U[:, :n] / np.sqrt(s[:n])[None, :]).T @ GK  # X = S^{-1/2} U^T (Gamma K) Z_p
-    As, Bs, Cs, Dn, Ks, Re = _system_from_states(st, L, p, opt.feedthrough)  # eq. (P9)
+    system = _system_from_states(st, L, p, opt.feedthrough)  # eq. (P9)
     if opt.order is None:
         notes.append(
             f"order {n} chosen automatically: largest gap of the singular values "
@@ -433,20 +497,37 @@ def _fit(
                 f"order choice is marginal (gap ratio {gap:.3g} < 10); inspect "
                 "`singular_values` and pass `order=` explicitly"
             )
+    return system, s, n, gap
 
-    # ---- physical units (z_s = z / scale)
-    s_u, s_y = st.scale[:nu], st.scale[nu:]
-    A = As
-    B = Bs / s_u[None, :]
-    C = Cs * s_y[:, None]
-    D = (Dn * s_y[:, None]) / s_u[None, :]
-    K = Ks / s_y[None, :]
-    Re_phys = Re * np.outer(s_y, s_y)
-    model = StateSpace(A, B, C, D, opt.dt)
+
+def _unscale(
+    system: tuple[np.ndarray, ...], scale: np.ndarray, nu: int, dt: float
+) -> tuple[StateSpace, np.ndarray, np.ndarray]:
+    """Model, Kalman gain and innovation covariance in physical units (``z_s = z / scale``)."""
+    As, Bs, Cs, Dn, Ks, Re = system
+    s_u, s_y = scale[:nu], scale[nu:]
+    model = StateSpace(
+        As, Bs / s_u[None, :], Cs * s_y[:, None], (Dn * s_y[:, None]) / s_u[None, :], dt
+    )
+    return model, Ks / s_y[None, :], Re * np.outer(s_y, s_y)
+
+
+def _coordinates(
+    model: StateSpace,
+    K: np.ndarray,
+    Re: np.ndarray,
+    st_all: _Stats,
+    opt: _Options,
+    notes: list[str],
+    extras: dict[str, Any],
+) -> tuple[StateSpace, StateSpace | None, np.ndarray, np.ndarray, dict[str, float]]:
+    """``(model, continuous, K, Re, parameters)`` in the coordinates asked for."""
     params: dict[str, float] = {}
     continuous = None
     if opt.coordinates == "physical":
         model, continuous, K, v = _bearing_coordinates(model, K)
+        if opt.physical_fit == "structured":
+            model, continuous, K, Re, v = _structured(model, K, v, st_all, opt, notes, extras)
         params.update(zip(V_NAMES, v.tolist()))
     else:
         try:
@@ -454,15 +535,53 @@ def _fit(
         except ModelError as exc:
             notes.append(f"no continuous-time model: {exc}")
     params.update({f"a{k + 1}": float(v) for k, v in enumerate(_char_poly(model.A))})
-    rho = float(np.max(np.abs(np.linalg.eigvals(model.A - K @ model.C)))) if n else 0.0
-    if not rho < 1.0:
-        notes.append(f"the identified predictor A - K C is not stable (spectral radius {rho:.4g})")
-    if not model.is_stable():
-        notes.append(
-            "the model is unstable (poles outside the unit circle); it is reported as found"
-        )
+    return model, continuous, K, Re, params
 
-    # ---- fit (one-step-ahead predictor; never an open-loop simulation)
+
+def _structured(
+    model: StateSpace,
+    K: np.ndarray,
+    v: np.ndarray,
+    st_all: _Stats,
+    opt: _Options,
+    notes: list[str],
+    extras: dict[str, Any],
+) -> tuple[StateSpace, StateSpace, np.ndarray, np.ndarray, np.ndarray]:
+    """v1..v9 and ``K`` by the structured weighted least-squares fit (P11)-(P14)."""
+    P = _structure_lags(opt)
+    sf = fit_bearing_structure(
+        st_all.F[st_all.y_rows(P, P + 1)],
+        st_all.F[_z_rows(st_all, 0, P)],
+        v0=v,
+        K0=K,
+        dt=opt.dt,
+        scale=st_all.scale,
+        j=st_all.j,
+    )
+    notes.append(
+        f"v1..v9 by the structured weighted least-squares fit over a window of {P} lags "
+        f"(docs/subspace.md (P11)-(P14); {sf.iterations} Gauss-Newton steps), started "
+        "from the transform to physical coordinates"
+    )
+    extras.update(structure_lags=P, structure_iterations=sf.iterations)
+    disc = StateSpace(sf.Ad, sf.Bd, C_AMB.copy(), np.zeros((3, 2)), opt.dt)
+    Ac, Bc = amb_matrices(sf.v)
+    cont = StateSpace(Ac, Bc, C_AMB.copy(), np.zeros((3, 2)))
+    return disc, cont, sf.K, sf.Re, sf.v
+
+
+def _fit_metrics(
+    st: _Stats,
+    model: StateSpace,
+    K: np.ndarray,
+    Re_s: np.ndarray,
+    p: int,
+    center: bool,
+    data: tuple[np.ndarray, np.ndarray] | None,
+    rho: float,
+) -> tuple[dict[str, float], np.ndarray | None]:
+    """One-step fit over the record (in memory) and the horizon predictor's fit (P9)."""
+    nu = st.nu
     fit: dict[str, float] = {}
     residuals = None
     mean_u, mean_y = st.mean[:nu], st.mean[nu:]
@@ -479,23 +598,25 @@ def _fit(
     # Fit of y(t) from the state of the last p samples, over the Hankel rows
     # (scaled units; the second moment less the mean unless the rows are centred).
     Fy = st.F[st.y_rows(p, p + 1)]
-    var_y = np.einsum("ij,ij->i", Fy, Fy) - (0.0 if center else (mean_y / s_y) ** 2)
+    var_y = np.einsum("ij,ij->i", Fy, Fy) - (0.0 if center else (mean_y / st.scale[nu:]) ** 2)
     with np.errstate(divide="ignore", invalid="ignore"):
-        hfit = 100.0 * (1.0 - np.sqrt(np.diag(Re) / np.maximum(var_y, 0.0)))
+        hfit = 100.0 * (1.0 - np.sqrt(np.diag(Re_s) / np.maximum(var_y, 0.0)))
     fit["horizon_predictor_fit_percent"] = float(np.mean(hfit))
-    extras.update(
-        kalman_gain=K,
-        innovation_covariance=Re_phys,
-        predictor_spectral_radius=rho,
-        past=p,
-        future=f,
-        order=n,
-        order_gap_ratio=gap,
-        hankel_rows=st.j,
-        factor_rank=st.rank,
-        channel_scale=st.scale,
-        mean={"u": mean_u, "y": mean_y} if center else None,
-    )
+    return fit, residuals
+
+
+def _stability_notes(model: StateSpace, K: np.ndarray, notes: list[str]) -> float:
+    rho = float(np.max(np.abs(np.linalg.eigvals(model.A - K @ model.C)))) if model.nx else 0.0
+    if not rho < 1.0:
+        notes.append(f"the identified predictor A - K C is not stable (spectral radius {rho:.4g})")
+    if not model.is_stable():
+        notes.append(
+            "the model is unstable (poles outside the unit circle); it is reported as found"
+        )
+    return rho
+
+
+def _options_used(opt: _Options, n: int, p: int, f: int, past_rule: str) -> dict[str, Any]:
     options = {
         "order": n,
         "order_rule": "given" if opt.order is not None else "auto",
@@ -510,16 +631,61 @@ def _fit(
         "coordinates": opt.coordinates,
         "factorization": "gram",
     }
+    if opt.coordinates == "physical":
+        options["physical_fit"] = opt.physical_fit
+        if opt.physical_fit == "structured":
+            options["structure_past"] = _structure_lags(opt)
     if opt.algorithm == "ssarx":
         options["weighting"] = opt.weighting
+    return options
+
+
+def _fit(
+    acc: _LagGram,
+    nu: int,
+    ny: int,
+    opt: _Options,
+    p_top: int,
+    shift: np.ndarray,
+    data: tuple[np.ndarray, np.ndarray] | None,
+) -> IdentificationResult:
+    """Everything after the pass over the data (in memory and streamed alike)."""
+    notes: list[str] = []
+    extras: dict[str, Any] = {}
+    # one factor of the widest window the fit may use (the AIC's and the fit's Hankel
+    # rows are the same, rows 0..N - W, as MOESP's)
+    W = _check_window(acc.n, nu + ny, opt, p_top)
+    st_all = _window_stats(acc, nu, ny, W, shift, opt.remove_mean)
+    p, f, past_rule = _choose_past(st_all, opt, p_top, notes, extras)
+    st = replace(st_all, F=st_all.F[: _window(opt, p, f) * st_all.m])  # rows of z(0..w-1)
+    system, s, n, gap = _identify_states(st, opt, p, f, notes)
+    model, K, Re = _unscale(system, st.scale, nu, opt.dt)
+    model, continuous, K, Re, params = _coordinates(model, K, Re, st_all, opt, notes, extras)
+    rho = _stability_notes(model, K, notes)
+    Re_s = Re / np.outer(st.scale[nu:], st.scale[nu:])
+    fit, residuals = _fit_metrics(st, model, K, Re_s, p, opt.remove_mean, data, rho)
+    mean_u, mean_y = st.mean[:nu], st.mean[nu:]
+    extras.update(
+        kalman_gain=K,
+        innovation_covariance=Re,
+        predictor_spectral_radius=rho,
+        past=p,
+        future=f,
+        order=n,
+        order_gap_ratio=gap,
+        hankel_rows=st.j,
+        factor_rank=st.rank,
+        channel_scale=st.scale,
+        mean={"u": mean_u, "y": mean_y} if opt.remove_mean else None,
+    )
     logger.debug("%s: order %d, past %d, future %d, j=%d", opt.algorithm, n, p, f, st.j)
     return IdentificationResult(
         method=opt.algorithm,
         model=model,
         parameters=params,
         covariance=None,
-        n_samples=N,
-        options=options,
+        n_samples=acc.n,
+        options=_options_used(opt, n, p, f, past_rule),
         residuals=residuals,
         fit=fit,
         singular_values=s,
@@ -577,6 +743,10 @@ class PredictorAccumulator:
         record supports, as in memory.
     remove_mean : bool
         Centre the data (offset-invariant fit; default True).
+    structure_past : int, optional
+        Lags to keep for ``physical_fit="structured"`` (default: none beyond
+        the VARX's); the structured fit's window is the default 240 lags
+        capped by the lags kept and by the record (noted in ``notes``).
 
     Examples
     --------
@@ -602,6 +772,7 @@ class PredictorAccumulator:
         future: int | None = None,
         max_past: int = DEFAULT_MAX_PAST,
         remove_mean: bool = True,
+        structure_past: int | None = None,
     ) -> None:
         self.ny = _check_int(ny, "ny", 1, allow_none=False)
         self.nu = _check_int(nu, "nu", 1, allow_none=False)
@@ -614,7 +785,8 @@ class PredictorAccumulator:
         p_top = self.past if self.past is not None else self.max_past
         assert p_top is not None
         lags = p_top if self.algorithm == "pbsid" else p_top + _future("ssarx", future, p_top) - 1
-        self._acc = _LagGram(self.nu + self.ny, max(lags, 1))
+        self.structure_past = _check_int(structure_past, "structure_past", 1)
+        self._acc = _LagGram(self.nu + self.ny, max(lags, self.structure_past or 0, 1))
         self._shift: np.ndarray | None = None
 
     @property
@@ -644,6 +816,7 @@ class PredictorAccumulator:
         weighting: str = "cca",
         rank_tol: float | None = None,
         coordinates: str = "identified",
+        physical_fit: str = "transform",
     ) -> IdentificationResult:
         """Identify from the data seen so far (options as in :func:`fit_pbsid`)."""
         opt = _options(
@@ -658,9 +831,11 @@ class PredictorAccumulator:
             rank_tol=rank_tol,
             remove_mean=self.remove_mean,
             coordinates=coordinates,
+            physical_fit=physical_fit,
         )
         assert self.ny is not None and self.nu is not None
         N = self.n_samples
+        opt = _resolve_structure(opt, N, self.nu + self.ny, self._acc.L)  # window in notes
         p_top, lags = _plan(N, self.nu + self.ny, self.ny, opt)
         if self.past is None:
             p_top = min(p_top, self.max_past)
@@ -678,6 +853,7 @@ def _fit_in_memory(algorithm: str, y: Any, u: Any, kw: dict[str, Any]) -> Identi
     N = y.shape[0]
     u = as_signal(u, "u", n_samples=N)
     ny, nu = y.shape[1], u.shape[1]
+    opt = _resolve_structure(opt, N, nu + ny)
     p_top, lags = _plan(N, nu + ny, ny, opt)
     if N < 2 * lags + 1:
         raise DataError(f"the record has {N} samples; the past asked for needs {2 * lags + 1}")
@@ -706,6 +882,8 @@ def fit_pbsid(
     remove_mean: bool = True,
     coordinates: str = "identified",
     max_past: int | None = None,
+    physical_fit: str = "transform",
+    structure_past: int | None = None,
     rng: np.random.Generator | None = None,
 ) -> IdentificationResult:
     """Innovation-form state-space model by PBSID-opt, consistent in closed loop.
@@ -745,6 +923,16 @@ def fit_pbsid(
         (4 states, outputs ``[x, i1, i2]``), with ``v1..v9`` in ``parameters``.
     max_past : int, optional
         Upper limit of the automatic past (default 80, ``DEFAULT_MAX_PAST``).
+    physical_fit : {"transform", "structured"}
+        With ``coordinates="physical"``: v1..v9 read off the black-box model
+        transformed to physical coordinates (default), or ``"structured"``:
+        v1..v9 and the Kalman gain fitted to the window's Gram matrix by
+        weighted least squares in the bearing's structure, started from the
+        transform (docs/subspace.md (P11)-(P14); near maximum likelihood on
+        the bearing, 1-10 s on 1e4-1e5 samples; no pass over the data).
+    structure_past : int, optional
+        Lags of the structured fit's window (default 240,
+        ``DEFAULT_STRUCTURE_PAST``, within what the record supports).
     rng : numpy.random.Generator, optional
         Unused (deterministic); accepted for a uniform ``fit_*`` API.
 
@@ -805,6 +993,8 @@ def fit_pbsid(
             remove_mean=remove_mean,
             coordinates=coordinates,
             max_past=max_past,
+            physical_fit=physical_fit,
+            structure_past=structure_past,
         ),
     )
 
@@ -823,6 +1013,8 @@ def fit_ssarx(
     remove_mean: bool = True,
     coordinates: str = "identified",
     max_past: int | None = None,
+    physical_fit: str = "transform",
+    structure_past: int | None = None,
     rng: np.random.Generator | None = None,
 ) -> IdentificationResult:
     """Innovation-form state-space model by SSARX (Jansson 2003), consistent in closed loop.
@@ -835,13 +1027,15 @@ def fit_ssarx(
 
     Parameters
     ----------
-    y, u, order, past, future, dt, feedthrough, rank_tol, remove_mean, coordinates, max_past, rng
+    y, u, order, past, future, dt, feedthrough, rank_tol, remove_mean, coordinates, max_past
         As in :func:`fit_pbsid`, except that ``future`` defaults to ``min(past, 40)``
         (the Hankel window is ``past + future``).
     weighting : {"cca", "none"}
         ``W1 = (ytil_f ytil_f^T)^{-1/2}`` (canonical correlations, Jansson's
         choice; default) or ``W1 = I``. Noise-free data have a singular
         corrected-future covariance; the SVD is then unweighted (noted).
+    physical_fit, structure_past, rng
+        As in :func:`fit_pbsid`.
 
     Returns, Raises
         As :func:`fit_pbsid`.
@@ -877,6 +1071,8 @@ def fit_ssarx(
             remove_mean=remove_mean,
             coordinates=coordinates,
             max_past=max_past,
+            physical_fit=physical_fit,
+            structure_past=structure_past,
         ),
     )
 
@@ -935,6 +1131,10 @@ def _declaration(algorithm: str) -> tuple[Option, ...]:
         Option("max_past", "int", f"largest automatic past window (default "
                f"{DEFAULT_MAX_PAST})", low=1),
         Option("rng", "object", "random generator of the randomised checks"),
+        Option("physical_fit", "str", "how v1..v9 come from the model: 'transform' to "
+               "physical coordinates, or 'structured' (weighted fit of the bearing's "
+               "structure to the VARX, docs/subspace.md (P11)-(P14))", choices=_PHYSICAL_FITS),
+        Option("structure_past", "int", "lags kept for physical_fit='structured'", low=1),
     ]  # fmt: skip
     return bind_defaults(opts, fit_pbsid if algorithm == "pbsid" else fit_ssarx)
 

@@ -64,7 +64,11 @@ from maglevid.data import ClosedLoopData
 from maglevid.exceptions import DataError
 from maglevid.identify.arx import RegressionAccumulator
 from maglevid.identify.iv import loop_instrument_system
-from maglevid.identify.pbsid import DEFAULT_MAX_PAST, PredictorAccumulator
+from maglevid.identify.pbsid import (
+    DEFAULT_MAX_PAST,
+    DEFAULT_STRUCTURE_PAST,
+    PredictorAccumulator,
+)
 from maglevid.identify.physical import (
     _plant_signals,
     physical_labels,
@@ -551,6 +555,7 @@ def fit_predictor_streamed(
     future: int | None = None,
     max_past: int = DEFAULT_MAX_PAST,
     remove_mean: bool = True,
+    structure_past: int | None = None,
     progress: Progress | None = None,
     **fit_options: Any,
 ) -> IdentificationResult:
@@ -559,8 +564,12 @@ def fit_predictor_streamed(
     The lagged products of :class:`~maglevid.identify.pbsid.PredictorAccumulator`;
     equals :func:`~maglevid.identify.pbsid.fit_pbsid` / ``fit_ssarx`` on the whole
     record to rounding, without ``residuals``. ``fit_options`` (order,
-    feedthrough, weighting, rank_tol, coordinates) go to its ``fit``.
+    feedthrough, weighting, rank_tol, coordinates, physical_fit) go to its
+    ``fit``; ``structure_past`` is the lags kept for ``physical_fit="structured"``
+    (default: the structured fit's default window, when it is asked for).
     """
+    if structure_past is None and fit_options.get("physical_fit") == "structured":
+        structure_past = DEFAULT_STRUCTURE_PAST
     acc, dt, n_chunks = _feed_plant_io(
         _opener(source, chunk_size),
         progress,
@@ -573,6 +582,7 @@ def fit_predictor_streamed(
             future=future,
             max_past=max_past,
             remove_mean=remove_mean,
+            structure_past=structure_past,
         ),
     )
     fit_options.setdefault("dt", dt)
