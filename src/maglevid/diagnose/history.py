@@ -810,6 +810,30 @@ class HistoryStore:
 
         return self._run(work, write=False)
 
+    def methods(self, machine: str) -> dict[str, int]:
+        """The methods of ``machine``'s diagnoses that have estimates, with their counts.
+
+        Ordered by each method's latest recording, the most recent last (the last
+        key is the method the machine's history continues with, see
+        :func:`maglevid.diagnose.pipeline.choose_method`). Empty for a machine the
+        store does not know: a first diagnosis has no history to continue.
+        """
+
+        def work(tx: Tx) -> dict[str, int]:
+            mid = tx.one("SELECT id FROM machines WHERE name = ?", (machine,))
+            if mid is None:
+                return {}
+            rows = tx.all(
+                "SELECT d.method, COUNT(d.id), MAX(r.recorded_at), MAX(d.id) FROM diagnoses d "
+                "JOIN recordings r ON r.id = d.recording_id WHERE d.machine_id = ? "
+                "AND EXISTS (SELECT 1 FROM estimates e WHERE e.diagnosis_id = d.id) "
+                "GROUP BY d.method ORDER BY MAX(r.recorded_at), MAX(d.id)",
+                (int(mid),),
+            )
+            return {str(r[0]): int(r[1]) for r in rows}
+
+        return self._run(work, write=False)
+
     _DIAG_COLUMNS = (
         "d.id, r.content_hash, r.path, r.recorded_at, r.dt, r.n_samples, d.created_at, "
         "d.method, d.options_hash, d.options, d.verdict, d.verdict_code, d.summary, "

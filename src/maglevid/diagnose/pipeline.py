@@ -71,12 +71,15 @@ def recording_hash(data: ClosedLoopData) -> str:
     return h.hexdigest()
 
 
-def choose_method(data: ClosedLoopData) -> tuple[str, str]:
-    """The identification method for this recording, and why: from its plant kind
-    (:func:`maglevid.plants.choose_method`)."""
-    from maglevid.plants import choose_method as choose_for_kind
+def choose_method(
+    data: ClosedLoopData, *, history: Any = None, machine: str | None = None
+) -> tuple[str, str]:
+    """The method :func:`diagnose` uses for this recording without a stated one, and why:
+    the plant kind's, ``ml`` for a two-coil bearing, or the method a machine's history
+    in ``history`` continues with (:mod:`maglevid.diagnose.default_method`)."""
+    from maglevid.diagnose.default_method import choose_diagnosis_method
 
-    return choose_for_kind(data)
+    return choose_diagnosis_method(data, history=history, machine=machine)[:2]
 
 
 def _baseline_from_loop(data: ClosedLoopData) -> AMBParameters | None:
@@ -451,7 +454,9 @@ def diagnose(
         Machine name (needed with a history store; default: the recording's
         ``metadata["machine"]``).
     method : str, optional
-        Identification method; default chosen by :func:`choose_method`.
+        Identification method; default chosen by :func:`choose_method`: ``"ml"``
+        for a two-coil bearing (unless the machine's history in ``history``
+        continues with ``"physical"``, said in a note), the plant kind's otherwise.
     tolerances : float or mapping, optional
         Relative engineering tolerance per parameter (default 5 %).
     history : HistoryStore or str, optional
@@ -499,9 +504,13 @@ def diagnose(
 
         store = open_history(history)
 
-    chosen, why = choose_method(data)
+    from maglevid.diagnose.default_method import choose_diagnosis_method
+
+    chosen, why, note = choose_diagnosis_method(data, history=store, machine=machine)
     if method is not None and method != chosen:
         why = "chosen by the user"
+    elif note is not None:
+        notes.append(note)
     method = method or chosen
 
     common = {
