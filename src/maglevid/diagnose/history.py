@@ -461,58 +461,38 @@ class _DiagnosisRow(NamedTuple):
     provenance: tuple[str, str]
 
 
-def _checked_row(
-    machine: str,
-    *,
-    recording_hash: str,
-    recorded_at: datetime | str | float,
-    method: str,
-    verdict: str,
-    verdict_code: str,
-    estimates: Mapping[str, Any],
-    summary: Mapping[str, Any] | None,
-    options: Mapping[str, Any] | None,
-    options_hash: str | None,
-    recording_path: str | os.PathLike[str] | None,
-    dt: float | None,
-    n_samples: int | None,
-    report_path: str | os.PathLike[str] | None,
-    machine_metadata: Mapping[str, Any] | None,
-) -> _DiagnosisRow:
-    """The arguments of :meth:`HistoryStore.record_diagnosis` checked (DataError) and
-    converted, before any write."""
+def _checked_row(machine: str, **given: Any) -> _DiagnosisRow:
+    """The keywords of :meth:`HistoryStore.record_diagnosis` (all given) checked
+    (DataError) and converted, before any write."""
     machine = _text("machine", machine)
-    recording_hash = _text("recording_hash", recording_hash)
-    method = _text("method", method)
-    verdict = _text("verdict", verdict)
-    verdict_code = _text("verdict_code", verdict_code)
-    t_rec = _as_utc("recorded_at", recorded_at)
+    text = {k: _text(k, given[k]) for k in ("recording_hash", "method", "verdict", "verdict_code")}
+    t_rec = _as_utc("recorded_at", given["recorded_at"])
+    estimates = given["estimates"]
     if not isinstance(estimates, Mapping):
         raise DataError(f"`estimates` is {type(estimates).__name__}; expected a mapping")
     est = [(_text("estimates key", k), _as_estimate(k, v)) for k, v in estimates.items()]
-    opts = dict(options or {})
+    opts = dict(given["options"] or {})
     options_json = _dumps(opts, "options")
+    options_hash = given["options_hash"]
     if options_hash is None:
         options_hash = hash_options(opts)
     options_hash = _text("options_hash", options_hash)
-    summary_json = _dumps(dict(summary or {}), "summary")
-    meta_json = _dumps(dict(machine_metadata or {}), "machine_metadata")
-    dt_v = _opt_float("dt", dt)
+    summary_json = _dumps(dict(given["summary"] or {}), "summary")
+    meta_json = _dumps(dict(given["machine_metadata"] or {}), "machine_metadata")
+    dt_v = _opt_float("dt", given["dt"])
     if dt_v is not None and dt_v <= 0:
         raise DataError(f"`dt` = {dt_v}; expected seconds > 0")
+    n_samples = given["n_samples"]
     if n_samples is not None and (
         isinstance(n_samples, bool)
         or not isinstance(n_samples, (int, np.integer))
         or n_samples < 0
     ):
         raise DataError(f"`n_samples` = {n_samples!r}; expected an int >= 0")
+    paths = {k: given[k] for k in ("recording_path", "report_path")}
     return _DiagnosisRow(
         machine=machine,
-        recording_hash=recording_hash,
         recorded_at=t_rec,
-        method=method,
-        verdict=verdict,
-        verdict_code=verdict_code,
         estimates=est,
         options_json=options_json,
         options_hash=options_hash,
@@ -520,9 +500,9 @@ def _checked_row(
         meta_json=meta_json,
         dt=dt_v,
         n_samples=n_samples,
-        recording_path=None if recording_path is None else os.fspath(recording_path),
-        report_path=None if report_path is None else os.fspath(report_path),
+        **{k: None if v is None else os.fspath(v) for k, v in paths.items()},
         provenance=(_software_version(), _writer()),
+        **text,
     )
 
 
