@@ -45,7 +45,9 @@ def test_the_subpackages_stay_importable():
     assert diagnose is maglevid.diagnose
 
 
-def test_identify_chooses_the_diagnosis_method_and_takes_options(faulty):
+def test_identify_chooses_the_plant_kinds_method_and_takes_options(faulty):
+    # identify keeps the plant kind's default (`physical`, as `maglevid identify` does);
+    # only a diagnosis uses `ml` by default (issue 13), at about 10x the time.
     r = maglevid.identify(faulty)
     assert r.method == "physical"
     # R1 is identified within 4 standard errors of the simulated 1.2 * 17.5 ohm.

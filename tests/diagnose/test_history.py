@@ -307,6 +307,23 @@ def test_machines_and_parameters(store):
     assert store.parameters("a-rig") == ["Ls1", "R1"]
 
 
+def test_methods_of_a_machine_latest_last_on_both_backends(store):
+    # diagnose's default-method rule reads the machine's latest method from here
+    # (issue 13): counts per method, ordered by each method's latest recording; a
+    # diagnosis without estimates does not count; an unknown machine has none.
+    record(store, 0, method="physical")
+    record(store, 1, method="physical")
+    record(store, 2, method="ml")
+    record(store, 3, method="physical")
+    store.record_diagnosis(
+        "pump-7", recording_hash="sha-9", recorded_at=T0 + timedelta(days=9), method="okid",
+        verdict="cannot diagnose", verdict_code="cannot_diagnose", estimates={},
+    )  # fmt: skip
+    assert store.methods("pump-7") == {"ml": 1, "physical": 3}
+    assert list(store.methods("pump-7"))[-1] == "physical"
+    assert store.methods("no-such-machine") == {}
+
+
 def test_estimates_table_is_a_pandas_free_long_table(store):
     for i in range(3):
         record(store, i)

@@ -45,6 +45,38 @@ def test_no_change_gives_no_step_at_about_alpha():
     assert hits / 400 <= 0.05 + 3 * np.sqrt(0.05 * 0.95 / 400)
 
 
+def test_false_alarm_rate_of_twenty_point_histories():
+    # (From the former diagnose/step.py tests: one step test now serves `history`,
+    # `diagnose` and the fleet.) Bonferroni over the n - 1 splits is conservative: at
+    # most 1 % of 400 steady 20-point series are flagged; Binomial(400, 0.01) exceeds
+    # 10 with probability < 0.3 %.
+    rng = np.random.default_rng(7)
+    t = np.arange(20.0)
+    flagged = sum(
+        detect_step(t, 2.0 + 0.01 * rng.standard_normal(20), np.full(20, 0.01)).p_value < 0.01
+        for _ in range(400)
+    )
+    assert flagged <= 10
+
+
+def test_step_placed_in_a_long_history():
+    # kw1 -20 % at point 12 of 20 with 0.5 % noise: split at 12, size within 4 of its
+    # standard errors sqrt(se^2 (1/12 + 1/8)).
+    rng = np.random.default_rng(1)
+    t = np.arange(20.0)
+    y = np.where(t < 12, 1.0, 0.8) + 0.005 * rng.standard_normal(20)
+    r = detect_step(t, y, np.full(20, 0.005))
+    assert r.is_step and r.index == 12
+    assert abs(r.size + 0.2) < 4 * 0.005 * np.sqrt(1 / 12 + 1 / 8)
+
+
+def test_step_without_standard_errors_uses_the_scatter():
+    # No standard errors (a method without covariance): equal weights, the scale from
+    # the residuals; a 1 -> 3 step over 0.1 scatter is found at point 4.
+    r = detect_step(np.arange(8.0), [1.0, 1.1, 0.9, 1.0, 3.0, 3.1, 2.9, 3.0])
+    assert r.is_step and r.index == 4
+
+
 def test_step_needs_three_points():
     with pytest.raises(DataError, match="at least 3"):
         detect_step([0.0, 1.0], [1.0, 2.0])

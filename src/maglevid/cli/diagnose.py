@@ -52,7 +52,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="history store: SQLite file or postgresql:// URL; the diagnosis is recorded there",
     )
-    parser.add_argument("--method", default=None, help="identification method (default: chosen)")
+    parser.add_argument(
+        "--method",
+        default=None,
+        help="identification method (default: ml for a two-coil bearing, unless the "
+        "machine's stored history continues with physical; the plant kind's method "
+        "otherwise)",
+    )
     parser.add_argument(
         "--tolerance",
         action="append",

@@ -440,6 +440,72 @@ def _software_version() -> str:
 # ---------------------------------------------------------------------------
 
 
+class _DiagnosisRow(NamedTuple):
+    """One diagnosis as :meth:`HistoryStore.record_diagnosis` stores it, checked."""
+
+    machine: str
+    recording_hash: str
+    recorded_at: datetime
+    method: str
+    verdict: str
+    verdict_code: str
+    estimates: list[tuple[str, Estimate]]
+    options_json: str
+    options_hash: str
+    summary_json: str
+    meta_json: str
+    dt: float | None
+    n_samples: Any
+    recording_path: str | None
+    report_path: str | None
+    provenance: tuple[str, str]
+
+
+def _checked_row(machine: str, **given: Any) -> _DiagnosisRow:
+    """The keywords of :meth:`HistoryStore.record_diagnosis` (all given) checked
+    (DataError) and converted, before any write."""
+    machine = _text("machine", machine)
+    text = {k: _text(k, given[k]) for k in ("recording_hash", "method", "verdict", "verdict_code")}
+    t_rec = _as_utc("recorded_at", given["recorded_at"])
+    estimates = given["estimates"]
+    if not isinstance(estimates, Mapping):
+        raise DataError(f"`estimates` is {type(estimates).__name__}; expected a mapping")
+    est = [(_text("estimates key", k), _as_estimate(k, v)) for k, v in estimates.items()]
+    opts = dict(given["options"] or {})
+    options_json = _dumps(opts, "options")
+    options_hash = given["options_hash"]
+    if options_hash is None:
+        options_hash = hash_options(opts)
+    options_hash = _text("options_hash", options_hash)
+    summary_json = _dumps(dict(given["summary"] or {}), "summary")
+    meta_json = _dumps(dict(given["machine_metadata"] or {}), "machine_metadata")
+    dt_v = _opt_float("dt", given["dt"])
+    if dt_v is not None and dt_v <= 0:
+        raise DataError(f"`dt` = {dt_v}; expected seconds > 0")
+    n_samples = given["n_samples"]
+    if n_samples is not None and (
+        isinstance(n_samples, bool)
+        or not isinstance(n_samples, (int, np.integer))
+        or n_samples < 0
+    ):
+        raise DataError(f"`n_samples` = {n_samples!r}; expected an int >= 0")
+    paths = {k: given[k] for k in ("recording_path", "report_path")}
+    return _DiagnosisRow(
+        machine=machine,
+        recorded_at=t_rec,
+        estimates=est,
+        options_json=options_json,
+        options_hash=options_hash,
+        summary_json=summary_json,
+        meta_json=meta_json,
+        dt=dt_v,
+        n_samples=n_samples,
+        **{k: None if v is None else os.fspath(v) for k, v in paths.items()},
+        provenance=(_software_version(), _writer()),
+        **text,
+    )
+
+
 def open_history(
     location: str | os.PathLike[str] | None = None,
     *,
@@ -649,111 +715,108 @@ class HistoryStore:
         with the same method and options is "already stored" (``created`` is
         False).
         """
-        machine = _text("machine", machine)
-        recording_hash = _text("recording_hash", recording_hash)
-        method = _text("method", method)
-        verdict = _text("verdict", verdict)
-        verdict_code = _text("verdict_code", verdict_code)
-        t_rec = _as_utc("recorded_at", recorded_at)
-        if not isinstance(estimates, Mapping):
-            raise DataError(f"`estimates` is {type(estimates).__name__}; expected a mapping")
-        est = [(_text("estimates key", k), _as_estimate(k, v)) for k, v in estimates.items()]
-        opts = dict(options or {})
-        options_json = _dumps(opts, "options")
-        if options_hash is None:
-            options_hash = hash_options(opts)
-        options_hash = _text("options_hash", options_hash)
-        summary_json = _dumps(dict(summary or {}), "summary")
-        meta_json = _dumps(dict(machine_metadata or {}), "machine_metadata")
-        dt_v = _opt_float("dt", dt)
-        if dt_v is not None and dt_v <= 0:
-            raise DataError(f"`dt` = {dt_v}; expected seconds > 0")
-        if n_samples is not None and (
-            isinstance(n_samples, bool)
-            or not isinstance(n_samples, (int, np.integer))
-            or n_samples < 0
-        ):
-            raise DataError(f"`n_samples` = {n_samples!r}; expected an int >= 0")
-        rec_path = None if recording_path is None else os.fspath(recording_path)
-        rep_path = None if report_path is None else os.fspath(report_path)
-        provenance = (_software_version(), _writer())
+        row = _checked_row(
+            machine, recording_hash=recording_hash, recorded_at=recorded_at, method=method,
+            verdict=verdict, verdict_code=verdict_code, estimates=estimates, summary=summary,
+            options=options, options_hash=options_hash, recording_path=recording_path, dt=dt,
+            n_samples=n_samples, report_path=report_path, machine_metadata=machine_metadata,
+        )  # fmt: skip
 
         def work(tx: Tx) -> Recorded:
             now = tx.ts_in(datetime.now(timezone.utc))
-            machine_id = self._ensure_machine(tx, machine, meta_json, now)
-            tx.execute(
-                "INSERT INTO recordings (machine_id, content_hash, path, dt, n_samples, "
-                "recorded_at) VALUES (?, ?, ?, ?, ?, ?) "
-                "ON CONFLICT (machine_id, content_hash) DO NOTHING",
-                (machine_id, recording_hash, rec_path, dt_v, n_samples, tx.ts_in(t_rec)),
-            )
-            rec_id, rec_time = tx.execute(
-                "SELECT id, recorded_at FROM recordings WHERE machine_id = ? AND content_hash = ?",
-                (machine_id, recording_hash),
-            ).fetchone()
-            if tx.ts_out(rec_time) != t_rec:
-                # The content hash is the recording's identity: the same bytes
-                # stored again (a second `diagnose --store`, or after `fleet`,
-                # which dates a file by its mtime where diagnose says "now") are
-                # the same recording, and its first stored time stays.
-                logger.info(
-                    "%s: recording %s of %s is stored with recorded_at %s; keeping it (got %s)",
-                    self.location,
-                    recording_hash,
-                    machine,
-                    tx.ts_out(rec_time).isoformat(),
-                    t_rec.isoformat(),
-                )
-            cur = tx.execute(
-                "INSERT INTO diagnoses (machine_id, recording_id, method, options_hash, "
-                "options, created_at, verdict, verdict_code, summary, report_path, "
-                "n_estimates, software_version, written_by) "
-                "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?) "
-                "ON CONFLICT (machine_id, recording_id, method, options_hash) DO NOTHING",
-                (
-                    machine_id,
-                    rec_id,
-                    method,
-                    options_hash,
-                    options_json,
-                    now,
-                    verdict,
-                    verdict_code,
-                    summary_json,
-                    rep_path,
-                    len(est),
-                    *provenance,
-                ),
-            )
-            created = cur.rowcount == 1
-            diag_id = int(
-                tx.one(
-                    "SELECT id FROM diagnoses WHERE machine_id = ? AND recording_id = ? "
-                    "AND method = ? AND options_hash = ?",
-                    (machine_id, rec_id, method, options_hash),
-                )
-            )
-            if created:
-                tx.executemany(
-                    "INSERT INTO estimates (diagnosis_id, parameter, value, std_error, "
-                    "ci_low, ci_high, unit, baseline) VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
-                    [
-                        (diag_id, k, e.value, e.std_error, e.ci_low, e.ci_high, e.unit, e.baseline)
-                        for k, e in est
-                    ],
-                )
-            return Recorded(diag_id, created)
+            machine_id = self._ensure_machine(tx, row.machine, row.meta_json, now)
+            rec_id = self._insert_recording(tx, machine_id, row)
+            return self._insert_diagnosis(tx, machine_id, rec_id, row, now)
 
         out: Recorded = self._run(work, write=True)
         logger.debug(
             "%s: diagnosis %d of %s (%s) %s",
             self.location,
             out.id,
-            machine,
-            method,
+            row.machine,
+            row.method,
             "stored" if out.created else "already stored",
         )
         return out
+
+    def _insert_recording(self, tx: Tx, machine_id: int, row: _DiagnosisRow) -> int:
+        """The recording's id, stored on first sight; its first ``recorded_at`` stays."""
+        tx.execute(
+            "INSERT INTO recordings (machine_id, content_hash, path, dt, n_samples, "
+            "recorded_at) VALUES (?, ?, ?, ?, ?, ?) "
+            "ON CONFLICT (machine_id, content_hash) DO NOTHING",
+            (
+                machine_id,
+                row.recording_hash,
+                row.recording_path,
+                row.dt,
+                row.n_samples,
+                tx.ts_in(row.recorded_at),
+            ),
+        )
+        rec_id, rec_time = tx.execute(
+            "SELECT id, recorded_at FROM recordings WHERE machine_id = ? AND content_hash = ?",
+            (machine_id, row.recording_hash),
+        ).fetchone()
+        if tx.ts_out(rec_time) != row.recorded_at:
+            # The content hash is the recording's identity: the same bytes
+            # stored again (a second `diagnose --store`, or after `fleet`,
+            # which dates a file by its mtime where diagnose says "now") are
+            # the same recording, and its first stored time stays.
+            logger.info(
+                "%s: recording %s of %s is stored with recorded_at %s; keeping it (got %s)",
+                self.location,
+                row.recording_hash,
+                row.machine,
+                tx.ts_out(rec_time).isoformat(),
+                row.recorded_at.isoformat(),
+            )
+        return int(rec_id)
+
+    @staticmethod
+    def _insert_diagnosis(
+        tx: Tx, machine_id: int, rec_id: int, row: _DiagnosisRow, now: Any
+    ) -> Recorded:
+        """The diagnosis and its estimates, unless this (recording, method, options) is stored."""
+        cur = tx.execute(
+            "INSERT INTO diagnoses (machine_id, recording_id, method, options_hash, "
+            "options, created_at, verdict, verdict_code, summary, report_path, "
+            "n_estimates, software_version, written_by) "
+            "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?) "
+            "ON CONFLICT (machine_id, recording_id, method, options_hash) DO NOTHING",
+            (
+                machine_id,
+                rec_id,
+                row.method,
+                row.options_hash,
+                row.options_json,
+                now,
+                row.verdict,
+                row.verdict_code,
+                row.summary_json,
+                row.report_path,
+                len(row.estimates),
+                *row.provenance,
+            ),
+        )
+        created = cur.rowcount == 1
+        diag_id = int(
+            tx.one(
+                "SELECT id FROM diagnoses WHERE machine_id = ? AND recording_id = ? "
+                "AND method = ? AND options_hash = ?",
+                (machine_id, rec_id, row.method, row.options_hash),
+            )
+        )
+        if created:
+            tx.executemany(
+                "INSERT INTO estimates (diagnosis_id, parameter, value, std_error, "
+                "ci_low, ci_high, unit, baseline) VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+                [
+                    (diag_id, k, e.value, e.std_error, e.ci_low, e.ci_high, e.unit, e.baseline)
+                    for k, e in row.estimates
+                ],
+            )
+        return Recorded(diag_id, created)
 
     # -- reading --------------------------------------------------------------
     @staticmethod
@@ -807,6 +870,30 @@ class HistoryStore:
                     (mid,),
                 )
             ]
+
+        return self._run(work, write=False)
+
+    def methods(self, machine: str) -> dict[str, int]:
+        """The methods of ``machine``'s diagnoses that have estimates, with their counts.
+
+        Ordered by each method's latest recording, the most recent last (the last
+        key is the method the machine's history continues with, see
+        :func:`maglevid.diagnose.pipeline.choose_method`). Empty for a machine the
+        store does not know: a first diagnosis has no history to continue.
+        """
+
+        def work(tx: Tx) -> dict[str, int]:
+            mid = tx.one("SELECT id FROM machines WHERE name = ?", (machine,))
+            if mid is None:
+                return {}
+            rows = tx.all(
+                "SELECT d.method, COUNT(d.id), MAX(r.recorded_at), MAX(d.id) FROM diagnoses d "
+                "JOIN recordings r ON r.id = d.recording_id WHERE d.machine_id = ? "
+                "AND EXISTS (SELECT 1 FROM estimates e WHERE e.diagnosis_id = d.id) "
+                "GROUP BY d.method ORDER BY MAX(r.recorded_at), MAX(d.id)",
+                (int(mid),),
+            )
+            return {str(r[0]): int(r[1]) for r in rows}
 
         return self._run(work, write=False)
 

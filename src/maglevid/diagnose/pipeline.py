@@ -63,12 +63,15 @@ def recording_hash(data: ClosedLoopData) -> str:
     return h.hexdigest()
 
 
-def choose_method(data: ClosedLoopData) -> tuple[str, str]:
-    """The identification method for this recording, and why: from its plant kind
-    (:func:`maglevid.plants.choose_method`)."""
-    from maglevid.plants import choose_method as choose_for_kind
+def choose_method(
+    data: ClosedLoopData, *, history: Any = None, machine: str | None = None
+) -> tuple[str, str]:
+    """The method :func:`diagnose` uses for this recording without a stated one, and why:
+    the plant kind's, ``ml`` for a two-coil bearing, or the method a machine's history
+    in ``history`` continues with (:mod:`maglevid.diagnose.default_method`)."""
+    from maglevid.diagnose.default_method import choose_diagnosis_method
 
-    return choose_for_kind(data)
+    return choose_diagnosis_method(data, history=history, machine=machine)[:2]
 
 
 def _read(recording: Any, mapping: Any) -> tuple[ClosedLoopData, str | None]:
@@ -103,12 +106,15 @@ def _start(
     """The diagnosis in progress, and the stages its plant kind runs for its method."""
     meta = data.metadata if hasattr(data.metadata, "get") else {}
     store = _open_store(history)
-    chosen, why = choose_method(data)
+    from maglevid.diagnose.default_method import choose_diagnosis_method
+
+    machine = machine or meta.get("machine")
+    chosen, why, note = choose_diagnosis_method(data, history=store, machine=machine)
     if method is not None and method != chosen:
-        why = "chosen by the user"
+        why, note = "chosen by the user", None
     method = method or chosen
     common = {
-        "machine": machine or meta.get("machine"),
+        "machine": machine,
         "recording": source,
         "recording_hash": recording_hash(data),
         "dt": data.dt,
@@ -120,7 +126,7 @@ def _start(
         data=data,
         method=method,
         common=common,
-        notes=[],
+        notes=[note] if note else [],
         store=store,
         machine=common["machine"],
         when=recorded_at or meta.get("recorded_at") or datetime.now(timezone.utc),
@@ -221,7 +227,9 @@ def diagnose(
         Machine name (needed with a history store; default: the recording's
         ``metadata["machine"]``).
     method : str, optional
-        Identification method; default chosen by :func:`choose_method`.
+        Identification method; default chosen by :func:`choose_method`: ``"ml"``
+        for a two-coil bearing (unless the machine's history in ``history``
+        continues with ``"physical"``, said in a note), the plant kind's otherwise.
     tolerances : float or mapping, optional
         Relative engineering tolerance per parameter (default 5 %).
     history : HistoryStore or str, optional

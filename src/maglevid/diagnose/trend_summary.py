@@ -68,6 +68,26 @@ def _drift(
     return out
 
 
+def _step(t: Any, y: Any, se: Any, alpha: float) -> Any:
+    """The change-point test of :func:`maglevid.diagnose.drift.detect_step` on one method's
+    points (times in days), at ``alpha / STEP_SHARE`` as in ``diagnose`` and the fleet: the
+    step is a second detector beside the drift test. ``None`` below 3 points. Points
+    without a standard error: equal weights, the scale from the scatter."""
+    import numpy as np
+
+    from maglevid.diagnose.drift import STEP_SHARE, detect_step
+    from maglevid.exceptions import DataError
+
+    if len(y) < 3:
+        return None
+    if not bool(np.all(np.isfinite(se) & (se > 0))):
+        se = None
+    try:
+        return detect_step(t / _DAY, y, se, alpha=alpha / STEP_SHARE)
+    except DataError:  # e.g. non-finite values: no step test, the drift test says why
+        return None
+
+
 def _overview(trend: Any, drift: dict[str, dict], alpha: float) -> dict[str, Any]:
     """Latest value, change from the baseline, step test and the parameter's verdict.
 
@@ -75,8 +95,6 @@ def _overview(trend: Any, drift: dict[str, dict], alpha: float) -> dict[str, Any
     different biases; mixing them fakes changes).
     """
     import numpy as np
-
-    from maglevid.diagnose.step import detect_step, step_fits_better
 
     n = len(trend)
     if n == 0:
@@ -88,13 +106,13 @@ def _overview(trend: Any, drift: dict[str, dict], alpha: float) -> dict[str, Any
     base = float(trend.baseline[last])
     change = 100.0 * (trend.value[last] - base) / base if np.isfinite(base) and base else None
     t, y, se = trend.time[rows], trend.value[rows], trend.std_error[rows]
-    step = detect_step(y, se, alpha=alpha)
+    step = _step(t, y, se, alpha)
     d = drift.get(method, {})
     step_dict = None
     verdict = "stable"
-    if step is not None and step.significant and step_fits_better(t / _DAY, y, se, step):
+    if step is not None and step.is_step:
         step_dict = step.to_dict()
-        step_dict["at"] = _iso(float(t[step.index]))
+        step_dict["at"] = _iso(float(np.sort(t)[step.index]))
         step_dict["percent"] = 100.0 * step.size / step.before if step.before else None
         verdict = "STEP"
     elif d.get("drifting"):

@@ -21,10 +21,10 @@ operating point, with a 0.1 N broadband force disturbance on the rotor. The
 sensors are quieter than the simulator's default (5 nm on the displacement, a
 capacitive or high-end eddy-current sensor; 10 µA on the currents, an 18-bit
 converter over +-2 A; against 0.1 µm and 0.1 mA): with 3 s records at
-10 kHz that gives the resistance to about 1 % (one standard error), enough to
-see the heating coil drift well before it crosses its tolerance. At the
-default noise the present estimator gives it to ~15 %, wider than the 10 %
-tolerance (issue 13). Recordings
+10 kHz the diagnosis's default, maximum likelihood (``ml``), gives the
+resistance to about 0.4 % (one standard error; ``physical`` about 1 %), enough
+to see the heating coil drift well before it crosses its tolerance
+(docs/diagnosis.md, "The demo's numbers"). Recordings
 are deterministic (seeded per machine and day), so running the demo again
 adds nothing to the history: the store is idempotent on the recording's
 content.

@@ -442,7 +442,9 @@ def _diagnose_one(job: FleetJob, ctx: BatchContext) -> RecordingOutcome:
         return _record_unreadable(job, exc, ctx, t0)
     try:
         rhash = recording_hash(data)
-        method = job.method or choose_method(data)[0]
+        store = _store(ctx.store, ctx.schema)
+        # The diagnosis default, or the method this machine's stored history continues with.
+        method = job.method or choose_method(data, history=store, machine=job.machine)[0]
         key = (rhash, method, hash_options(dict(job.method_options)))
         when = _recorded_at(job, data)
         if key in ctx.known.get(job.machine, ()):
@@ -454,7 +456,6 @@ def _diagnose_one(job: FleetJob, ctx: BatchContext) -> RecordingOutcome:
                 seconds=time.perf_counter() - t0,
                 **base,
             )
-        store = _store(ctx.store, ctx.schema)
         fn = ctx.diagnose_fn
         if fn is None:
             from maglevid.diagnose.pipeline import diagnose as fn

@@ -1,7 +1,9 @@
 """Kinds of plant: what a recording is, and which identification method suits it.
 
 A recording is one of a few kinds of plant, and the kind decides the method
-(``maglevid identify`` and ``maglevid diagnose`` without ``--method``):
+(``maglevid identify`` and ``maglevid diagnose`` without ``--method``; a
+diagnosis of a two-coil bearing uses ``ml`` instead,
+:mod:`maglevid.diagnose.default_method`):
 
 ==========================  ===========================================  ==============
 kind                        recognised by                                default method

@@ -139,6 +139,13 @@ class BaseKind:
     name: str
     default_method: str
     method_reason: str
+    #: The method ``diagnose`` uses without ``--method`` when it differs from
+    #: ``default_method`` (``None``: the same), why, and the diagnosis default it
+    #: replaced (a machine whose history used it continues with it;
+    #: :mod:`maglevid.diagnose.default_method`).
+    diagnosis_method: str | None = None
+    diagnosis_reason: str = ""
+    former_diagnosis_method: str | None = None
 
     def choose_method(self, data: ClosedLoopData) -> tuple[str, str]:
         return self.default_method, self.method_reason

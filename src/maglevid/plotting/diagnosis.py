@@ -793,7 +793,7 @@ def _drift_text(drift: Mapping[str, Any]) -> tuple[str, bool]:
 
 
 def _draw_step(ax, x: np.ndarray, step: Mapping[str, Any]) -> None:
-    """The two means of a step (``maglevid.diagnose.step``) over their points."""
+    """The two means of a step (:func:`maglevid.diagnose.drift.detect_step`) over their points."""
     k = int(step["index"])
     for seg, level in ((x[:k], step["before"]), (x[k:], step["after"])):
         if len(seg):
