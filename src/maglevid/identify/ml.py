@@ -440,6 +440,10 @@ class _Spectra:
         self.w = w
 
 
+#: The eigenbasis is used while ``cond(V)`` is below this (else batched inverses).
+_EIG_COND = 1e6
+
+
 class _Resolvent:
     """``(z I - F)^-1`` at every frequency, applied to rows (layout ``(M, c, n)``).
 
@@ -450,7 +454,7 @@ class _Resolvent:
 
     def __init__(self, F: np.ndarray, z: np.ndarray) -> None:
         lam, V = np.linalg.eig(F)
-        self.eig = bool(np.linalg.cond(V) < 1e6)
+        self.eig = bool(np.linalg.cond(V) < _EIG_COND)
         if self.eig:
             self.V, self.Vi, self.T = V, np.linalg.inv(V), 1.0 / (z[:, None] - lam[None, :])
         else:
