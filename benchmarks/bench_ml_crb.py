@@ -493,7 +493,10 @@ def targets(results: dict[str, Any], judge: Any) -> None:
                 all(ok for _, ok in checks[kind]),
             )
         if kind in missing:
-            judge.not_measured(f"{kind} (points not run)", ", ".join(missing[kind]))
+            judge.not_measured(
+                f"{kind} (points not measured: not in the plan or failed)",
+                ", ".join(missing[kind]),
+            )
     tm = results.get("timing")
     target = "ML at N = 1e5 within 20x IV's time (one process, same record, best of 3)"
     if not tm or "ratio" not in tm:
