@@ -3,7 +3,7 @@
 Run from the repository root::
 
     python -m benchmarks.bench_ml_crb --quick          # 20 records at N = 1e4, ~1 min
-    python -m benchmarks.bench_ml_crb --json ml.json   # the make-bench plan, ~12 min on 2 cores
+    python -m benchmarks.bench_ml_crb --json ml.json   # the make-bench plan, <= ~15 min (budgets)
 
 ``make bench`` runs the same plan as a section (``SECTION``; each point in its
 own worker process with its own time budget, so a slow point loses records,
@@ -77,7 +77,7 @@ PLANTS = {"linear": {"R1": 1.2}, "nonlinear": {}}  # plant model -> fault
 SIZES = (10_000, 100_000, 1_000_000)
 
 #: The make-bench plan: (plant, noise level, N, records at most, time budget [s]).
-#: About 12 min on 2 cores; the grid points not in it are "not measured".
+#: At most ~15 min (the budgets, 1040 s, plus the CRBs and the 1e5 timing); the grid points not in it are "not measured".
 PLAN: tuple[tuple[str, str, int, int, float], ...] = (
     ("linear", "default", 10_000, 100, 100.0),
     ("linear", "0.3x", 10_000, 100, 100.0),
