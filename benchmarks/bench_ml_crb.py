@@ -77,7 +77,8 @@ PLANTS = {"linear": {"R1": 1.2}, "nonlinear": {}}  # plant model -> fault
 SIZES = (10_000, 100_000, 1_000_000)
 
 #: The make-bench plan: (plant, noise level, N, records at most, time budget [s]).
-#: At most ~15 min (the budgets, 1040 s, plus the CRBs and the 1e5 timing); the grid points not in it are "not measured".
+#: At most ~15 min (the budgets, 1040 s, plus the CRBs and the 1e5 timing); the
+#: grid points not in it are "not measured".
 PLAN: tuple[tuple[str, str, int, int, float], ...] = (
     ("linear", "default", 10_000, 100, 100.0),
     ("linear", "0.3x", 10_000, 100, 100.0),
