@@ -207,7 +207,10 @@ def _ml_extras(
     if spec["plant"] == "linear":
         try:
             tw = fit_ml(_mirror(d, spec, rng))
-            x["twin_est"] = {k: tw.parameters[k] for k in REPORTED}
+            if tw.extras["converged"]:
+                x["twin_est"] = {k: tw.parameters[k] for k in REPORTED}
+            else:  # a twin that did not converge is left out of the bias, counted
+                x["twin_error"] = "did not converge"
         except Exception as exc:  # the pair is left out of the antithetic bias
             x["twin_error"] = str(exc)[:200]
     return x
@@ -461,7 +464,8 @@ def markdown_section(results: dict[str, Any]) -> list[str]:
             f"ML from IV != ML from the truth: {ml.get('not_same_optimum', 'n/a')} records "
             f"(largest gap {ml.get('gap_max_se', float('nan')):.1e} se; started or restarted "
             f"from the nominal bearing on {ml.get('restarted_from_nominal', 'n/a')}); "
-            "failures " + ", ".join(f"{m} {s[m]['failures']}" for m in METHODS) + "."
+            "failures " + ", ".join(f"{m} {s[m]['failures']}" for m in METHODS) + "; "
+            f"antithetic twins left out (failed or not converged): {ml.get('twin_failures', 0)}."
         )
         L += ["", "| parameter | " + " | ".join(METHODS) + " | ML \\|bias\\|/std |"]
         L.append("|---" * (len(METHODS) + 2) + "|")
