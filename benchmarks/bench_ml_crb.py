@@ -2,161 +2,338 @@
 
 Run from the repository root::
 
-    python -m benchmarks.bench_ml_crb --quick                # ~5 min on two busy cores
-    python -m benchmarks.bench_ml_crb --runs 100 --sizes 1e4 1e5 --workers 16 --json ml.json
+    python -m benchmarks.bench_ml_crb --quick          # 20 records at N = 1e4, ~1 min
+    python -m benchmarks.bench_ml_crb --json ml.json   # the make-bench plan, <= ~15 min (budgets)
 
-For every point (plant, noise level, record length N) ``--runs`` closed-loop
-records of the two-coil bearing are simulated (:func:`simulate_amb_loop`, the
-controller and deadbeat observer designed on the nominal bearing, 1 V rms
-white excitation) and identified by
+``make bench`` runs the same plan as a section (``SECTION``; each point in its
+own worker process with its own time budget, so a slow point loses records,
+not the section).
+
+For every point (plant, noise level, record length N) up to ``runs``
+closed-loop records of the two-coil bearing are simulated
+(:func:`simulate_amb_loop`, controller and deadbeat observer designed on the
+nominal bearing, 1 V rms white excitation; seeds differ between points, so
+two points are two independent draws) and identified by
 
 * ``LS``  -- ``physical`` with ``estimator="ls"`` (errors in variables: biased),
 * ``IV``  -- ``physical`` (the default method),
-* ``ML``  -- ``ml`` started from IV (sensor noise levels estimated),
+* ``ML``  -- ``ml`` started from IV (sensor noise levels and force estimated),
+* ``DB``  -- ``deadbeat-iv`` (the paper's deadbeat-observer route, IV),
+* ``MOESP`` -- ``moesp`` (order 4, ``u`` as input) taken to physical
+  coordinates (:func:`~maglevid.identify.physical.to_physical_coordinates`);
+  no covariance, so no coverage;
 
-and ML is run a second time started at the truth: the two must reach the
-same optimum (the table counts the records where they differ by more than
-0.01 standard errors in any v_i, or where either did not converge).
+and ML a second time started at the truth: the two must reach the same
+optimum (records where they differ by more than 0.01 standard errors in any
+v_i, or where either did not converge, are counted).
 
-Per method and parameter: the bias (mean error) over the records, the
-standard deviation, the coverage of the stated 95 % intervals, and the ratio
-of the standard deviation to the Cramér-Rao bound (from
-:func:`maglevid.identify.planning.design_information`: the bound of the
-linear model at the truth with the sensor noise levels unknown, the same
-model ML fits). Timing: the median over records of ML's time over IV's.
+Per method and parameter: the bias (mean error), the standard deviation, the
+coverage of the stated 95 % intervals and the ratio of the standard
+deviation to the Cramér-Rao bound (:func:`design_information`: the linear
+model at the truth with the sensor noise levels unknown, the model ML fits).
 
-Points: the faulty linear bearing (R1 +20 %) at the command line's default
-sensor noise and at 0.3x and 3x of it; the healthy nonlinear bearing (eq.
-(1), RK4) at the default noise (with the nominal bias voltages a fault moves
-the nonlinear bearing's operating point; the truth there is the linearisation
-at the settled point, which for the healthy bearing is the nominal one),
-without the simulator's default force disturbance (``force_std=0``: the
-bound here is the sensor-noise model's; the realistic bearing with the force
-is ``benchmarks/bench_ml_realistic.py``).
+ML's bias, antithetic (linear plant): the linear closed loop is linear in
+(excitation, noise), so the record with the noise negated is ``2 d(r, 0) -
+d(r, n)``; ML is fitted on that twin too and the bias is the mean of the pair
+means ``(e(+n) + e(-n)) / 2``, in which the error's part odd in the noise (its
+first-order, zero-mean part) cancels. Its standard error is ~0.02 std with 100
+pairs, against 0.1 std for the plain mean of 100 records -- which cannot tell
+a bias of 0.2 std from none (docs/gosiewski.md, section 10). The nonlinear
+plant has no such twin: its bias is the plain mean, with standard error
+``1/sqrt(records)`` std.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import multiprocessing
+import os
 import platform
 import time
+import zlib
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from typing import Any
 
 import numpy as np
 
-from maglevid.experiments._parallel import run_parallel
+from maglevid.experiments._parallel import one_blas_thread, start_method
+from maglevid.identify.cramer_rao import NoiseModel, derived_parameters
 from maglevid.identify.ml import fit_ml
-from maglevid.identify.physical import fit_physical
+from maglevid.identify.physical import fit_physical, to_physical_coordinates
 from maglevid.identify.planning import design_information
-from maglevid.physics.amb import V_NAMES, AMBParameters
+from maglevid.identify.registry import get_method
+from maglevid.physics.amb import V_NAMES, AMBParameters, v_from_matrices
 from maglevid.simulate.amb import DEFAULT_NOISE_STD, simulate_amb_loop
 
 #: Parameters reported (v1..v9 and the physical parameters a diagnosis names).
 REPORTED = (*V_NAMES, "R1", "R2", "L1", "L2", "ki1", "ki2", "kw1", "kw2", "x0")
 
-#: Method name -> fit function.
-METHODS = {
-    "LS": lambda d: fit_physical(d, estimator="ls"),
-    "IV": lambda d: fit_physical(d),
-    "ML": lambda d: fit_ml(d),
-}
+#: Method labels, in table order.
+METHODS = ("LS", "IV", "ML", "DB", "MOESP")
 
 NOISE_LEVELS = {"default": 1.0, "0.3x": 0.3, "3x": 3.0}
+PLANTS = {"linear": {"R1": 1.2}, "nonlinear": {}}  # plant model -> fault
+SIZES = (10_000, 100_000, 1_000_000)
+
+#: The make-bench plan: (plant, noise level, N, records at most, time budget [s]).
+#: At most ~15 min (the budgets, 1040 s, plus the CRBs and the 1e5 timing); the
+#: grid points not in it are "not measured".
+PLAN: tuple[tuple[str, str, int, int, float], ...] = (
+    ("linear", "default", 10_000, 100, 100.0),
+    ("linear", "0.3x", 10_000, 100, 100.0),
+    ("linear", "3x", 10_000, 100, 100.0),
+    ("nonlinear", "default", 10_000, 100, 100.0),
+    ("linear", "default", 100_000, 100, 400.0),
+    ("linear", "default", 1_000_000, 100, 240.0),
+)
+QUICK_PLAN = (("linear", "default", 10_000, 20, 60.0),)
+
+#: The time target's record length and repeats (one process, same data).
+TIMING_N, TIMING_REPEATS = 100_000, 3
+
+
+def point_label(plant: str, level: str, n: int) -> str:
+    fault = "R1x1.2" if PLANTS[plant] else "healthy"
+    return f"{plant} {fault}, noise {level}, N={int(n)}"
 
 
 def _truth(data: Any) -> dict[str, float]:
     """True parameters: the linearisation at the (settled) operating point."""
-    from maglevid.identify.cramer_rao import derived_parameters
-
     op = data.metadata.get("operating_point_true")
     v = np.asarray(op["v"] if op else data.metadata["truth_v"], dtype=float)
-    op_loop = data.loop["operating_point"]
-    names, vals = derived_parameters(v, m=op_loop["m"], i0=op_loop["i0"])
+    return _with_derived(v, data)
+
+
+def _with_derived(v: np.ndarray, data: Any) -> dict[str, float]:
+    op = data.loop["operating_point"]
+    names, vals = derived_parameters(v, m=op["m"], i0=op["i0"])
     return dict(zip((*V_NAMES, *names), np.concatenate([v, vals]).tolist()))
 
 
-def _one_record(spec: dict[str, Any]) -> dict[str, Any]:
-    """Simulate one record and fit it by every method (module-level: pickled)."""
+def _moesp_physical(data: Any) -> tuple[dict[str, float], None]:
+    """MOESP (order 4) taken to physical coordinates; no covariance."""
+    res = get_method("moesp")(data, order=4)
+    _, cont = to_physical_coordinates(res.model)
+    v, _ = v_from_matrices(cont.A, cont.B)
+    return _with_derived(np.asarray(v, dtype=float), data), None
+
+
+def _fit(name: str, data: Any) -> tuple[dict[str, float], dict[str, float] | None, Any]:
+    """(estimates, standard errors or None, result) of one method."""
+    if name == "MOESP":
+        est, se = _moesp_physical(data)
+        return est, se, None
+    fit = {
+        "LS": lambda d: fit_physical(d, estimator="ls"),
+        "IV": fit_physical,
+        "ML": fit_ml,
+        "DB": get_method("deadbeat-iv"),
+    }[name]
+    res = fit(data)
+    return dict(res.parameters), res.std_errors(), res
+
+
+def _mirror(data: Any, spec: dict[str, Any], rng: int) -> Any:
+    """The record with its noise negated: ``2 d(r, 0) - d(r, n)`` (linear plant only)."""
+    d0 = _simulate(spec, rng, noise=(0.0, 0.0, 0.0))
+    ch = {
+        k: 2.0 * np.asarray(getattr(d0, k)) - np.asarray(getattr(data, k))
+        for k in ("y", "u", "u_f")
+        if getattr(data, k) is not None
+    }
+    return data.replace(**ch)
+
+
+def _simulate(spec: dict[str, Any], rng: int, noise: Any = None) -> Any:
     nominal = AMBParameters.nominal()
-    plant = nominal.with_fault(**spec["fault"])
-    d = simulate_amb_loop(
-        plant,
+    return simulate_amb_loop(
+        nominal.with_fault(**PLANTS[spec["plant"]]),
         nominal=nominal,
         n_samples=spec["n"],
-        noise_std=spec["noise"],
+        noise_std=spec["noise"] if noise is None else noise,
         plant_model=spec["plant"],
         # No force disturbance: the bound here is the sensor-noise model's; the
         # realistic bearing with its 0.1 N force is bench_ml_realistic.py.
         force_std=0.0,
-        rng=np.random.SeedSequence([spec["seed"], spec["n"], spec["run"]]).generate_state(1)[0],
+        rng=rng,
     )
+
+
+def one_record(spec: dict[str, Any]) -> dict[str, Any]:
+    """Simulate one record and fit it by every method (module-level: pickled)."""
+    label = zlib.crc32(spec["label"].encode())
+    rng = int(np.random.SeedSequence([spec["seed"], label, spec["run"]]).generate_state(1)[0])
+    d = _simulate(spec, rng)
     truth = _truth(d)
     out: dict[str, Any] = {"truth": truth}
-    for name, fit in METHODS.items():
+    for name in METHODS:
         t0 = time.perf_counter()
         try:
-            res = fit(d)
+            est, se, res = _fit(name, d)
         except Exception as exc:  # a failure is a result of the benchmark, recorded
             out[name] = {"error": str(exc)[:200]}
             continue
-        est = {k: res.parameters[k] for k in REPORTED}
-        se = res.std_errors()
         out[name] = {
-            "est": est,
-            "se": {k: se[k] for k in REPORTED},
+            "est": {k: est[k] for k in REPORTED if k in est},
+            "se": None if se is None else {k: se[k] for k in REPORTED if k in se},
             "time": time.perf_counter() - t0,
         }
         if name == "ML":
-            out[name]["converged"] = bool(res.extras["converged"])
-            out[name]["iterations"] = int(res.extras["iterations"])
-            out[name]["restarted"] = any(
-                "nominal bearing" in n or "from the nominal" in n for n in res.notes
-            )
-    if "est" in out.get("ML", {}):
-        tv = np.array([truth[k] for k in V_NAMES])
-        try:
-            rt = fit_ml(d, start=tv)
-            vt = np.array([rt.parameters[k] for k in V_NAMES])
-            vi = np.array([out["ML"]["est"][k] for k in V_NAMES])
-            se = np.array([out["ML"]["se"][k] for k in V_NAMES])
-            out["ML"]["same_optimum"] = bool(
-                np.max(np.abs(vi - vt) / se) < 0.01
-                and rt.extras["converged"]
-                and out["ML"]["converged"]
-            )
-            out["ML"]["gap_to_truth_start_se"] = float(np.max(np.abs(vi - vt) / se))
-        except Exception as exc:  # recorded as a convergence failure
-            out["ML"]["same_optimum"] = False
-            out["ML"]["truth_start_error"] = str(exc)[:200]
+            out[name].update(_ml_extras(d, res, out[name], truth, spec, rng))
     return out
 
 
-def _summarise(records: list[dict[str, Any]], crb: dict[str, float]) -> dict[str, Any]:
-    summ: dict[str, Any] = {}
+def _ml_extras(
+    d: Any, res: Any, row: dict[str, Any], truth: dict[str, float], spec: dict[str, Any], rng: int
+) -> dict[str, Any]:
+    """ML from the truth (same optimum?), restarts, and the antithetic twin's estimate."""
+    x: dict[str, Any] = {
+        "converged": bool(res.extras["converged"]),
+        "iterations": int(res.extras["iterations"]),
+        "restarted": any("nominal bearing" in n or "from the nominal" in n for n in res.notes),
+    }
+    vi = np.array([row["est"][k] for k in V_NAMES])
+    se = np.array([row["se"][k] for k in V_NAMES])
+    try:
+        rt = fit_ml(d, start=np.array([truth[k] for k in V_NAMES]))
+        vt = np.array([rt.parameters[k] for k in V_NAMES])
+        gap = float(np.max(np.abs(vi - vt) / se))
+        x["gap_to_truth_start_se"] = gap
+        x["same_optimum"] = bool(gap < 0.01 and rt.extras["converged"] and x["converged"])
+    except Exception as exc:  # recorded as a convergence failure
+        x["same_optimum"] = False
+        x["truth_start_error"] = str(exc)[:200]
+    if spec["plant"] == "linear":
+        try:
+            tw = fit_ml(_mirror(d, spec, rng))
+            if tw.extras["converged"]:
+                x["twin_est"] = {k: tw.parameters[k] for k in REPORTED}
+            else:  # a twin that did not converge is left out of the bias, counted
+                x["twin_error"] = "did not converge"
+        except Exception as exc:  # the pair is left out of the antithetic bias
+            x["twin_error"] = str(exc)[:200]
+    return x
+
+
+def _map_until(specs: list[dict[str, Any]], workers: int, budget_s: float) -> list[Any]:
+    """``one_record`` over ``specs`` on ``workers`` processes within ``budget_s``.
+
+    ``workers`` records are kept in flight; a new one is started only while the
+    time spent plus the slowest record so far (times the records still to run
+    per worker) fits the budget, so a point ends near its budget instead of
+    overrunning it by the records in flight (measured: a 240 s budget at N = 1e6
+    took 492 s when all records were queued at once, load 12-20)."""
+    results: list[Any] = [None] * len(specs)
+    t0 = time.perf_counter()
+    slowest = 0.0
+    with one_blas_thread():
+        ctx = multiprocessing.get_context(start_method())
+        with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+            running: dict[Any, tuple[int, float]] = {}
+            nxt = 0
+            while nxt < len(specs) or running:
+                while (
+                    nxt < len(specs)
+                    and len(running) < workers
+                    and time.perf_counter() - t0 + slowest <= budget_s
+                ):
+                    running[pool.submit(one_record, specs[nxt])] = (nxt, time.perf_counter())
+                    nxt += 1
+                if not running:
+                    break
+                done, _ = wait(running, return_when=FIRST_COMPLETED)
+                for f in done:
+                    i, started = running.pop(f)
+                    slowest = max(slowest, time.perf_counter() - started)
+                    results[i] = f.result()
+    return [r for r in results if r is not None]
+
+
+def run_point(
+    *,
+    plant: str,
+    level: str,
+    n: int,
+    runs: int,
+    budget_s: float,
+    seed: int = 2026,
+    workers: int | None = None,
+) -> dict[str, Any]:
+    """One point of the plan: at most ``runs`` records within ``budget_s``."""
+    label = point_label(plant, level, n)
+    noise = tuple(float(s) * NOISE_LEVELS[level] for s in DEFAULT_NOISE_STD)
+    specs = [
+        {"label": label, "plant": plant, "n": int(n), "noise": noise, "seed": seed, "run": i}
+        for i in range(runs)
+    ]
+    workers = max(1, int(workers or os.cpu_count() or 1))
+    t0 = time.perf_counter()
+    records = _map_until(specs, workers, budget_s)
+    wall = time.perf_counter() - t0
+    nominal = AMBParameters.nominal()
+    design = design_information(
+        nominal.with_fault(**PLANTS[plant]), nominal=nominal, noise=NoiseModel(noise)
+    )
+    crb = design.bound(n_samples=int(n), excitation_std=1.0).std()
+    return {
+        "label": label,
+        "plant": plant,
+        "level": level,
+        "n": int(n),
+        "planned": runs,
+        "summary": summarise(records, crb),
+        "timing": {"wall_s": wall, "workers": workers, "budget_s": budget_s},
+        "load": os.getloadavg()[0],
+    }
+
+
+def _param_stats(ok: list[dict[str, Any]], name: str, k: str, crb: float | None) -> dict[str, Any]:
+    t = np.array([r["truth"][k] for r in ok])
+    e = np.array([r[name]["est"][k] for r in ok]) - t
+    sd = float(np.std(e, ddof=1))
+    st: dict[str, Any] = {
+        "bias_rel": float(np.mean(e / np.abs(t))),
+        "std_rel": float(np.std(e / np.abs(t), ddof=1)),
+        "std": sd,
+        "bias_over_std": float(np.mean(e) / sd) if sd > 0 else float("nan"),
+        "bias_se_over_std": 1.0 / np.sqrt(len(e)),
+        "bias_kind": "plain",
+        "std_over_crb": sd / crb if crb else float("nan"),
+    }
+    if all(r[name].get("se") and k in r[name]["se"] for r in ok):
+        se = np.array([r[name]["se"][k] for r in ok])
+        st["coverage"] = float(np.mean(np.abs(e) <= 1.959964 * se))
+        st["covered"] = int(np.sum(np.abs(e) <= 1.959964 * se))
+    pairs = [r for r in ok if name == "ML" and "twin_est" in r["ML"]]
+    if len(pairs) >= 3 and sd > 0:
+        # Antithetic: the mean of (e(+n) + e(-n)) / 2 over the pairs (module notes).
+        pm = np.array([(r["ML"]["est"][k] + r["ML"]["twin_est"][k]) / 2 for r in pairs])
+        pm = pm - np.array([r["truth"][k] for r in pairs])
+        st["bias_over_std"] = float(np.mean(pm) / sd)
+        st["bias_se_over_std"] = float(np.std(pm, ddof=1) / np.sqrt(len(pm)) / sd)
+        st["bias_kind"] = f"antithetic, {len(pm)} pairs"
+    return st
+
+
+def summarise(records: list[dict[str, Any]], crb: dict[str, float]) -> dict[str, Any]:
+    """Per method: failures, per-parameter statistics, median time; ML's convergence."""
+    summ: dict[str, Any] = {"records": len(records)}
     for name in METHODS:
         ok = [r for r in records if "est" in r.get(name, {})]
-        row: dict[str, Any] = {"records": len(records), "failures": len(records) - len(ok)}
+        ok = [r for r in ok if all(k in r[name]["est"] for k in REPORTED)]
+        row: dict[str, Any] = {"failures": len(records) - len(ok)}
         if len(ok) >= 2:
-            per: dict[str, Any] = {}
-            for k in REPORTED:
-                t = np.array([r["truth"][k] for r in ok])
-                e = np.array([r[name]["est"][k] for r in ok]) - t
-                se = np.array([r[name]["se"][k] for r in ok])
-                sd = float(np.std(e, ddof=1))
-                per[k] = {
-                    "bias_rel": float(np.mean(e / np.abs(t))),
-                    "std_rel": float(np.std(e / np.abs(t), ddof=1)),
-                    "bias_over_std": float(np.mean(e) / sd) if sd > 0 else float("nan"),
-                    "coverage": float(np.mean(np.abs(e) <= 1.959964 * se)),
-                    "std_over_crb": sd / crb[k] if crb.get(k) else float("nan"),
-                }
-            row["parameters"] = per
+            row["parameters"] = {k: _param_stats(ok, name, k, crb.get(k)) for k in REPORTED}
             row["time_median_s"] = float(np.median([r[name]["time"] for r in ok]))
         if name == "ML" and ok:
             row["not_same_optimum"] = int(sum(not r["ML"].get("same_optimum", False) for r in ok))
+            row["gap_max_se"] = float(
+                max((r["ML"].get("gap_to_truth_start_se", np.inf) for r in ok), default=np.nan)
+            )
             row["iterations_median"] = float(np.median([r["ML"]["iterations"] for r in ok]))
             row["restarted_from_nominal"] = int(sum(r["ML"].get("restarted", False) for r in ok))
+            row["twin_failures"] = int(sum("twin_error" in r["ML"] for r in ok))
         summ[name] = row
     both = [r for r in records if "time" in r.get("ML", {}) and "time" in r.get("IV", {})]
     if both:
@@ -166,128 +343,297 @@ def _summarise(records: list[dict[str, Any]], crb: dict[str, float]) -> dict[str
     return summ
 
 
-def run(
-    *,
-    runs: int,
-    sizes: list[int],
-    workers: int | None,
-    seed: int = 2026,
-    points: list[str] | None = None,
+def time_ratio(
+    *, n: int = TIMING_N, repeats: int = TIMING_REPEATS, seed: int = 7
 ) -> dict[str, Any]:
-    """The Monte Carlo of the module notes; JSON-able results."""
-    all_points = {
-        f"linear R1x1.2, noise {lvl}": ("linear", {"R1": 1.2}, f)
-        for lvl, f in NOISE_LEVELS.items()
+    """ML's and IV's time on the same record in one process, best of ``repeats``
+    (interleaved), and the load average before and after."""
+    spec = {"plant": "linear", "n": int(n), "noise": DEFAULT_NOISE_STD}
+    d = _simulate(spec, seed)
+    load0 = os.getloadavg()[0]
+    t_iv, t_ml = [], []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fit_physical(d)
+        t_iv.append(time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        fit_ml(d)
+        t_ml.append(time.perf_counter() - t0)
+    return {
+        "n": int(n),
+        "repeats": repeats,
+        "iv_s": min(t_iv),
+        "ml_s": min(t_ml),
+        "ratio": min(t_ml) / min(t_iv),
+        "load": [load0, os.getloadavg()[0]],
     }
-    all_points["nonlinear healthy, noise default"] = ("nonlinear", {}, 1.0)
-    chosen = points or list(all_points)
-    args = argparse.Namespace(workers=workers, quiet=True)
-    out: dict[str, Any] = {
-        "runs": runs,
-        "sizes": sizes,
-        "machine": platform.platform(),
-        "points": {},
-    }
-    nominal = AMBParameters.nominal()
-    for label in chosen:
-        plant_model, fault, factor = all_points[label]
-        noise = tuple(float(s) * factor for s in DEFAULT_NOISE_STD)
-        from maglevid.identify.cramer_rao import NoiseModel
 
-        design = design_information(
-            nominal.with_fault(**fault), nominal=nominal, noise=NoiseModel(noise)
+
+def run(
+    plan: tuple[tuple[str, str, int, int, float], ...] = PLAN,
+    *,
+    workers: int | None = None,
+    seed: int = 2026,
+    timing: bool = True,
+) -> dict[str, Any]:
+    """Every point of ``plan`` and the time ratio, in this process (``main``)."""
+    out: dict[str, Any] = {"machine": platform.platform(), "points": {}}
+    for plant, level, n, runs, budget in plan:
+        pt = run_point(
+            plant=plant, level=level, n=n, runs=runs, budget_s=budget, seed=seed, workers=workers
         )
-        for n in sizes:
-            specs = [
-                {
-                    "fault": fault,
-                    "n": int(n),
-                    "noise": noise,
-                    "plant": plant_model,
-                    "seed": seed,
-                    "run": i,
-                }
-                for i in range(runs)
-            ]
-            records, timing = run_parallel(_one_record, specs, args, desc=f"{label} N={n}")
-            crb = design.bound(n_samples=int(n), excitation_std=1.0).std()
-            key = f"{label}, N={int(n)}"
-            out["points"][key] = {"summary": _summarise(records, crb), "timing": timing}
-            print(f"done {key} in {timing['wall_s']:.0f} s", flush=True)
+        out["points"][pt["label"]] = pt
+        print(
+            f"done {pt['label']}: {pt['summary']['records']} records in "
+            f"{pt['timing']['wall_s']:.0f} s",
+            flush=True,
+        )
+    if timing:
+        out["timing"] = time_ratio()
     return out
 
 
-def markdown_section(results: dict[str, Any]) -> str:
-    """The BENCHMARKS.md section (for ``benchmarks/run_all.py``)."""
-    lines = [
-        "## Physical parameters against the Cramér-Rao bound (LS, IV, ML)",
+# ---------------------------------------------------------------------------
+# make bench: the section, its report and its verdicts
+# ---------------------------------------------------------------------------
+def measure(run_: Any, plan: dict[str, Any], args: Any) -> dict[str, Any]:
+    """Each point in its own worker process with its own budget (plus one record's slack)."""
+    out: dict[str, Any] = {"machine": platform.platform(), "points": {}}
+    for plant, level, n, runs, budget in QUICK_PLAN if plan.get("quick") else PLAN:
+        res = run_.call(
+            "benchmarks.bench_ml_crb:run_point",
+            timeout=budget + 120.0 + n / 1e6 * 120.0,
+            plant=plant,
+            level=level,
+            n=n,
+            runs=runs,
+            budget_s=budget,
+        )
+        out["points"][point_label(plant, level, n)] = res
+    if not plan.get("quick"):
+        out["timing"] = run_.call("benchmarks.bench_ml_crb:time_ratio", timeout=300.0)
+    return out
+
+
+def _cell(p: dict[str, Any] | None) -> str:
+    if p is None:
+        return "-"
+    cov = f"{p['coverage']:.2f}" if "coverage" in p else "n/a"
+    return (
+        f"{100 * p['bias_rel']:.2g} / {100 * p['std_rel']:.2g} / {cov} / {p['std_over_crb']:.3g}"
+    )
+
+
+def markdown_section(results: dict[str, Any]) -> list[str]:
+    """The BENCHMARKS.md section."""
+    L = [
+        "## Physical parameters against the Cramér-Rao bound (LS, IV, ML, deadbeat, MOESP)",
         "",
-        f"{results['runs']} records per point; `python -m benchmarks.bench_ml_crb` "
-        f"({results['machine']}). Per parameter: bias and std relative to the true value, "
-        "|bias|/std, coverage of the stated 95 % intervals, std / Cramér-Rao bound. "
-        "Targets (issue 13): ML std/CRB <= 1.3, coverage 0.93-0.97, |bias| < 0.2 std, "
-        "ML std >= 5x below IV at the default noise, ML within 20x of IV's time at N = 1e5, "
-        "ML from IV = ML from the truth on every record.",
+        f"`python -m benchmarks.bench_ml_crb` ({results.get('machine', '?')}); points and "
+        "their record counts below (a point that ran out of its time budget used fewer "
+        "records than planned: the count is the one it used). Each cell: bias % / std % "
+        "(relative to the true value) / coverage of the stated 95 % intervals / std over "
+        "the Cramér-Rao bound. ML's |bias|/std: antithetic on the linear plant (mean of "
+        "the pair means of each record and its noise-negated twin), plain mean on the "
+        "nonlinear one; ± its standard error. LS refuses noisy records (errors in "
+        "variables); MOESP has no covariance (coverage n/a).",
         "",
     ]
-    for key, pt in results["points"].items():
-        s = pt["summary"]
-        lines.append(f"### {key}")
-        lines.append("")
-        ml = s.get("ML", {})
-        lines.append(
-            f"ML/IV time (median) {s.get('ml_over_iv_time_median', float('nan')):.1f}x; "
+    tm = results.get("timing")
+    if tm and "ratio" in tm:
+        L += [
+            f"Time, one process, same record, best of {tm['repeats']}: N = {tm['n']:.0e}: "
+            f"ML {tm['ml_s']:.2f} s, IV {tm['iv_s']:.3f} s, ratio {tm['ratio']:.1f}x "
+            f"(load average {tm['load'][0]:.1f} -> {tm['load'][1]:.1f} on 2 shared cores).",
+            "",
+        ]
+    for key, pt in results.get("points", {}).items():
+        L.append(f"### {key}")
+        L.append("")
+        if "summary" not in pt:
+            L += [f"not measured: {pt.get('error', 'no result')}", ""]
+            continue
+        s, ml = pt["summary"], pt["summary"].get("ML", {})
+        L.append(
+            f"{s['records']} of {pt['planned']} planned records (budget "
+            f"{pt['timing']['budget_s']:.0f} s, wall {pt['timing']['wall_s']:.0f} s on "
+            f"{pt['timing']['workers']} workers, load {pt['load']:.1f}). "
+            "ML/IV time (median per record) "
+            f"{s.get('ml_over_iv_time_median', float('nan')):.1f}x; "
             f"ML median iterations {ml.get('iterations_median', float('nan')):.0f}; "
-            f"records where ML from IV != ML from truth: {ml.get('not_same_optimum', 'n/a')} "
-            f"(started or restarted from the nominal bearing on "
-            f"{ml.get('restarted_from_nominal', 'n/a')}); "
-            "failures "
-            + ", ".join(f"{m} {s[m]['failures']}" for m in METHODS)
-            + f"; wall {pt['timing']['wall_s']:.0f} s on {pt['timing']['workers']} workers."
+            f"ML from IV != ML from the truth: {ml.get('not_same_optimum', 'n/a')} records "
+            f"(largest gap {ml.get('gap_max_se', float('nan')):.1e} se; started or restarted "
+            f"from the nominal bearing on {ml.get('restarted_from_nominal', 'n/a')}); "
+            "failures " + ", ".join(f"{m} {s[m]['failures']}" for m in METHODS) + "; "
+            f"antithetic twins left out (failed or not converged): {ml.get('twin_failures', 0)}."
         )
-        lines.append("")
-        lines.append(
-            "| parameter | "
-            + " | ".join(f"{m} bias % | {m} std % | {m} cov | {m} std/CRB" for m in METHODS)
-            + " | ML |bias|/std |"
-        )
-        lines.append("|---" * (1 + 4 * len(METHODS) + 1) + "|")
+        L += ["", "| parameter | " + " | ".join(METHODS) + " | ML \\|bias\\|/std |"]
+        L.append("|---" * (len(METHODS) + 2) + "|")
         for k in REPORTED:
-            cells = []
-            for m in METHODS:
-                p = s[m].get("parameters", {}).get(k)
-                if p is None:
-                    cells += ["-"] * 4
-                else:
-                    cells += [
-                        f"{100 * p['bias_rel']:.3g}",
-                        f"{100 * p['std_rel']:.3g}",
-                        f"{p['coverage']:.2f}",
-                        f"{p['std_over_crb']:.2f}",
-                    ]
-            pm = s["ML"].get("parameters", {}).get(k)
-            cells.append("-" if pm is None else f"{abs(pm['bias_over_std']):.2f}")
-            lines.append(f"| {k} | " + " | ".join(cells) + " |")
-        lines.append("")
-    return "\n".join(lines)
+            cells = [_cell(s[m].get("parameters", {}).get(k)) for m in METHODS]
+            pm = ml.get("parameters", {}).get(k)
+            cells.append(
+                "-"
+                if pm is None
+                else f"{abs(pm['bias_over_std']):.2f} ± {pm['bias_se_over_std']:.2f}"
+            )
+            L.append(f"| {k} | " + " | ".join(cells) + " |")
+        L.append("")
+    return L
+
+
+def _short(plant: str, level: str, n: int) -> str:
+    return f"{plant} {level} {n:.0e}"
+
+
+def targets(results: dict[str, Any], judge: Any) -> None:
+    """Verdicts on the issue's grid (plant x noise level x N), one row per target
+    over the points measured, one "not measured" row naming the points not run."""
+    pts = results.get("points", {})
+    checks: dict[str, list[tuple[str, bool]]] = {}
+    missing: dict[str, list[str]] = {}
+    for plant in PLANTS:
+        for level in NOISE_LEVELS:
+            for n in SIZES:
+                pt = pts.get(point_label(plant, level, n))
+                for kind, text, ok in _point_checks(plant, level, pt):
+                    if ok is None:
+                        missing.setdefault(kind, []).append(_short(plant, level, n))
+                    else:
+                        checks.setdefault(kind, []).append(
+                            (f"{_short(plant, level, n)}: {text}", ok)
+                        )
+    for kind in _KINDS:
+        if kind in checks:
+            judge.add(
+                f"{kind} (points measured)",
+                "; ".join(t for t, _ in checks[kind]),
+                all(ok for _, ok in checks[kind]),
+            )
+        if kind in missing:
+            judge.not_measured(
+                f"{kind} (points not measured: not in the plan or failed)",
+                ", ".join(missing[kind]),
+            )
+    tm = results.get("timing")
+    target = "ML at N = 1e5 within 20x IV's time (one process, same record, best of 3)"
+    if not tm or "ratio" not in tm:
+        judge.not_measured(target, (tm or {}).get("error", "timing not run"))
+    else:
+        judge.add(
+            target,
+            f"ML {tm['ml_s']:.2f} s / IV {tm['iv_s']:.3f} s = {tm['ratio']:.1f}x "
+            f"(load {tm['load'][0]:.1f})",
+            tm["ratio"] <= 20.0,
+        )
+
+
+_KINDS = (
+    "ML std/CRB <= 1.3, every parameter",
+    "ML coverage 0.93-0.97 (v1..v9 pooled)",
+    "ML |bias| < 0.2 std, every parameter",
+    "ML from IV = ML from the truth on every record",
+    "ML std >= 5x below IV at the default noise (bound-capped)",
+)
+
+
+def _point_checks(plant: str, level: str, pt: dict[str, Any] | None) -> list[tuple[str, str, Any]]:
+    """(target kind, measured text, met or None) of one grid point."""
+    kinds = list(_KINDS) if level == "default" else list(_KINDS[:4])
+    if pt is None or "summary" not in pt or "parameters" not in pt["summary"].get("ML", {}):
+        return [(k, "", None) for k in kinds]
+    s = pt["summary"]
+    ml, par = s["ML"], s["ML"]["parameters"]
+    rec = f"{s['records']} rec"
+    worst = max(REPORTED, key=lambda k: par[k]["std_over_crb"])
+    out = [
+        (
+            kinds[0],
+            f"max {par[worst]['std_over_crb']:.2f} ({worst}), {rec}",
+            par[worst]["std_over_crb"] <= 1.3,
+        )
+    ]
+    # Coverage of v1..v9 pooled (900 intervals at 100 records): one parameter's
+    # coverage over 100 records has a binomial sd of 0.022, so an exact interval
+    # falls outside 0.93-0.97 for some of 18 parameters most of the time.
+    pooled = sum(par[k]["covered"] for k in V_NAMES) / (len(V_NAMES) * s["records"])
+    cov = [par[k]["coverage"] for k in REPORTED]
+    out.append(
+        (
+            kinds[1],
+            f"{pooled:.3f} (each {min(cov):.2f}-{max(cov):.2f}), {rec}",
+            0.93 <= pooled <= 0.97,
+        )
+    )
+    wb = max(REPORTED, key=lambda k: abs(par[k]["bias_over_std"]))
+    b = par[wb]
+    out.append(
+        (
+            kinds[2],
+            f"max {abs(b['bias_over_std']):.3f} ± {b['bias_se_over_std']:.3f} "
+            f"({wb}; {b['bias_kind']}), {rec}",
+            abs(b["bias_over_std"]) < 0.2,
+        )
+    )
+    out.append(
+        (
+            kinds[3],
+            f"{ml['not_same_optimum']} differ (largest gap {ml['gap_max_se']:.1e} se), {rec}",
+            ml["not_same_optimum"] == 0,
+        )
+    )
+    if level == "default":
+        out.append((kinds[4], *_gain_over_iv(s, rec)))
+    return out
+
+
+#: Where IV is already near the bound no estimator can be 5x better: the
+#: precision target per parameter is min(5, IV std / (1.3 CRB)) -- it binds on
+#: v8, v9 only, where IV's std is 4.5-5x the bound (docs/gosiewski.md, section 10).
+_IV_RATIO, _EFFICIENT = 5.0, 1.3
+
+
+def _gain_over_iv(s: dict[str, Any], rec: str) -> tuple[str, Any]:
+    iv, par = s["IV"].get("parameters"), s["ML"]["parameters"]
+    if not iv:
+        return "no IV result", None
+    gains = []
+    for k in REPORTED:
+        need = min(_IV_RATIO, iv[k]["std_over_crb"] / _EFFICIENT)
+        gains.append((iv[k]["std"] / par[k]["std"], need, k))
+    g, need, k = min(gains, key=lambda x: x[0] / x[1])
+    text = (
+        f"smallest IV/ML std {g:.1f}x ({k}; required {need:.1f}x = min(5, IV std/CRB "
+        f"{s['IV']['parameters'][k]['std_over_crb']:.1f} / 1.3)), {rec}"
+    )
+    return text, all(gg >= nn for gg, nn, _ in gains)
+
+
+try:  # run_all's section registry (benchmarks/sections.py)
+    from benchmarks.sections import Section
+except ImportError:  # pragma: no cover - run as a script without the package
+    pass
+else:
+    #: The ``make bench`` section (``run_all.PLUGINS`` names this module).
+    SECTION = Section("ml_crb", measure, markdown_section, targets)
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--runs", type=int, default=100)
-    # Default N = 1e4 only: 100 records x 4 points fit make bench's 600 s per section on
-    # 2 cores (~2.5 min); N = 1e5 (ML ~6 s a record) is run by hand with --sizes 1e4 1e5.
-    ap.add_argument("--sizes", type=float, nargs="+", default=[1e4])
     ap.add_argument("--workers", type=int, default=None)
     ap.add_argument("--seed", type=int, default=2026)
-    ap.add_argument("--points", nargs="+", default=None, help="subset of the point labels")
     ap.add_argument("--quick", action="store_true", help="20 records at N = 1e4 only")
+    ap.add_argument("--no-timing", action="store_true", help="leave out the 1e5 time ratio")
     ap.add_argument("--json", default=None, help="write the results here")
     ap.add_argument("--markdown", default=None, help="write the markdown section here")
     a = ap.parse_args(argv)
-    runs, sizes = (20, [10_000]) if a.quick else (a.runs, [int(s) for s in a.sizes])
-    res = run(runs=runs, sizes=sizes, workers=a.workers, seed=a.seed, points=a.points)
-    md = markdown_section(res)
+    res = run(
+        QUICK_PLAN if a.quick else PLAN,
+        workers=a.workers,
+        seed=a.seed,
+        timing=not (a.quick or a.no_timing),
+    )
+    md = "\n".join(markdown_section(res))
     print(md)
     if a.json:
         with open(a.json, "w") as f:

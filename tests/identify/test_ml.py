@@ -83,6 +83,36 @@ def test_frequency_domain_criterion_equals_the_time_domain_one(noisy):
     np.testing.assert_allclose(fd["gradient"][:9] / sd, td.gradient[:9] / sd, atol=0.05)
 
 
+def test_information_gram_equals_the_direct_sensitivities(noisy, monkeypatch):
+    """The (4 x 10)-column Gram of the eigenbasis (``_sensitivity_gram``) against
+    the sensitivities formed one by one through batched inverses ``(zI - F)^-1``
+    (the path for a near-defective ``F``): eq. (1), its gradient and eq. (2) agree
+    to rounding, at every frequency and at a stride."""
+    import maglevid.identify.ml as ml
+
+    v = np.array(noisy.metadata["truth_v"]) * 1.01
+    model = amb_linear_gaussian_model(
+        v,
+        noisy.dt,
+        NoiseModel((1e-7, 1e-4, 1e-4), force_std=0.01),
+        estimate_noise=True,
+        estimate_force=True,
+        m=NOMINAL.m,
+    )
+    sp = _Spectra(noisy.y, noisy.u)
+    for stride in (1, 5):
+        eig = _evaluate(model, sp, derivatives=True, stride=stride)
+        with monkeypatch.context() as mp:
+            mp.setattr(ml, "_EIG_COND", 0.0)  # never the eigenbasis
+            direct = _evaluate(model, sp, derivatives=True, stride=stride)
+        assert eig["nll"] == pytest.approx(direct["nll"], rel=1e-10)
+        d = np.sqrt(np.diag(direct["fisher"]))
+        np.testing.assert_allclose(
+            eig["fisher"] / np.outer(d, d), direct["fisher"] / np.outer(d, d), atol=1e-9
+        )
+        np.testing.assert_allclose(eig["gradient"] / d, direct["gradient"] / d, atol=1e-6)
+
+
 def test_ml_is_consistent_and_attains_the_bound(noisy):
     """CLI default noise: every v_i within 4 standard errors of the truth, the
     standard errors equal to the Cramér-Rao bound (both are the inverse Fisher
