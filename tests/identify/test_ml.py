@@ -207,3 +207,22 @@ def test_monte_carlo_coverage_efficiency_and_bias_against_the_bound():
     for j, k in enumerate(V_NAMES):
         assert sd[j] <= 1.3 * 1.22 * crb[k], (k, sd[j] / crb[k])
         assert abs(errs[:, j].mean()) < 0.52 * sd[j], k
+
+
+def test_noise_free_record_is_fitted_with_the_noise_levels_at_their_floor():
+    """A noise-free record has no finite optimum for the noise levels (the likelihood
+    grows as they shrink): they stop at 1e-6 of each channel's std (ml._SENSOR_RANGE)
+    and v is the plant's. Before, the levels ran off and the fit failed with an
+    overflow and an ill-conditioned Lyapunov equation (46 s, then "Cannot diagnose").
+    Reference: the planted R2 = 1.05 x 17.5 ohm (linear plant: exact)."""
+    from maglevid.identify import ml as ml_module
+
+    plant = AMBParameters.nominal().with_fault(R2=1.05)
+    d = simulate_amb_loop(
+        plant, nominal=AMBParameters.nominal(), noise_std=(0, 0, 0), force_std=0.0,
+        plant_model="linear", n_samples=20_000, rng=7,
+    )  # fmt: skip
+    r = fit_ml(d)
+    assert r.parameters["R2"] == pytest.approx(1.05 * 17.5, rel=1e-6)
+    floor = ml_module._SENSOR_RANGE[0] * np.std(d.y, axis=0)
+    assert np.allclose(r.extras["sensor_noise_std"], floor, rtol=1e-6)

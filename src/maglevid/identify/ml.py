@@ -75,6 +75,10 @@ __all__ = ["METHODS", "fit_ml"]
 
 logger = logging.getLogger(__name__)
 
+#: Range of an estimated sensor noise level, relative to its channel's standard
+#: deviation (:meth:`_Layout.bounds`).
+_SENSOR_RANGE = (1e-6, 10.0)
+
 #: Converged when the Fisher-scoring step would lower eq. (1) by less than this
 #: (g^T I^-1 g, the remaining step's length in standard errors, squared: 1e-6
 #: per parameter is a thousandth of a standard error).
@@ -381,12 +385,24 @@ class _Layout:
             parts.append([self.noise.force_std**2])
         return np.concatenate(parts)
 
-    def lower(self) -> np.ndarray:
-        """Lower bounds (the force variance is >= 0)."""
+    def bounds(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Lower and upper bounds: the force variance is >= 0, and each estimated
+        sensor noise level lies within ``[1e-6, 10] x`` its channel's standard
+        deviation (:data:`_SENSOR_RANGE`). Below the floor a record is noise-free to
+        the parameters' precision and the likelihood of a noise level has no
+        finite optimum (a noise-free record, or one quantised more finely than
+        its model error, would drive it to zero); above the ceiling the level
+        would exceed the signal itself."""
         lo = np.full(self.size, -np.inf)
+        hi = np.full(self.size, np.inf)
         if self.i_force is not None:
             lo[self.i_force] = 0.0
-        return lo
+        if self.est:
+            sd = np.std(np.asarray(y, dtype=float), axis=0)
+            sd = np.where(sd > 0, sd, 1.0)
+            lo[9:12] = np.log(_SENSOR_RANGE[0] * sd)
+            hi[9:12] = np.log(_SENSOR_RANGE[1] * sd)
+        return lo, hi
 
     def sensor(self, theta: np.ndarray) -> np.ndarray:
         return np.exp(theta[9:12]) if self.est else np.asarray(self.noise.sensor_std)
@@ -651,9 +667,9 @@ def _optimise(
     iterations, whether it converged and the final value of eq. (1).
     """
     sp = _Spectra(y, u)
-    theta = lay.theta(v0)
+    lower, upper = lay.bounds(y)
+    theta = np.clip(lay.theta(v0), lower, upper)
     p = theta.size
-    lower = lay.lower()
 
     stride = max(1, len(sp.z) // _FISHER_FREQUENCIES)
 
@@ -673,7 +689,7 @@ def _optimise(
     stages = [np.arange(9), np.arange(p)] if p > 9 else [np.arange(p)]
     for free in stages:
         theta, st, n_it, converged = _scoring(
-            evaluate, theta, st, free, max_iter - it, lower=lower
+            evaluate, theta, st, free, max_iter - it, lower=lower, upper=upper
         )
         it += n_it
     st = evaluate(theta, True, full=True)  # the covariance from every frequency
@@ -688,22 +704,24 @@ def _scoring(
     max_iter: int,
     *,
     lower: np.ndarray | None = None,
+    upper: np.ndarray | None = None,
 ) -> tuple[np.ndarray, dict[str, Any], int, bool]:
     """Levenberg-Marquardt-damped Fisher scoring on the ``free`` parameters.
 
-    Active set for the ``lower`` bounds: a parameter on its bound whose
-    gradient points out of the feasible set is held there for the step (it is
-    at its constrained optimum, and the convergence test leaves it out); a
+    Active set for the ``lower`` and ``upper`` bounds: a parameter on its bound
+    whose gradient points out of the feasible set is held there for the step (it
+    is at its constrained optimum, and the convergence test leaves it out); a
     step across a bound is cut at the bound.
     """
     p = theta.size
     lower = np.full(p, -np.inf) if lower is None else lower
+    upper = np.full(p, np.inf) if upper is None else upper
     lam = 1e-3
     it = 0
     while it < max_iter:
         it += 1
         g_all = st["gradient"][:p]
-        pinned = (theta <= lower) & (g_all > 0)
+        pinned = ((theta <= lower) & (g_all > 0)) | ((theta >= upper) & (g_all < 0))
         free = free_all[~pinned[free_all]]
         k = free.size
         info_red = eliminate_nuisance(st["fisher"], p)[np.ix_(free, free)]
@@ -716,28 +734,16 @@ def _scoring(
             Ms = info_red / np.outer(d, d) + lam * np.eye(k)
             trial = theta.copy()
             trial[free] -= np.linalg.solve(Ms, g / d) / d
-            trial = np.maximum(trial, lower)
+            trial = np.minimum(np.maximum(trial, lower), upper)
             # A lightly damped step is usually accepted: evaluate it with the
             # derivatives at once (one pass instead of two); a heavily damped one
             # is checked cheaply first.
             likely = lam < 1e-2
-            try:
-                # An ill-conditioned predictor (Lyapunov equation, DARE) at a trial
-                # point is a bad point: rejected like a failed one, not warned about.
-                with warnings.catch_warnings():
-                    warnings.simplefilter("error", sla.LinAlgWarning)
-                    st_t = evaluate(trial, likely)
-            except (
-                IdentificationError,
-                ValueError,
-                FloatingPointError,
-                np.linalg.LinAlgError,
-                sla.LinAlgWarning,
-            ):
-                lam *= 10.0
-                continue
-            if st_t["nll"] < st["nll"]:
-                theta, st = trial, (st_t if likely else evaluate(trial, True))
+            st_t = _trial(evaluate, trial, likely)
+            if st_t is not None and st_t["nll"] < st["nll"] and not likely:
+                st_t = _trial(evaluate, trial, True)  # its derivatives, for the next step
+            if st_t is not None and st_t["nll"] < st["nll"]:
+                theta, st = trial, st_t
                 lam = max(lam / 10.0, 1e-9)
                 break
             lam *= 10.0
@@ -746,6 +752,26 @@ def _scoring(
             # (the remaining step under a tenth of a standard error: rounding, converged)
             return theta, st, it, decrease < 1e-2 * k
     return theta, st, it, False
+
+
+def _trial(evaluate: Any, theta: np.ndarray, derivatives: bool) -> dict[str, Any] | None:
+    """Eq. (1) at a trial point, or ``None`` where the predictor cannot be computed.
+
+    An ill-conditioned predictor (Lyapunov equation, DARE) at a trial point is
+    a bad point: rejected like a failed one, not warned about.
+    """
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", sla.LinAlgWarning)
+            return evaluate(theta, derivatives)
+    except (
+        IdentificationError,
+        ValueError,
+        FloatingPointError,
+        np.linalg.LinAlgError,
+        sla.LinAlgWarning,
+    ):
+        return None
 
 
 def _result(
