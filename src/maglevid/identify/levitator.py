@@ -237,6 +237,7 @@ def _candidates(
 def _label(c: dict[str, Any]) -> str:
     if c.get("model") == "electromechanical":
         lag = " + flux lag" if c["flux_lag"] else ""
+        lag += " + command delay" if c.get("command_delay") else ""
         return f"electromechanical u -> [gap, i] (inverse-square{lag})"
     tie = "" if c["use_equilibrium"] else ", dynamics only"
     return c["force_law"] + (" + flux lag" if c["flux_lag"] else "") + tie
@@ -291,6 +292,7 @@ def fit_levitator(
     force_laws: Sequence[str] = FORCE_LAWS,
     flux_lag: Sequence[bool] = (False, True),
     equilibrium: Sequence[bool] = (True, False),
+    command_delay: Sequence[bool] = (False, True),
     y_ref: float | None = None,
     k_step: int = 5,
     m: float = 0.018,
@@ -314,6 +316,9 @@ def fit_levitator(
     equilibrium : sequence of bool
         Fit each law with and/or without the tie of the current level to the law's
         equilibrium (without: the dynamics alone, ``i0`` = the segment's mean current).
+    command_delay : sequence of bool
+        Command frame: fit each model without and/or with an estimated delay (within
+        one sample) between the logged command and the coil.
     y_ref : float, optional
         Gap at which the pole is reported (default: mean gap of the segments).
     k_step : int
@@ -370,6 +375,7 @@ def _fit_sessions(
     force_laws: Sequence[str],
     flux_lag: Sequence[bool],
     equilibrium: Sequence[bool],
+    command_delay: Sequence[bool],
     y_ref: float | None,
     k_step: int,
     m: float,
@@ -412,7 +418,16 @@ def _fit_sessions(
     rows = []
     frame = _frame(pooled, frame, current)
     cands = (
-        [{"model": "electromechanical", "command": command, "flux_lag": lag} for lag in flux_lag]
+        [
+            {
+                "model": "electromechanical",
+                "command": command,
+                "flux_lag": lag,
+                "command_delay": dl,
+            }
+            for dl in command_delay
+            for lag in flux_lag
+        ]
         if frame == "command"
         else _candidates(force_laws, flux_lag, equilibrium)
     )
