@@ -9,11 +9,14 @@ What a real levitator log needs before any fit, and how the answer is chosen:
    range. Every excluded piece keeps its reason (lift-off, below/above the range,
    command at a limit, tracking, guard, short). The pieces are then split at
    reference steps, one operating point each.
-2. **Candidates**: the grey-box force laws of :data:`~maglevid.identify.greybox.FORCE_LAWS`,
-   each without and with a flux lag. Each is fitted on one half of the segments
-   (alternate segments; halves of one segment if there is only one) and
-   validated by ``k``-step prediction of the gap on the other half, and the other
-   way round: the *held-out* ``k``-step fit (mean of the two folds) ranks them.
+2. **Candidates**: in the command frame the electromechanical grey box without and
+   with a flux lag and a command delay; in the current frame the force laws of
+   :data:`~maglevid.identify.greybox.FORCE_LAWS`, each without and with a flux lag.
+   Each is fitted on one half of the segments (at one operating point alternate
+   segments, halves of one segment if there is only one; at several gaps the first
+   and second halves of every segment, so each fold keeps the static information)
+   and validated by ``k``-step prediction of the gap on the other half, and the
+   other way round: the *held-out* ``k``-step fit (mean of the two folds) ranks them.
 3. **Consensus**: the best-validated candidate, refitted on every segment, gives
    the point; every candidate whose held-out fit is within ``SUPPORT_MARGIN``
    percentage points of the best counts as equally supported, and the interval is
