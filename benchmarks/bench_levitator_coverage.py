@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import json
-
 from dataclasses import replace
 
 import numpy as np
@@ -61,7 +60,8 @@ def main(argv: list[str] | None = None) -> dict[str, object]:
     err = np.array([r["estimate"] - r["truth"] for r in rows])
     half = np.array([(r["hi"] - r["lo"]) / 2 / r["truth"] for r in rows])
     out = {
-        "frame": a.frame, "command_delay_samples": a.command_delay, "runs": a.runs, "samples": a.samples, "coverage": float(cov),
+        "frame": a.frame, "command_delay_samples": a.command_delay, "runs": a.runs,
+        "samples": a.samples, "coverage": float(cov),
         "coverage_mc_se": float(np.sqrt(cov * (1 - cov) / a.runs)),
         "mean_error_rad_s": float(err.mean()), "rms_error_rad_s": float(np.sqrt(np.mean(err**2))),
         "median_half_width_percent": float(100 * np.median(half)),
