@@ -18,16 +18,26 @@ from __future__ import annotations
 
 import argparse
 import json
+from dataclasses import replace
 
 import numpy as np
 
+from maglevid.data import ClosedLoopData
 from maglevid.experiments.rigs import simulate_pd_dither_levitator
 from maglevid.identify.levitator import fit_levitator
 
 
-def run_one(seed: int, run: int, n: int, frame: str) -> dict[str, float]:
+def _delayed(log: ClosedLoopData, n: int) -> ClosedLoopData:
+    """The log with the command written ``n`` samples early: the plant sees it ``n dt``
+    late (the UAQ rig shows such a delay, docs/real-rigs.md)."""
+    if n == 0:
+        return log
+    return replace(log, y=log.y[:-n], u=log.u[n:])
+
+
+def run_one(seed: int, run: int, n: int, frame: str, delay: int = 0) -> dict[str, float]:
     rng = np.random.default_rng(np.random.SeedSequence([seed, run]))
-    log = simulate_pd_dither_levitator(n, rng=rng)
+    log = _delayed(simulate_pd_dither_levitator(n + delay, rng=rng), delay)
     truth = float(log.metadata["truth_pole_rad_s"])
     kw = {} if frame == "command" else {"flux_lag": (False,)}
     c = fit_levitator(log, frame=frame, **kw).extras["consensus"]
@@ -42,14 +52,16 @@ def main(argv: list[str] | None = None) -> dict[str, object]:
     ap.add_argument("--samples", type=int, default=3000)
     ap.add_argument("--seed", type=int, default=14)
     ap.add_argument("--frame", choices=("command", "current"), default="command")
+    ap.add_argument("--command-delay", type=int, default=0, help="samples")
     ap.add_argument("--json", default=None)
     a = ap.parse_args(argv)
-    rows = [run_one(a.seed, k, a.samples, a.frame) for k in range(a.runs)]
+    rows = [run_one(a.seed, k, a.samples, a.frame, a.command_delay) for k in range(a.runs)]
     cov = np.mean([r["covered"] for r in rows])
     err = np.array([r["estimate"] - r["truth"] for r in rows])
     half = np.array([(r["hi"] - r["lo"]) / 2 / r["truth"] for r in rows])
     out = {
-        "frame": a.frame, "runs": a.runs, "samples": a.samples, "coverage": float(cov),
+        "frame": a.frame, "command_delay_samples": a.command_delay, "runs": a.runs,
+        "samples": a.samples, "coverage": float(cov),
         "coverage_mc_se": float(np.sqrt(cov * (1 - cov) / a.runs)),
         "mean_error_rad_s": float(err.mean()), "rms_error_rad_s": float(np.sqrt(np.mean(err**2))),
         "median_half_width_percent": float(100 * np.median(half)),

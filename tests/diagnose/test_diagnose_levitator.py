@@ -13,8 +13,10 @@ import numpy as np
 import pytest
 
 from maglevid.cli.main import main
+from maglevid.diagnose.levitator import LAW_INDEPENDENT
 from maglevid.diagnose.pipeline import diagnose
 from maglevid.experiments.rigs import PUBLISHED, simulate_pd_dither_levitator
+from maglevid.identify.greybox import fit_equilibrium_line
 from maglevid.physics.levitator import unstable_pole
 
 UAQ = "maglev-uaq-levitador"
@@ -24,20 +26,37 @@ def _session(shared_data, name):
     return next((shared_data / UAQ).glob(f"dataset_{name}_*.txt"))
 
 
-def test_multistep_session_pole_agrees_with_the_published_physics(shared_data):
+def test_multistep_session_pole_agrees_with_its_own_equilibrium_line(shared_data):
     d = diagnose(_session(shared_data, "multiescalon"), mapping="uaq-levitador")
     assert d.method == "levitator" and "plant kind levitator" in d.method_reason
-    lo, hi = d.identification.extras["consensus"]["ci95"]
-    y_ref = d.identification.options["y_ref"]
-    physics = unstable_pole(PUBLISHED, y_ref)  # 44.2 rad/s at 4.85 mm
-    # Three reference steps excite the loop: the command-frame grey box must agree with
-    # the published physics within 5 % (the spread of the equilibrium currents between
-    # sessions, 0.42-0.47 A, is +-5 %), and its interval must not exceed +-15 %.
-    assert abs(d.identification.parameters["pole_rad_s"] - physics) < 0.05 * physics
-    assert hi - lo < 0.3 * physics
+    res = d.identification
+    lo, hi = res.extras["consensus"]["ci95"]
+    y_ref = res.options["y_ref"]
+    # Independent reference from the same record: the equilibrium currents at the four
+    # plateaus (static data only, eq. (Q1)) give the pole at y_ref with its standard
+    # error (docs/real-rigs.md: 51.9 +- 1.4 rad/s at 5 mm, a = 2.3 mm, against the
+    # published a = 5.2 mm). The grey box (statics + dynamics, the better of two starts)
+    # must agree with it within 3 of its standard errors, and its interval must not
+    # exceed +-15 % (issue 14).
+    line = fit_equilibrium_line(
+        res.extras["segment_gaps"], res.extras["segment_mean_currents"], y_ref=y_ref
+    )
+    p = res.parameters["pole_rad_s"]
+    assert abs(p - line["pole_rad_s"]) < 3 * line["pole_rad_s_se"]
+    assert hi - lo < 0.3 * p
     pole = next(c for c in d.changes if c.name == "pole_rad_s")
-    assert pole.baseline == pytest.approx(physics, rel=1e-9)
+    assert pole.baseline == pytest.approx(unstable_pole(PUBLISHED, y_ref), rel=1e-9)
     assert "published physics" in d.baseline["source"]
+
+
+def test_healthy_session_is_compared_on_law_independent_quantities_only(shared_data):
+    # Before: "Changed: k +18.6 %" on escalon with its pole within 1 % - k (and a) belong
+    # to a force-law parameterisation (a absorbs a gap-sensor offset, k trades with a at
+    # one gap) and must not decide the verdict.
+    d = diagnose(_session(shared_data, "escalon"), mapping="uaq-levitador")
+    names = {c.name for c in d.changes}
+    assert "pole_rad_s" in names and names <= set(LAW_INDEPENDENT)
+    assert not any(n in d.verdict for n in (" k ", " a ", "k +", "a +", "a -", "k -"))
 
 
 def test_a_dither_only_rig_log_is_diagnosed_without_a_baseline():

@@ -51,8 +51,30 @@ def test_sessions_one_by_one_and_together(shared_data, capsys):
     for s in res["sessions"]:
         slo, shi = s["consensus"]["ci95"]
         assert 0 < slo <= s["parameters"]["pole_rad_s"] <= shi
-    multi = next(s for s in res["sessions"] if "multiescalon" in s["recording"])
-    physics = unstable_pole(PUBLISHED, multi["options"]["y_ref"])
-    mlo, mhi = multi["consensus"]["ci95"]
-    # three reference steps: the interval holds the published physics within 1 %
-    assert mlo - 0.01 * physics < physics < mhi + 0.01 * physics
+    _meets_the_interval_condition(res["sessions"])
+
+
+def _meets_the_interval_condition(sessions):
+    """Issue 14's condition: each 95 % interval holds the published physics at its gap or
+    overlaps every other session's interval, and none is wider than +-15 %."""
+    ivs = [s["consensus"]["ci95"] for s in sessions]
+    for s, (lo, hi) in zip(sessions, ivs):
+        physics = unstable_pole(PUBLISHED, s["options"]["y_ref"])
+        p = s["parameters"]["pole_rad_s"]
+        assert hi - p <= 0.15 * p and p - lo <= 0.15 * p, s["recording"]
+        holds = lo <= physics <= hi
+        overlaps = all(lo <= h and l <= hi for l, h in ivs)
+        assert holds or overlaps, (s["recording"], lo, hi, ivs)
+
+
+@pytest.mark.slow
+def test_every_uaq_session_meets_the_interval_condition(shared_data, capsys):
+    # the five sessions one by one, as `identify SESSION --mapping uaq-levitador` (the
+    # table in docs/real-rigs.md); several minutes on one core
+    sessions = []
+    for path in sorted((shared_data / UAQ).glob("dataset_*_*.txt")):
+        res = _identify(capsys, path, "--mapping", "uaq-levitador")
+        assert res["method"] == "levitator"
+        sessions.append({**res, "recording": str(path)})
+    assert len(sessions) == 5
+    _meets_the_interval_condition(sessions)

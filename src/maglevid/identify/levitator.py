@@ -9,11 +9,14 @@ What a real levitator log needs before any fit, and how the answer is chosen:
    range. Every excluded piece keeps its reason (lift-off, below/above the range,
    command at a limit, tracking, guard, short). The pieces are then split at
    reference steps, one operating point each.
-2. **Candidates**: the grey-box force laws of :data:`~maglevid.identify.greybox.FORCE_LAWS`,
-   each without and with a flux lag. Each is fitted on one half of the segments
-   (alternate segments; halves of one segment if there is only one) and
-   validated by ``k``-step prediction of the gap on the other half, and the other
-   way round: the *held-out* ``k``-step fit (mean of the two folds) ranks them.
+2. **Candidates**: in the command frame the electromechanical grey box without and
+   with a flux lag and a command delay; in the current frame the force laws of
+   :data:`~maglevid.identify.greybox.FORCE_LAWS`, each without and with a flux lag.
+   Each is fitted on one half of the segments (at one operating point alternate
+   segments, halves of one segment if there is only one; at several gaps the first
+   and second halves of every segment, so each fold keeps the static information)
+   and validated by ``k``-step prediction of the gap on the other half, and the
+   other way round: the *held-out* ``k``-step fit (mean of the two folds) ranks them.
 3. **Consensus**: the best-validated candidate, refitted on every segment, gives
    the point; every candidate whose held-out fit is within ``SUPPORT_MARGIN``
    percentage points of the best counts as equally supported, and the interval is
@@ -181,12 +184,22 @@ def find_levitator_segments(
     return rep, segs, how
 
 
-def _folds(segs: list[tuple[int, int]]) -> tuple[list, list]:
-    if len(segs) >= 2:
+#: Segments whose mean gaps differ by more than this [m] are different operating points.
+OPERATING_POINT_SPREAD = 3e-4
+
+
+def _folds(segs: list[tuple[int, int]], y: np.ndarray) -> tuple[list, list]:
+    """Two folds of the segments. At one operating point: alternate segments (halves of
+    one segment if there is only one). At several gaps: the first and the second half
+    of every segment, so that each fold holds every operating point - the static force
+    balance across gaps fixes ``a`` in the full fit, and a fold at one gap alone would
+    estimate the pole from the dynamics only (on UAQ 'escalon' 62 and 47 rad/s for the
+    two gaps against 53 from both)."""
+    gaps = [float(np.mean(y[a:b])) for a, b in segs]
+    if len(segs) >= 2 and np.ptp(gaps) <= OPERATING_POINT_SPREAD:
         return segs[0::2], segs[1::2]
-    a, b = segs[0]
-    mid = (a + b) // 2
-    return [(a, mid)], [(mid, b)]
+    halves = [((a, (a + b) // 2), ((a + b) // 2, b)) for a, b in segs]
+    return [h[0] for h in halves], [h[1] for h in halves]
 
 
 #: Why each frame (:func:`fit_levitator`'s ``frame``).
@@ -238,6 +251,7 @@ def _candidates(
 def _label(c: dict[str, Any]) -> str:
     if c.get("model") == "electromechanical":
         lag = " + flux lag" if c["flux_lag"] else ""
+        lag += " + command delay" if c.get("command_delay") else ""
         return f"electromechanical u -> [gap, i] (inverse-square{lag})"
     tie = "" if c["use_equilibrium"] else ", dynamics only"
     return c["force_law"] + (" + flux lag" if c["flux_lag"] else "") + tie
@@ -292,6 +306,7 @@ def fit_levitator(
     force_laws: Sequence[str] = FORCE_LAWS,
     flux_lag: Sequence[bool] = (False, True),
     equilibrium: Sequence[bool] = (True, False),
+    command_delay: Sequence[bool] = (False, True),
     y_ref: float | None = None,
     k_step: int = 5,
     m: float = 0.018,
@@ -315,6 +330,9 @@ def fit_levitator(
     equilibrium : sequence of bool
         Fit each law with and/or without the tie of the current level to the law's
         equilibrium (without: the dynamics alone, ``i0`` = the segment's mean current).
+    command_delay : sequence of bool
+        Command frame: fit each model without and/or with an estimated delay (within
+        one sample) between the logged command and the coil.
     y_ref : float, optional
         Gap at which the pole is reported (default: mean gap of the segments).
     k_step : int
@@ -371,6 +389,7 @@ def _fit_sessions(
     force_laws: Sequence[str],
     flux_lag: Sequence[bool],
     equilibrium: Sequence[bool],
+    command_delay: Sequence[bool],
     y_ref: float | None,
     k_step: int,
     m: float,
@@ -402,7 +421,7 @@ def _fit_sessions(
     if len(sessions) > 1:
         folds = [(d, s) for d, s in zip(sessions, seg_lists) if s]
     else:
-        folds = [(pooled, f) for f in _folds(pooled_segs)]
+        folds = [(pooled, f) for f in _folds(pooled_segs, pooled.y_control[:, 0])]
     y = pooled.y_control[:, 0]
     y_ref = (
         float(np.mean(np.concatenate([y[a:b] for a, b in pooled_segs])))
@@ -413,7 +432,16 @@ def _fit_sessions(
     rows = []
     frame = _frame(pooled, frame, current)
     cands = (
-        [{"model": "electromechanical", "command": command, "flux_lag": lag} for lag in flux_lag]
+        [
+            {
+                "model": "electromechanical",
+                "command": command,
+                "flux_lag": lag,
+                "command_delay": dl,
+            }
+            for dl in command_delay
+            for lag in flux_lag
+        ]
         if frame == "command"
         else _candidates(force_laws, flux_lag, equilibrium)
     )
@@ -604,6 +632,8 @@ OPTIONS = {
         Option("force_laws", "strs", "candidate force laws", choices=FORCE_LAWS),
         Option("flux_lag", "bools", "fit each law without and/or with a flux lag"),
         Option("equilibrium", "bools", "with and/or without the equilibrium-current tie"),
+        Option("command_delay", "bools", "command-input candidates without and/or with an "
+               "estimated command-to-coil delay"),
         Option("y_ref", "float", "gap at which the pole is reported (default: mean gap)",
                unit="m"),
         Option("k_step", "int", "horizon of the validation, samples ahead", low=1),
