@@ -76,6 +76,14 @@ NOISE_STD = (5e-9, 1e-5, 1e-5)
 #: Record length [s] at the default 10 kHz.
 RECORD_S = 5.0
 
+#: Time the whole matrix may take in ``make bench`` [s]: with ``ml`` as the
+#: diagnosis default (issue 13) each of the 170 diagnoses costs ~2-5 s of
+#: maximum likelihood on a 5 s record, more than run_all's 600 s per task.
+TIMEOUT_S = 2400
+
+#: Workers in ``make bench`` (the matrix's recordings are independent).
+DEFAULT_WORKERS = 2
+
 NOMINAL = AMBParameters.nominal()
 
 
@@ -299,7 +307,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", type=int, default=None)
     ap.add_argument("--healthy", type=int, default=None)
     ap.add_argument("--record-s", type=float, default=RECORD_S)
-    ap.add_argument("--workers", type=int, default=1)
+    ap.add_argument("--workers", type=int, default=DEFAULT_WORKERS)
     ap.add_argument(
         "--noise", type=float, nargs=3, default=NOISE_STD, metavar=("X", "I1", "I2"),
         help="sensor noise std [m A A] (default %(default)s)",

@@ -94,8 +94,13 @@ def run_main(module: str, quick: bool = False) -> dict[str, Any]:
 def _main_section(module: str) -> Section:
     name = module.rsplit(".", 1)[-1].removeprefix("bench_")
 
+    # A module may state the time its whole run needs (``TIMEOUT_S``), when that is
+    # more than run_all's per-task limit.
+    timeout = getattr(importlib.import_module(module), "TIMEOUT_S", None)
+
     def measure(run: Any, plan: dict[str, Any], args: Any) -> dict[str, Any]:
-        return run.call("benchmarks.sections:run_main", module=module, quick=plan["quick"])
+        limit = None if timeout is None else max(timeout, args.timeout)
+        return run.call("benchmarks.sections:run_main", limit, module=module, quick=plan["quick"])
 
     def report(res: dict[str, Any]) -> list[str]:
         head = f"## `{module}` (its own output, `main({res.get('argv', [])})`)"
