@@ -153,3 +153,17 @@ def test_declared_options_are_in_the_docstring():
     doc = inspect.getdoc(fit_pem)
     assert "\nOptions\n-------\noutput : channel, default 'y:0'\n" in doc
     assert "\nna : int, default 2\n    order of A (of F for oe); an integer >= 1.\n" in doc
+
+
+def test_list_options_take_comma_separated_values_on_the_command_line():
+    # `--option command_delay=false` for a list of booleans was refused ("must be a
+    # list of true/false"): only JSON `[false]` parsed. Comma lists parse like the
+    # channel lists do.
+    from maglevid.identify.options import Option
+
+    assert Option("x", "bools", "d").parse("false") == [False]
+    assert Option("x", "bools", "d").parse("false,true") == [False, True]
+    assert Option("x", "bools", "d").parse("[true]") == [True]
+    assert Option("x", "floats", "d").parse("0.1, 2") == [0.1, 2.0]
+    with pytest.raises(ValueError):
+        Option("x", "bools", "d").parse("maybe")

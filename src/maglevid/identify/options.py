@@ -197,6 +197,10 @@ class Option:
             raise ValueError
         if kind in ("str", "channel"):
             return text
+        if kind in ("bools", "floats"):  # false,true or 0.1,0.2 (or JSON)
+            item = Option(self.name, _LISTS[kind], self.doc)
+            parts = text.strip().strip("[]").split(",")
+            return [item.parse(t) for t in parts if t.strip()]
         try:
             return json.loads(text)
         except json.JSONDecodeError:
