@@ -26,6 +26,7 @@ def _session(shared_data, name):
     return next((shared_data / UAQ).glob(f"dataset_{name}_*.txt"))
 
 
+@pytest.mark.slow  # ~45 s: the levitator consensus on a real session
 def test_multistep_session_pole_agrees_with_its_own_equilibrium_line(shared_data):
     d = diagnose(_session(shared_data, "multiescalon"), mapping="uaq-levitador")
     assert d.method == "levitator" and "plant kind levitator" in d.method_reason
@@ -78,6 +79,7 @@ def test_too_little_levitation_cannot_be_diagnosed():
     assert "too little usable levitation" in d.verdict
 
 
+@pytest.mark.slow  # ~90 s: the levitator consensus on a real session, identify then diagnose
 def test_identify_and_diagnose_from_the_command_line(shared_data, capsys):
     path = str(_session(shared_data, "multiescalon"))
     assert main(["--json", "identify", path, "--mapping", "uaq-levitador"]) == 0
