@@ -170,6 +170,7 @@ def _noise_model(args: argparse.Namespace, noise_model: Any) -> Any:
 def _plan_recording(args: argparse.Namespace, noise: Any, options: dict, plan_fn: Any) -> Any:
     from maglevid.identify.cramer_rao import NoiseModel
     from maglevid.identify.ml import fit_ml
+    from maglevid.identify.planning import noise_of_result
     from maglevid.io import read_recording
 
     data = read_recording(args.recording, mapping=args.mapping)
@@ -180,9 +181,7 @@ def _plan_recording(args: argparse.Namespace, noise: Any, options: dict, plan_fn
         if args.from_fit or not has_truth:
             v = [fit.parameters[f"v{i}"] for i in range(1, 10)]
         if noise is None and NoiseModel.from_data(data) is None:
-            noise = NoiseModel(
-                tuple(fit.extras["sensor_noise_std"]), force_std=fit.extras["force_std"]
-            )
+            noise = noise_of_result(fit)  # the ml fit's sensor noise and force
     if args.excitation_std is not None or args.seconds is not None:
         from maglevid.exceptions import DataError
 
