@@ -55,8 +55,8 @@ edge of its validity.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -68,11 +68,13 @@ from maglevid.identify.cramer_rao import (
     NoiseModel,
     amb_linear_gaussian_model,
     bound_from_fisher,
+    derived_parameters,
     eliminate_nuisance,
     evaluation_point,
     plant_from_v,
     predictor_statistics,
 )
+from maglevid.identify.result import propagate_covariance
 from maglevid.identify.uncertainty import operating_point
 from maglevid.physics.amb import AMBParameters
 
@@ -81,16 +83,21 @@ __all__ = [
     "DEFAULT_MAX_DISPLACEMENT",
     "DEFAULT_MAX_EXCITATION_STD",
     "DEFAULT_SPECTRA",
+    "DEFAULT_SPLITS",
     "DesignInformation",
     "ExperimentPlan",
     "PlanRow",
+    "SpectrumPart",
+    "describe_excitation",
     "design_for_recording",
     "design_information",
     "excitation_signal",
+    "input_levels",
     "noise_of_result",
     "plan_experiment",
     "plan_for_recording",
     "plan_from_result",
+    "smallest_satisfying",
     "spectrum_label",
     "v_of_result",
 ]
@@ -160,48 +167,114 @@ def excitation_signal(spectrum: str, n_samples: int, dt: float, rng: Any) -> np.
     return r / np.std(r, axis=0)
 
 
+#: Candidate splits of the excitation between the two inputs: the share of its
+#: power on input 1 (0.5 = the same level on both, 1 = coil 1's amplifier alone).
+DEFAULT_SPLITS = (0.0, 0.25, 0.5, 0.75, 1.0)
+
+
+def input_levels(excitation_std: float, share: float = 0.5) -> tuple[float, float]:
+    """The rms levels ``(a1, a2)`` [V] of a level and split (module notes).
+
+    ``excitation_std`` is the power mean ``sqrt((a1^2 + a2^2) / 2)``: ``share``
+    0.5 puts it on both inputs, 1 puts ``sqrt(2) x excitation_std`` on input 1
+    alone (the same total power).
+    """
+    if not 0.0 <= share <= 1.0:
+        raise DataError(f"`share` must be in [0, 1]; got {share!r}")
+    return excitation_std * math.sqrt(2 * share), excitation_std * math.sqrt(2 * (1 - share))
+
+
+def describe_excitation(excitation_std: float, share: float = 0.5) -> str:
+    """Words for a level and split: "excite coil 1 only at 1.6 V rms", ..."""
+    a1, a2 = input_levels(excitation_std, share)
+    if share == 0.5:
+        return f"{a1:.3g} V rms on each input"
+    if a2 == 0 or a1 == 0:
+        return f"excite coil {1 if a2 == 0 else 2} only at {max(a1, a2):.3g} V rms"
+    return f"coil 1 at {a1:.3g} V rms and coil 2 at {a2:.3g} V rms"
+
+
+def smallest_satisfying(
+    ok: Callable[[float], bool], lo: float, hi: float, *, xtol: float
+) -> float | None:
+    """Smallest ``x`` in ``[lo, hi]`` where a monotone condition holds (bisection).
+
+    ``ok`` is false below some ``x*`` and true above it (a variance that falls
+    with the record length or the excitation). Returns ``lo`` when ``ok(lo)``,
+    ``None`` when not ``ok(hi)``, else ``x*`` to within ``xtol`` (from above).
+    """
+    if not ok(hi):
+        return None
+    if ok(lo):
+        return lo
+    while hi - lo > xtol:
+        mid = 0.5 * (lo + hi)
+        lo, hi = (lo, mid) if ok(mid) else (mid, hi)
+    return hi
+
+
+@dataclass(frozen=True)
+class SpectrumPart:
+    """Per-sample information and loop excursions of one excitation spectrum, per input.
+
+    Independent excitations on the two inputs add their information (the
+    cross terms of eq. (2) average to zero), so input ``k`` alone at unit rms
+    gives ``info[k]`` and any split is ``a1^2 info[0] + a2^2 info[1]``.
+    """
+
+    info: np.ndarray  # (2, p, p): input k alone at unit rms (no S term)
+    x_rms: np.ndarray  # (2,): rms displacement per unit rms on input k [m]
+    i_rms: np.ndarray  # (2, 2): rms current of coil c per unit rms on input k [A]
+
+
 @dataclass(frozen=True)
 class DesignInformation:
     """Per-sample information of a loop, split into excitation and noise parts.
 
-    ``info_r`` and ``x_rms_r`` are those of the present excitation spectrum
-    (``spectrum``); ``spectra`` holds the same pair for every candidate
-    spectrum the plan may propose instead (module notes).
+    ``parts`` holds a :class:`SpectrumPart` for the present excitation spectrum
+    (``spectrum``) and every candidate the plan may propose instead (module
+    notes). Every method takes the level ``excitation_std`` [V rms, power
+    mean over the two inputs] and its ``share`` on input 1
+    (:func:`input_levels`; 0.5 = both alike, the present excitation).
     """
 
     v: np.ndarray
     dt: float
     noise: NoiseModel
-    reference_std: float
-    info_r: np.ndarray  # per sample, excitation part at reference_std (no S term)
     info_e: np.ndarray  # per sample, noise part (with the S term of eq. (2))
-    x_rms_r: float  # rms displacement per reference excitation [m]
     x_rms_e: float  # rms displacement from the noise-driven loop [m]
+    i_rms_e: np.ndarray  # (2,) rms coil currents from the noise-driven loop [A]
     m: float | None
     i0: float | None
     gap: float
-    spectrum: str = "white"
-    spectra: Mapping[str, tuple[np.ndarray, float, float]] = field(default_factory=dict)
-    i_rms_r: float = 0.0  # rms coil current (larger coil) per reference excitation [A]
-    i_rms_e: float = 0.0  # the same from the noise-driven loop [A]
+    spectrum: str
+    parts: Mapping[str, SpectrumPart]
 
-    def _part(self, spectrum: str | None) -> tuple[np.ndarray, float, float]:
-        if spectrum is None or spectrum == self.spectrum:
-            return self.info_r, self.x_rms_r, self.i_rms_r
+    @property
+    def spectra(self) -> tuple[str, ...]:
+        """The candidate spectra other than the present one."""
+        return tuple(sp for sp in self.parts if sp != self.spectrum)
+
+    def _part(self, spectrum: str | None) -> SpectrumPart:
         try:
-            return self.spectra[spectrum]
+            return self.parts[self.spectrum if spectrum is None else spectrum]
         except KeyError:
             raise DataError(
-                f"spectrum {spectrum!r} was not computed; known: {[self.spectrum, *self.spectra]}"
+                f"spectrum {spectrum!r} was not computed; known: {list(self.parts)}"
             ) from None
 
     def bound(
-        self, *, n_samples: int, excitation_std: float, spectrum: str | None = None
+        self,
+        *,
+        n_samples: int,
+        excitation_std: float,
+        spectrum: str | None = None,
+        share: float = 0.5,
     ) -> CramerRaoBound:
-        """The bound for ``n_samples`` at ``excitation_std`` [V rms per input]."""
+        """The bound for ``n_samples`` at ``excitation_std`` [V rms] split by ``share``."""
         return bound_from_fisher(
             self.v_information(
-                n_samples=n_samples, excitation_std=excitation_std, spectrum=spectrum
+                n_samples=n_samples, excitation_std=excitation_std, spectrum=spectrum, share=share
             ),
             self.v,
             n_samples=n_samples,
@@ -211,42 +284,61 @@ class DesignInformation:
         )
 
     def v_information(
-        self, *, n_samples: int, excitation_std: float, spectrum: str | None = None
+        self,
+        *,
+        n_samples: float,
+        excitation_std: float,
+        spectrum: str | None = None,
+        share: float = 0.5,
     ) -> np.ndarray:
         """Fisher information of v1..v9 (nuisance parameters eliminated), 9 x 9."""
-        info_r, _, _ = self._part(spectrum)
-        a = excitation_std / self.reference_std
-        return eliminate_nuisance(n_samples * (a * a * info_r + self.info_e), 9)
+        p = self._part(spectrum)
+        a1, a2 = input_levels(excitation_std, share)
+        info = a1 * a1 * p.info[0] + a2 * a2 * p.info[1] + self.info_e
+        return eliminate_nuisance(n_samples * info, 9)
 
-    def displacement_rms(self, excitation_std: float, spectrum: str | None = None) -> float:
-        _, x_rms_r, _ = self._part(spectrum)
-        a = excitation_std / self.reference_std
-        return math.sqrt((a * x_rms_r) ** 2 + self.x_rms_e**2)
+    def displacement_rms(
+        self, excitation_std: float, spectrum: str | None = None, share: float = 0.5
+    ) -> float:
+        a = np.array(input_levels(excitation_std, share))
+        x = self._part(spectrum).x_rms
+        return math.sqrt(float(np.sum((a * x) ** 2)) + self.x_rms_e**2)
 
-    def excursion(self, excitation_std: float, spectrum: str | None = None) -> float:
-        """Largest relative excursion ``max(std x / x0, std i / i0)`` of the loop.
+    def excursion(
+        self, excitation_std: float, spectrum: str | None = None, share: float = 0.5
+    ) -> float:
+        """Largest relative excursion ``max(std x / x0, std i_c / i0)`` of the loop.
 
         What sets the linearisation's model error (the diagnosis's
         :func:`~maglevid.diagnose.pipeline.estimate_model_error`).
         """
-        _, _, i_rms_r = self._part(spectrum)
-        a = excitation_std / self.reference_std
-        x = self.displacement_rms(excitation_std, spectrum) / self.gap
-        i = math.sqrt((a * i_rms_r) ** 2 + self.i_rms_e**2) / self.i0 if self.i0 else 0.0
-        return max(x, i)
+        a = np.array(input_levels(excitation_std, share))
+        x = self.displacement_rms(excitation_std, spectrum, share) / self.gap
+        if not self.i0:
+            return x
+        i = np.sqrt((a**2) @ self._part(spectrum).i_rms ** 2 + self.i_rms_e**2) / self.i0
+        return max(x, float(np.max(i)))
 
     def max_excitation(
-        self, max_excitation_std: float, max_displacement: float, spectrum: str | None = None
+        self,
+        max_excitation_std: float,
+        max_displacement: float,
+        spectrum: str | None = None,
+        share: float = 0.5,
     ) -> float:
-        """The largest excitation [V rms] within the amplifier and displacement limits."""
-        _, x_rms_r, _ = self._part(spectrum)
+        """The largest level [V rms] within the amplifier and displacement limits.
+
+        The amplifier limit is per input (the larger of ``a1, a2`` at most
+        ``max_excitation_std``); the displacement limit is shared: the two
+        inputs' contributions to the rms displacement add in power.
+        """
+        a1, a2 = input_levels(1.0, share)
+        a_amp = max_excitation_std / max(a1, a2)
+        x = self._part(spectrum).x_rms
+        per_level = math.hypot(a1 * x[0], a2 * x[1])  # rms displacement per V rms
         x_lim = max_displacement * self.gap
-        a_disp = (
-            self.reference_std * math.sqrt(max(x_lim**2 - self.x_rms_e**2, 0.0)) / x_rms_r
-            if x_rms_r > 0
-            else math.inf
-        )
-        return min(max_excitation_std, a_disp)
+        head = math.sqrt(max(x_lim**2 - self.x_rms_e**2, 0.0))
+        return min(a_amp, head / per_level if per_level > 0 else math.inf)
 
 
 def _loop_record(
@@ -349,57 +441,66 @@ def design_information(
         v, dt, noise, m=plant.m, estimate_noise=True, estimate_force=noise.force_std > 0
     )
 
-    def per_sample(r: np.ndarray, with_noise: bool) -> tuple[np.ndarray, float, float]:
+    def per_sample(r: np.ndarray, with_noise: bool) -> tuple[np.ndarray, float, np.ndarray]:
         y, u = _loop_record(plant, nominal, dt, r=r, noise=noise if with_noise else None, rng=rng)
         st = predictor_statistics(model, y, u, nuisance=False)
         sd = np.std(y, axis=0)
-        return st.fisher / r.shape[0], float(sd[0]), float(max(sd[1], sd[2]))
+        return st.fisher / r.shape[0], float(sd[0]), sd[1:3]
 
     zero = predictor_statistics(model, np.zeros((2, 3)), np.zeros((2, 2)), nuisance=False)
     s_term = zero.fisher / 2  # the S term of eq. (2) per sample (the data part is 0)
+
+    def part(r: np.ndarray) -> SpectrumPart:
+        # Each input alone (unit rms), the other silent: the information of a
+        # split is the sum (SpectrumPart notes).
+        runs = [per_sample(r * (np.arange(2) == k), False) for k in range(2)]
+        return SpectrumPart(
+            info=np.stack([info - s_term for info, _, _ in runs]),
+            x_rms=np.array([x for _, x, _ in runs]),
+            i_rms=np.stack([i for _, _, i in runs]),
+        )
+
     info_e, x_rms_e, i_rms_e = per_sample(np.zeros((n, 2)), True)
-    parts: dict[str, tuple[np.ndarray, float, float]] = {}
-    for name in spectra:
-        if name.startswith("lowpass:") and float(name.split(":", 1)[1]) >= 0.4 / dt:
-            continue  # corners at or above 0.8 x Nyquist
-        info, x_rms, i_rms = per_sample(excitation_signal(name, n, dt, rng + 1), False)
-        parts[name] = (info - s_term, x_rms, i_rms)
+    parts: dict[str, SpectrumPart] = {}
     if excitation is None:
         present = "white"
-        if present not in parts:
-            info, x_rms, i_rms = per_sample(excitation_signal(present, n, dt, rng + 1), False)
-            parts[present] = (info - s_term, x_rms, i_rms)
-        info_r, x_rms_r, i_rms_r = parts.pop(present)
     else:
         present = "recorded"
         r = np.asarray(excitation, float)
         if r.ndim != 2 or r.shape[1] != 2 or not np.all(np.std(r, axis=0) > 0):
             raise DataError("`excitation` must be (n, 2) with both inputs excited")
         r = r[:n]
-        info, x_rms_r, i_rms_r = per_sample((r - r.mean(axis=0)) / np.std(r, axis=0), False)
-        info_r = info - s_term
+        parts[present] = part((r - r.mean(axis=0)) / np.std(r, axis=0))
+    for name in dict.fromkeys([present, *spectra]):
+        if name == "recorded" or (
+            name.startswith("lowpass:") and float(name.split(":", 1)[1]) >= 0.4 / dt
+        ):
+            continue  # corners at or above 0.8 x Nyquist
+        parts[name] = part(excitation_signal(name, n, dt, rng + 1))
     return DesignInformation(
         v=v,
         dt=dt,
         noise=noise,
-        reference_std=1.0,
-        info_r=info_r,
         info_e=info_e,
-        x_rms_r=x_rms_r,
         x_rms_e=x_rms_e,
-        i_rms_r=i_rms_r,
         i_rms_e=i_rms_e,
         m=plant.m,
         i0=plant.i0,
         gap=plant.x0,
         spectrum=present,
-        spectra=parts,
+        parts=parts,
     )
 
 
 @dataclass(frozen=True)
 class PlanRow:
-    """What it takes to resolve one parameter."""
+    """What it takes to resolve one parameter.
+
+    ``std_now`` is the standard deviation of the *difference* a diagnosis
+    judges: the record's own bound and the baseline's (``baseline_std``)
+    together. ``seconds_*`` are ``inf`` where no record of the present state
+    reaches the target (the baseline alone is too uncertain).
+    """
 
     name: str
     value: float
@@ -408,19 +509,40 @@ class PlanRow:
     seconds_now: float  # needed at the present excitation
     seconds_at_max: float  # needed at the largest allowed excitation
     excitation_for_length: float | None  # V rms at the present length (None: not reachable)
-    best_spectrum: str = "white"  # the candidate spectrum that needs the shortest record
+    best_spectrum: str = "white"  # the candidate spectrum and split with the shortest record
     seconds_best: float = math.inf  # needed with it, at its largest allowed excitation
-    excitation_best: float = 0.0  # that excitation [V rms per input]
+    excitation_best: float = 0.0  # that excitation [V rms, power mean over the inputs]
+    best_share: float = 0.5  # its share of the excitation power on input 1
+    baseline_std: float = 0.0  # the baseline's own std [parameter units]
+    seconds_rerecord: float = math.inf  # baseline and this state re-recorded: each [s]
 
     @property
     def resolved(self) -> bool:
         return self.std_now <= self.target_std
+
+    @property
+    def baseline_limited(self) -> bool:
+        """The baseline alone is uncertain beyond the target: no new record helps."""
+        return self.baseline_std >= self.target_std
+
+    def _percent(self, std: float) -> float:
+        return 100 * _Z95 * std / abs(self.value) if self.value else math.inf
 
     def sentence(self, *, excitation_std: float, max_excitation_std: float) -> str:
         """One line for a report: "R1 needs 9 s at this excitation, or 3 s at 2.4 V rms"."""
         if self.resolved:
             return (
                 f"{self.name} is resolved (std {self.std_now:.3g}, target {self.target_std:.3g})"
+            )
+        if self.baseline_limited:
+            pct = self._percent(self.baseline_std)
+            return (
+                f"{self.name}: the baseline itself is uncertain by ±{pct:.2g} %"
+                f" (95 %; target ±{self._percent(self.target_std):.2g} %), so no record of the "
+                f"present state resolves it; re-record the baseline and this state, "
+                f"{_fmt_s(self.seconds_rerecord)} each "
+                f"({describe_excitation(self.excitation_best, self.best_share)}, "
+                f"{spectrum_label(self.best_spectrum)}), or widen the tolerance"
             )
         out = f"{self.name} needs {_fmt_s(self.seconds_now)} at this excitation"
         out += f" ({excitation_std:.3g} V rms)"
@@ -429,22 +551,35 @@ class PlanRow:
         return out
 
     def to_dict(self) -> dict[str, Any]:
+        a1, a2 = input_levels(self.excitation_best, self.best_share)
         return {
             "name": self.name,
             "value": self.value,
             "target_std": self.target_std,
             "std_now": self.std_now,
+            "baseline_std": self.baseline_std,
             "resolved": self.resolved,
-            "seconds_now": self.seconds_now,
-            "seconds_at_max_excitation": self.seconds_at_max,
+            "baseline_limited": self.baseline_limited,
+            "seconds_now": _finite(self.seconds_now),
+            "seconds_at_max_excitation": _finite(self.seconds_at_max),
             "excitation_for_present_length": self.excitation_for_length,
             "best_spectrum": self.best_spectrum,
-            "seconds_with_best_spectrum": self.seconds_best,
+            "best_share_input_1": self.best_share,
+            "seconds_with_best_spectrum": _finite(self.seconds_best),
             "excitation_with_best_spectrum": self.excitation_best,
+            "best_input_levels": [a1, a2],
+            "seconds_rerecord_baseline_and_state": _finite(self.seconds_rerecord),
         }
 
 
+def _finite(x: float) -> float | None:
+    """JSON-safe: ``None`` for an infinite time (never reached)."""
+    return float(x) if math.isfinite(x) else None
+
+
 def _fmt_s(seconds: float) -> str:
+    if not math.isfinite(seconds):
+        return "no finite time"
     if seconds < 1:
         return f"{seconds * 1e3:.3g} ms"
     if seconds < 600:
@@ -470,6 +605,7 @@ class ExperimentPlan:
     best_spectrum: str = "white"  # shortest record for every open parameter together
     seconds_best: float = math.inf
     excitation_best: float = 0.0
+    best_share: float = 0.5
 
     @property
     def seconds_now(self) -> float:
@@ -485,28 +621,38 @@ class ExperimentPlan:
         open_rows = [r for r in self.rows if not r.resolved]
         if not open_rows:
             return "every planned parameter is resolved by this record"
-        worst = max(open_rows, key=lambda r: r.seconds_now)
-        names = ", ".join(r.name for r in open_rows)
-        out = (
-            f"to resolve {names} to {self.fraction:g} of the tolerance, the record needs "
-            f"{_fmt_s(worst.seconds_now)} at this excitation ({self.excitation_std:.3g} V rms)"
-        )
-        if self.max_excitation_std > self.excitation_std * 1.01:
-            out += f", or {_fmt_s(self.seconds_at_max)} at {self.max_excitation_std:.3g} V rms"
-        if self.best_spectrum != self.spectrum and self.seconds_best < 0.8 * min(
-            self.seconds_now, self.seconds_at_max
-        ):
-            out += (
-                f"; a {spectrum_label(self.best_spectrum)} excitation at "
-                f"{self.excitation_best:.3g} V rms needs {_fmt_s(self.seconds_best)}"
+        blocked = [r for r in open_rows if r.baseline_limited]
+        rows = [r for r in open_rows if not r.baseline_limited]
+        parts = [
+            r.sentence(excitation_std=self.excitation_std, max_excitation_std=0.0) for r in blocked
+        ]
+        if rows:
+            worst = max(rows, key=lambda r: r.seconds_now)
+            out = (
+                f"to resolve {', '.join(r.name for r in rows)} to {self.fraction:g} of the "
+                f"tolerance, the record needs {_fmt_s(worst.seconds_now)} at this excitation "
+                f"({self.excitation_std:.3g} V rms)"
             )
-        return out
+            at_max = max(r.seconds_at_max for r in rows)
+            if self.max_excitation_std > self.excitation_std * 1.01:
+                out += f", or {_fmt_s(at_max)} at {self.max_excitation_std:.3g} V rms"
+            other = (self.best_spectrum, self.best_share) != (self.spectrum, 0.5)
+            if other and self.seconds_best < 0.8 * min(worst.seconds_now, at_max):
+                out += (
+                    f"; {describe_excitation(self.excitation_best, self.best_share)}"
+                    f" ({spectrum_label(self.best_spectrum)}) needs {_fmt_s(self.seconds_best)}"
+                )
+            parts.append(out)
+        return "; ".join(parts)
 
     def to_dict(self) -> dict[str, Any]:
         return {
             "spectrum": self.spectrum,
             "best_spectrum": self.best_spectrum,
-            "seconds_needed_with_best_spectrum": self.seconds_best,
+            "best_share_input_1": self.best_share,
+            "best_input_levels": list(input_levels(self.excitation_best, self.best_share)),
+            "best_excitation": describe_excitation(self.excitation_best, self.best_share),
+            "seconds_needed_with_best_spectrum": _finite(self.seconds_best),
             "excitation_with_best_spectrum": self.excitation_best,
             "n_samples": self.n_samples,
             "seconds": self.n_samples * self.dt,
@@ -518,8 +664,8 @@ class ExperimentPlan:
             "fraction": self.fraction,
             "tolerance": dict(self.tolerance),
             "noise": self.noise.to_dict(),
-            "seconds_needed": self.seconds_now,
-            "seconds_needed_at_max_excitation": self.seconds_at_max,
+            "seconds_needed": _finite(self.seconds_now),
+            "seconds_needed_at_max_excitation": _finite(self.seconds_at_max),
             "sentence": self.sentence(),
             "parameters": [r.to_dict() for r in self.rows],
         }
@@ -535,8 +681,11 @@ def plan_experiment(
     fraction: float = DEFAULT_FRACTION,
     max_excitation_std: float = DEFAULT_MAX_EXCITATION_STD,
     max_displacement: float = DEFAULT_MAX_DISPLACEMENT,
+    splits: Sequence[float] = DEFAULT_SPLITS,
+    baseline_covariance: Any = None,
+    baseline_std: float | Mapping[str, float] | None = None,
 ) -> ExperimentPlan:
-    """Record length and excitation that resolve each parameter (module notes).
+    """Record length, excitation level, spectrum and split that resolve each parameter.
 
     Parameters
     ----------
@@ -545,7 +694,7 @@ def plan_experiment(
     n_samples : int
         The present (or proposed) record length.
     excitation_std : float
-        The present excitation [V rms per input].
+        The present excitation [V rms per input, the same on both].
     parameters : sequence of str
         Names among v1..v9 and the physical parameters.
     tolerance : float or mapping
@@ -556,19 +705,34 @@ def plan_experiment(
         Amplifier limit [V rms per input].
     max_displacement : float
         Largest rms displacement as a fraction of the air gap.
+    splits : sequence of float
+        Candidate shares of the excitation power on input 1 (:func:`input_levels`).
+    baseline_covariance : array_like, shape (9, 9), optional
+        Covariance of the baseline's v1..v9 when it is itself an estimate (a
+        stored history, an earlier fit); propagated to every parameter.
+    baseline_std : float or mapping, optional
+        The baseline's relative standard deviation per parameter (0.02 = 2 %;
+        overrides ``baseline_covariance`` for the parameters it names).
 
     Returns
     -------
     ExperimentPlan
+
+    Notes
+    -----
+    A diagnosis compares the record's estimate with the baseline, so the
+    variance that decides is ``var1 / N + var_b`` (``var1`` the bound per
+    sample): the record needs ``N = var1 / (target^2 - var_b)`` samples, and
+    none suffices when ``var_b >= target^2``; then re-recording the baseline
+    with the same design (``var1 / N`` each) needs ``N = 2 var1 / target^2``.
     """
     if not (0 < fraction <= 10) or n_samples < 1 or excitation_std < 0:
         raise DataError("`fraction` must be in (0, 10], `n_samples` >= 1, `excitation_std` >= 0")
     if max_excitation_std <= 0 or max_displacement <= 0:
         raise DataError("`max_excitation_std` and `max_displacement` must be positive")
-    tol = {
-        p: float(tolerance.get(p, 0.05) if isinstance(tolerance, Mapping) else tolerance)
-        for p in parameters
-    }
+    if not splits or not all(0.0 <= s <= 1.0 for s in splits):
+        raise DataError(f"`splits` must be shares in [0, 1]; got {list(splits)}")
+    tol = {p: _per_parameter(tolerance, p, 0.05) for p in parameters}
     # Largest excitation: the amplifier or the displacement limit, whichever is smaller.
     a_max = design.max_excitation(max_excitation_std, max_displacement)
     now = design.bound(n_samples=1, excitation_std=excitation_std)
@@ -577,38 +741,44 @@ def plan_experiment(
     if unknown:
         raise DataError(f"unknown parameters {unknown}; expected names among {names}")
     index = [names.index(p) for p in parameters]
-    # Per-sample variances at each spectrum's largest allowed excitation.
-    at_max: dict[str, tuple[float, np.ndarray]] = {}
-    for sp in (design.spectrum, *design.spectra):
-        a_sp = design.max_excitation(max_excitation_std, max_displacement, sp)
-        cov = design.bound(n_samples=1, excitation_std=a_sp, spectrum=sp).covariance
-        at_max[sp] = (a_sp, np.diag(cov)[index])
+    var_b = _baseline_variance(design, now, index, parameters, baseline_covariance, baseline_std)
+    # Per-sample variances at each spectrum's and split's largest allowed excitation.
+    at_max: dict[tuple[str, float], tuple[float, np.ndarray]] = {}
+    for sp in design.parts:
+        for share in dict.fromkeys([0.5, *splits]):
+            a_sp = design.max_excitation(max_excitation_std, max_displacement, sp, share)
+            cov = design.bound(n_samples=1, excitation_std=a_sp, spectrum=sp, share=share)
+            at_max[(sp, share)] = (a_sp, np.diag(cov.covariance)[index])
+    present = (design.spectrum, 0.5)
     rows = []
     for j, (p, i) in enumerate(zip(parameters, index, strict=True)):
         value = float(now.values[i])
-        target = fraction * tol[p] * abs(value) / _Z95
+        t2 = (fraction * tol[p] * abs(value) / _Z95) ** 2
         var1_now = float(now.covariance[i, i])
-        best = min(at_max, key=lambda sp: at_max[sp][1][j])
+        best = min(at_max, key=lambda c: at_max[c][1][j])
         rows.append(
             PlanRow(
                 name=p,
                 value=value,
-                target_std=target,
-                std_now=math.sqrt(var1_now / n_samples),
-                seconds_now=var1_now / target**2 * design.dt,
-                seconds_at_max=float(at_max[design.spectrum][1][j]) / target**2 * design.dt,
-                excitation_for_length=_excitation_for(design, i, n_samples, target, a_max),
-                best_spectrum=best,
-                seconds_best=float(at_max[best][1][j]) / target**2 * design.dt,
+                target_std=math.sqrt(t2),
+                std_now=math.sqrt(var1_now / n_samples + var_b[j]),
+                seconds_now=_samples_needed(var1_now, t2, var_b[j]) * design.dt,
+                seconds_at_max=_samples_needed(at_max[present][1][j], t2, var_b[j]) * design.dt,
+                excitation_for_length=_excitation_for(design, i, n_samples, t2 - var_b[j], a_max),
+                best_spectrum=best[0],
+                seconds_best=_samples_needed(at_max[best][1][j], t2, var_b[j]) * design.dt,
                 excitation_best=at_max[best][0],
+                best_share=best[1],
+                baseline_std=math.sqrt(var_b[j]),
+                seconds_rerecord=_samples_needed(2 * at_max[best][1][j], t2, 0.0) * design.dt,
             )
         )
-    # One spectrum for every parameter not yet resolved (all of them when all are).
+    # One candidate for every parameter not yet resolved (all of them when all are).
     open_j = [j for j, r in enumerate(rows) if not r.resolved] or list(range(len(rows)))
-    targets = np.array([rows[j].target_std ** 2 for j in open_j])
 
-    def seconds(sp: str) -> float:
-        return float(np.max(at_max[sp][1][open_j] / targets)) * design.dt
+    def seconds(c: tuple[str, float]) -> float:
+        return max(_samples_needed(at_max[c][1][j], rows[j].target_std ** 2, var_b[j])
+                   for j in open_j) * design.dt  # fmt: skip
 
     best_all = min(at_max, key=seconds)
     return ExperimentPlan(
@@ -623,31 +793,63 @@ def plan_experiment(
         fraction=float(fraction),
         noise=design.noise,
         spectrum=design.spectrum,
-        best_spectrum=best_all,
+        best_spectrum=best_all[0],
         seconds_best=seconds(best_all),
         excitation_best=at_max[best_all][0],
+        best_share=best_all[1],
     )
 
 
+def _per_parameter(value: float | Mapping[str, float], name: str, default: float) -> float:
+    return float(value.get(name, default) if isinstance(value, Mapping) else value)
+
+
+def _samples_needed(var1: float, t2: float, var_b: float) -> float:
+    """``N`` with ``var1 / N + var_b = t2`` (inf when ``var_b >= t2``: plan_experiment notes)."""
+    return var1 / (t2 - var_b) if t2 > var_b else math.inf
+
+
+def _baseline_variance(
+    design: DesignInformation,
+    now: CramerRaoBound,
+    index: Sequence[int],
+    parameters: Sequence[str],
+    baseline_covariance: Any,
+    baseline_std: float | Mapping[str, float] | None,
+) -> np.ndarray:
+    """The baseline's variance of each planned parameter (0 for an exact baseline)."""
+    var_b = np.zeros(len(index))
+    if baseline_covariance is not None:
+        cov = np.asarray(baseline_covariance, dtype=float)
+        if cov.shape != (9, 9) or not np.all(np.isfinite(cov)):
+            raise DataError(f"`baseline_covariance` must be a finite 9x9 matrix; got {cov.shape}")
+
+        def chain(vv: np.ndarray) -> np.ndarray:
+            return np.concatenate([vv, derived_parameters(vv, m=design.m, i0=design.i0)[1]])
+
+        _, full = propagate_covariance(chain, np.asarray(design.v, float), cov)
+        var_b = np.clip(np.diag(full)[list(index)], 0.0, None)
+    if baseline_std is not None:
+        for j, (p, i) in enumerate(zip(parameters, index, strict=True)):
+            if isinstance(baseline_std, Mapping) and p not in baseline_std:
+                continue
+            rel = _per_parameter(baseline_std, p, 0.0)
+            if not (math.isfinite(rel) and rel >= 0):
+                raise DataError(f"`baseline_std` of {p} must be >= 0; got {rel}")
+            var_b[j] = (rel * float(now.values[i])) ** 2
+    return var_b
+
+
 def _excitation_for(
-    design: DesignInformation, i: int, n_samples: int, target: float, a_max: float
+    design: DesignInformation, i: int, n_samples: int, var_max: float, a_max: float
 ) -> float | None:
-    """Smallest excitation (bisection; the variance falls with the excitation) or None."""
+    """Smallest excitation at which parameter ``i``'s variance is ``var_max`` or less."""
 
-    def var(a: float) -> float:
-        return float(design.bound(n_samples=n_samples, excitation_std=a).covariance[i, i])
+    def ok(a: float) -> bool:
+        cov = design.bound(n_samples=n_samples, excitation_std=a).covariance
+        return var_max > 0 and float(cov[i, i]) <= var_max
 
-    if var(a_max) > target**2:
-        return None
-    lo, hi = 0.0, a_max
-    if var(lo) <= target**2:
-        return 0.0
-    for _ in range(40):
-        mid = 0.5 * (lo + hi)
-        lo, hi = (lo, mid) if var(mid) <= target**2 else (mid, hi)
-        if hi - lo < 1e-3 * hi:
-            break
-    return hi
+    return smallest_satisfying(ok, 0.0, a_max, xtol=1e-3 * a_max)
 
 
 def design_for_recording(
