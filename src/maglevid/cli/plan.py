@@ -109,6 +109,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="amplifier limit [V rms per input] (default %(default)s)",
     )
     parser.add_argument(
+        "--baseline-std",
+        action="append",
+        type=_baseline_std,
+        default=[],
+        metavar="[NAME=]REL",
+        help="the baseline's own relative std (0.02 = 2 %%) when it is an estimate (a stored "
+        "history, an earlier fit): a diagnosis judges the difference, so its variance adds and "
+        "does not fall with the record; one value for every parameter or NAME=REL, repeatable",
+    )
+    parser.add_argument(
         "--max-displacement",
         type=float,
         default=DEFAULT_MAX_DISPLACEMENT,
@@ -134,6 +144,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         "fraction": args.fraction,
         "max_excitation_std": args.max_excitation_std,
         "max_displacement": args.max_displacement,
+        "baseline_std": _baseline_stds(args.baseline_std),
     }
     noise = _noise_model(args, NoiseModel)
     if args.recording is not None:
@@ -154,6 +165,33 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     out = plan.to_dict()
     out["source"] = source
     return out
+
+
+def _baseline_std(text: str) -> tuple[str | None, float]:
+    """``"R1=0.02"`` -> ``("R1", 0.02)``; ``"0.02"`` -> ``(None, 0.02)``."""
+    name, _, value = text.rpartition("=")
+    try:
+        rel = float(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected [NAME=]REL, e.g. R1=0.02; got {text!r}"
+        ) from None
+    if not rel >= 0:
+        raise argparse.ArgumentTypeError(f"a relative std must be >= 0; got {text!r}")
+    return (name.strip() or None), rel
+
+
+def _baseline_stds(items: list[tuple[str | None, float]]) -> Any:
+    """``--baseline-std`` values: one float for all, a mapping per name, or None."""
+    if not items:
+        return None
+    everyone = [rel for name, rel in items if name is None]
+    if everyone and len(items) == len(everyone):
+        return everyone[-1]
+    from maglevid.identify.planning import DEFAULT_PARAMETERS
+
+    default = dict.fromkeys(DEFAULT_PARAMETERS, everyone[-1]) if everyone else {}
+    return {**default, **{name: rel for name, rel in items if name is not None}}
 
 
 def _noise_model(args: argparse.Namespace, noise_model: Any) -> Any:
@@ -191,29 +229,44 @@ def _plan_recording(args: argparse.Namespace, noise: Any, options: dict, plan_fn
 
 def format_text(result: dict[str, Any]) -> str:
     r = result
+    rows = r["parameters"]
+    with_base = any(p["baseline_std"] > 0 for p in rows)
     lines = [
         f"plan for {r['source']}: {r['seconds']:.3g} s at {r['excitation_std']:.3g} V rms; "
         f"largest allowed excitation {r['max_excitation_std']:.3g} V rms "
         f"(amplifier {r['amplifier_limit']:.3g} V, rms displacement "
         f"<= {100 * r['displacement_limit']:.3g} % of the gap)",
-        f"target: 95 % half-width <= {r['fraction']:g} x tolerance",
-        f"{'parameter':>10} {'value':>12} {'std now':>11} {'target':>11} {'s needed':>10} "
-        f"{'s at max':>10} {'V rms for this length':>22}  best spectrum (s at its max V rms)",
+        f"target: 95 % half-width <= {r['fraction']:g} x tolerance"
+        + ("; std now includes the baseline's own std" if with_base else ""),
+        f"{'parameter':>10} {'value':>11} {'std now':>10} {'target':>10}"
+        + (f" {'baseline':>10}" if with_base else "")
+        + f" {'s needed':>9} {'s at max':>9} {'V for length':>12}  shortest: spectrum, excitation",
     ]
-    for p in r["parameters"]:
+    for p in rows:
         exc = p["excitation_for_present_length"]
         lines.append(
-            f"{p['name']:>10} {p['value']:>12.5g} {p['std_now']:>11.3g} {p['target_std']:>11.3g} "
-            f"{p['seconds_now']:>10.3g} {p['seconds_at_max_excitation']:>10.3g} "
-            f"{'not reachable' if exc is None else f'{exc:.3g}':>22}  "
-            f"{_label(p['best_spectrum'])} ({p['seconds_with_best_spectrum']:.3g} s at "
-            f"{p['excitation_with_best_spectrum']:.3g} V)"
+            f"{p['name']:>10} {p['value']:>11.5g} {p['std_now']:>10.3g} {p['target_std']:>10.3g}"
+            + (f" {p['baseline_std']:>10.3g}" if with_base else "")
+            + f" {_s(p['seconds_now']):>9} {_s(p['seconds_at_max_excitation']):>9} "
+            f"{'unreachable' if exc is None else f'{exc:.3g}':>12}  {_best(p)}"
         )
     lines.append(r["sentence"])
     return "\n".join(lines)
 
 
-def _label(spectrum: str) -> str:
+def _s(seconds: float | None, unit: str = "") -> str:
+    return "never" if seconds is None else f"{seconds:.3g}{unit}"
+
+
+def _best(p: dict[str, Any]) -> str:
+    """The row's shortest candidate: "low-pass 100 Hz, coil 1 only 2.1 V: 0.145 s"."""
     from maglevid.identify.planning import spectrum_label
 
-    return spectrum_label(spectrum)
+    a1, a2 = p["best_input_levels"]
+    how = f"both {a1:.2g} V" if abs(a1 - a2) <= 1e-9 * max(a1, a2, 1e-300) else (
+        f"coil {1 if a2 == 0 else 2} only {max(a1, a2):.2g} V" if min(a1, a2) == 0
+        else f"coil 1 {a1:.2g} V, coil 2 {a2:.2g} V"
+    )  # fmt: skip
+    return (
+        f"{spectrum_label(p['best_spectrum'])}, {how}: {_s(p['seconds_with_best_spectrum'], ' s')}"
+    )

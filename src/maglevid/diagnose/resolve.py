@@ -21,6 +21,16 @@ magnet further from its linearisation, so the length is the safer lever).
 When ``se_f >= tol/z`` no record resolves it: the model error alone exceeds
 the tolerance.
 
+**The baseline's own uncertainty.** A diagnosis compares the estimate with a
+baseline; when the baseline is itself an estimate (a stored history, an
+earlier fit) its covariance ``S_b`` is part of the isolation's noise variance
+(:func:`~maglevid.diagnose.isolate.isolate_fault`) but does not fall with a
+longer record of the present state. With ``se_b`` the baseline's share
+(``g`` the hypothesis's sensitivity, ``se_b^2 = 1 / (g^T S_b^-1 g)``) the rule
+becomes ``k = (se_n^2 - se_b^2) / (tol^2/z^2 - se_b^2 - se_f^2)``, and when
+``se_b >= tol/z`` the advice says that the baseline itself is uncertain beyond
+the tolerance: re-record the baseline (or widen the tolerance).
+
 **The Cramér-Rao plan** (:func:`with_cramer_rao_plan`). The rule above treats
 all of the noise part as excitation-driven; in a closed loop part of the
 information comes from the noise itself, and a different spectrum of the same
@@ -35,7 +45,11 @@ from the Fisher information of the loop around the estimated bearing
 
 and the plan states the excitation at this length that resolves it (within
 the amplifier and displacement limits), the length needed at the largest
-allowed excitation, and the candidate spectrum that needs the shortest record.
+allowed excitation, and the candidate spectrum *and split between the two
+coils* (:data:`maglevid.identify.planning.DEFAULT_SPLITS`; the information of
+independent excitations adds, ``I_v = a1^2 I_1 + a2^2 I_2 + I_e``) that needs the
+shortest record. The baseline's covariance is added unscaled:
+``var(n) = 1 / (g^T (kappa I_v(n)^-1 + S_b + diag((eps v)^2))^-1 g)``.
 """
 
 from __future__ import annotations
@@ -50,6 +64,8 @@ from scipy import special
 
 from maglevid.diagnose.compare import DEFAULT_TOLERANCE
 from maglevid.diagnose.isolate import MODEL_ERROR_FLOOR, FaultHypothesis, IsolationResult
+from maglevid.diagnose.isolate import _std_error as isolate_std_error
+from maglevid.exceptions import DataError
 
 __all__ = ["Unresolved", "tolerance_of", "unresolved_parameters", "with_cramer_rao_plan"]
 
@@ -74,10 +90,21 @@ class Unresolved:
     plan_spectrum: str | None = None
     plan_seconds_spectrum: float | None = None
     plan_excitation_spectrum: float | None = None
+    #: That candidate's share of the excitation power on input 1 (0.5: both alike).
+    plan_share: float | None = None
+    #: The baseline's own 95 % half-width [%] when it is an estimate (None: exact).
+    baseline_percent: float | None = None
 
     @property
     def resolvable(self) -> bool:
         return math.isfinite(self.length_factor)
+
+    @property
+    def baseline_limited(self) -> bool:
+        """The baseline alone is uncertain beyond the tolerance: no new record helps."""
+        return (
+            self.baseline_percent is not None and self.baseline_percent >= self.tolerance_percent
+        )
 
     def advice(self) -> str:
         """One sentence: what this parameter needs."""
@@ -85,11 +112,23 @@ class Unresolved:
             f"{self.parameter} ±{self.half_width_percent:.2g} % "
             f"(tolerance ±{self.tolerance_percent:.3g} %)"
         )
+        if self.baseline_limited:
+            return (
+                f"{head}: the baseline itself is uncertain by ±{self.baseline_percent:.2g} %, "
+                "so no record of the present state resolves it; re-record the baseline "
+                "(a longer or more strongly excited record of the reference state) "
+                "or widen the tolerance"
+            )
         if self.plan_seconds is not None:
             return head + ": " + self._plan_advice()
         if not self.resolvable:
+            what = "the model error alone exceeds"
+            if self.baseline_percent:
+                what = (
+                    f"the model error and the baseline's own ±{self.baseline_percent:.2g} % exceed"
+                )
             return (
-                f"{head}: the model error alone exceeds the tolerance; no longer record of this "
+                f"{head}: {what} the tolerance; no longer record of this "
                 "kind resolves it (use a wider tolerance or a smaller excitation)"
             )
         level = (
@@ -101,7 +140,7 @@ class Unresolved:
         )
 
     def _plan_advice(self) -> str:
-        from maglevid.identify.planning import spectrum_label
+        from maglevid.identify.planning import describe_excitation, spectrum_label
 
         parts = []
         if math.isfinite(self.more_seconds):
@@ -114,16 +153,20 @@ class Unresolved:
                 " (the best level within the amplifier and displacement limits)"
             )
         if self.plan_spectrum is not None and self.plan_seconds_spectrum is not None:
+            how = describe_excitation(self.plan_excitation_spectrum or 0.0, self.plan_share or 0.5)
             parts.append(
-                f"{_fmt_s(self.plan_seconds_spectrum)} with a {spectrum_label(self.plan_spectrum)}"
-                f" excitation at {self.plan_excitation_spectrum:.3g} V rms"
+                f"{_fmt_s(self.plan_seconds_spectrum)} if you {how} "
+                f"({spectrum_label(self.plan_spectrum)})"
             )
         if not parts:
             return (
                 "no record of this kind resolves it at any level within the limits "
                 "(the model error grows with the excitation; use a wider tolerance)"
             )
-        return ", or ".join(parts) + " (Cramér-Rao plan)"
+        out = ", or ".join(parts) + " (Cramér-Rao plan)"
+        if self.baseline_percent is not None:
+            out += f"; the baseline's own ±{self.baseline_percent:.2g} % is counted"
+        return out
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
@@ -149,15 +192,27 @@ def tolerance_of(name: str, tolerances: Mapping[str, float] | float) -> float:
     return float(tolerances)
 
 
-def _length_factor(h: FaultHypothesis, target: float) -> float:
-    """``k`` with ``se_n^2 / k + se_f^2 = target^2`` (see module docs)."""
+def _baseline_se(h: FaultHypothesis, baseline_covariance: Any) -> float:
+    """``f se_b``: the baseline's share of hypothesis ``h``'s standard error (module notes)."""
+    if baseline_covariance is None or not h.sensitivity:
+        return 0.0
+    S_b = np.asarray(baseline_covariance, dtype=float)
+    if S_b.shape != (9, 9):
+        raise DataError(f"`baseline_covariance` must be 9x9; got {S_b.shape}")
+    se = isolate_std_error(np.asarray(h.sensitivity), S_b)
+    return h.factors[0] * se if math.isfinite(se) else 0.0
+
+
+def _length_factor(h: FaultHypothesis, target: float, se_b: float = 0.0) -> float:
+    """``k`` with ``(se_n^2 - se_b^2) / k + se_b^2 + se_f^2 = target^2`` (module notes)."""
     se = h.factor_std_errors[0]
     if not h.noise_std_errors:  # no decomposition: all of it is noise
-        return (se / target) ** 2
+        return (se**2 - se_b**2) / (target**2 - se_b**2) if target > se_b else math.inf
     se_n, se_f = h.noise_std_errors[0], h.floor_std_errors[0]
-    if not math.isfinite(se) or se_f >= target:
+    fixed = se_b**2 + se_f**2  # what more of the present state cannot shrink
+    if not math.isfinite(se) or fixed >= target**2:
         return math.inf
-    return max(se_n**2 / (target**2 - se_f**2), (se / target) ** 2, 1.0)
+    return max(max(se_n**2 - se_b**2, 0.0) / (target**2 - fixed), (se / target) ** 2, 1.0)
 
 
 def unresolved_parameters(
@@ -167,6 +222,7 @@ def unresolved_parameters(
     level: float = 0.95,
     duration_s: float | None = None,
     excitation_rms: float | None = None,
+    baseline_covariance: Any = None,
 ) -> list[Unresolved]:
     """Single-cause hypotheses whose interval at ``level`` is wider than their tolerance.
 
@@ -181,6 +237,9 @@ def unresolved_parameters(
         The record's length [s] (for "seconds more").
     excitation_rms : float, optional
         The record's excitation level [V rms] (for the suggested level).
+    baseline_covariance : array_like, shape (9, 9), optional
+        The baseline's covariance of v1..v9, as given to
+        :func:`~maglevid.diagnose.isolate.isolate_fault` (module notes).
 
     Returns
     -------
@@ -194,7 +253,8 @@ def unresolved_parameters(
         se = h.factor_std_errors[0]
         if tol <= 0 or (math.isfinite(se) and z * se <= tol):
             continue
-        k = _length_factor(h, tol / z)
+        se_b = _baseline_se(h, baseline_covariance)
+        k = _length_factor(h, tol / z, se_b)
         out.append(
             Unresolved(
                 parameter=name,
@@ -208,6 +268,7 @@ def unresolved_parameters(
                     if excitation_rms is not None and math.isfinite(k)
                     else None
                 ),
+                baseline_percent=100 * z * se_b if baseline_covariance is not None else None,
             )
         )
     return sorted(out, key=lambda u: -u.half_width_percent / u.tolerance_percent)
@@ -224,6 +285,8 @@ def with_cramer_rao_plan(
     level: float = 0.95,
     max_excitation_std: float | None = None,
     max_displacement: float | None = None,
+    baseline_covariance: Any = None,
+    splits: Any = None,
 ) -> list[Unresolved]:
     """``unresolved`` with the advice of the Cramér-Rao plan (module notes).
 
@@ -239,26 +302,34 @@ def with_cramer_rao_plan(
     n_samples, excitation_std : the recording's length and excitation [V rms].
     tolerances, level : as in :func:`unresolved_parameters`.
     max_excitation_std, max_displacement : the planner's limits (its defaults).
+    baseline_covariance : array_like, shape (9, 9), optional
+        The baseline's covariance of v1..v9 (as given to the isolation): it
+        does not fall with the record length.
+    splits : sequence of float, optional
+        Candidate shares of the excitation on input 1
+        (default :data:`~maglevid.identify.planning.DEFAULT_SPLITS`).
     """
     from maglevid.identify import planning
 
     amp = planning.DEFAULT_MAX_EXCITATION_STD if max_excitation_std is None else max_excitation_std
     disp = planning.DEFAULT_MAX_DISPLACEMENT if max_displacement is None else max_displacement
+    splits = planning.DEFAULT_SPLITS if splits is None else tuple(splits)
     z = float(special.ndtri(0.5 + level / 2))
     singles = {h.parameters[0]: h for h in iso.singles if h.sensitivity}
-    grid = _ExcitationGrid(design, amp, disp, excitation_std, iso.model_error)
+    S_b = None if baseline_covariance is None else np.asarray(baseline_covariance, float)
+    grid = _ExcitationGrid(design, amp, disp, excitation_std, iso.model_error, splits, S_b)
     out = []
     for u in unresolved:
         h = singles.get(u.parameter)
-        if h is None or not h.noise_std_errors:
+        if h is None or not h.noise_std_errors or u.baseline_limited:
             out.append(u)
             continue
         need = grid.needs(h, tolerance_of(u.parameter, tolerances) / z, n_samples)
         if need is None:
             out.append(u)
             continue
-        present = design.spectrum
-        best = min(need.seconds, key=lambda sp: need.seconds[sp][0])
+        present = (design.spectrum, 0.5)
+        best = min(need.seconds, key=lambda c: need.seconds[c][0])
         other = best != present and need.seconds[best][0] < need.seconds[present][0]
         exc = need.excitation_for_length
         k = need.samples_now / n_samples
@@ -273,9 +344,10 @@ def with_cramer_rao_plan(
                 else u.excitation_factor,
                 plan_seconds=need.seconds[present][0],
                 plan_excitation=need.seconds[present][1],
-                plan_spectrum=best if other else None,
+                plan_spectrum=best[0] if other else None,
                 plan_seconds_spectrum=need.seconds[best][0] if other else None,
                 plan_excitation_spectrum=need.seconds[best][1] if other else None,
+                plan_share=best[1] if other else None,
             )
         )
     return out
@@ -283,105 +355,115 @@ def with_cramer_rao_plan(
 
 @dataclass(frozen=True)
 class _Need:
-    seconds: dict[str, tuple[float, float]]  # spectrum -> (shortest record [s], at V rms)
+    #: (spectrum, share) -> (shortest record [s], at V rms)
+    seconds: dict[tuple[str, float], tuple[float, float]]
     excitation_for_length: float | None  # present spectrum, present length [V rms]
     samples_now: float  # record length needed at the present excitation [samples]
 
 
 class _ExcitationGrid:
-    """Per-sample information and model error over excitation levels and spectra.
+    """Per-sample information and model error over excitation levels, spectra and splits.
 
     The model error of the isolation (``iso.model_error``, relative to each
     v_i) grows with the loop's excursion; it is scaled with the excursion the
     design predicts at each level, never below the diagnosis's floor. A level
     that raises the floor above the tolerance is not a way forward, so the
-    shortest record is sought over a grid of levels up to each spectrum's
+    shortest record is sought over a grid of levels up to each candidate's
     amplifier/displacement limit, not only at the limit.
     """
 
-    N_LEVELS = 32
+    N_LEVELS = 24
 
     def __init__(
-        self, design: Any, amp: float, disp: float, excitation_std: float, model_error: float
+        self,
+        design: Any,
+        amp: float,
+        disp: float,
+        excitation_std: float,
+        model_error: float,
+        splits: tuple[float, ...],
+        baseline_covariance: np.ndarray | None,
     ) -> None:
         self.design = design
         self.floor = MODEL_ERROR_FLOOR
         self.eps_now = max(model_error, MODEL_ERROR_FLOOR)
         self.exc_now = excitation_std
         self.excursion_now = design.excursion(excitation_std)
-        self.levels = {}
-        for sp in (design.spectrum, *design.spectra):
-            a_max = design.max_excitation(amp, disp, sp)
-            for a in a_max * np.geomspace(1e-2, 1.0, self.N_LEVELS):
-                self.levels.setdefault(sp, []).append(
-                    (
-                        float(a),
-                        design.v_information(n_samples=1, excitation_std=a, spectrum=sp),
-                        self.eps(float(a), sp),
-                    )
-                )
+        self.S_b = np.zeros((9, 9)) if baseline_covariance is None else baseline_covariance
+        self.v2 = np.square(np.asarray(design.v, float))
+        # (spectrum, share) -> [(level, inverse information per sample, model error)]
+        self.levels: dict[tuple[str, float], list[tuple[float, np.ndarray, float]]] = {}
+        for sp in design.parts:
+            for share in dict.fromkeys([0.5, *splits]):
+                a_max = design.max_excitation(amp, disp, sp, share)
+                self.levels[(sp, share)] = [
+                    (float(a), self._inverse(float(a), sp, share), self.eps(float(a), sp, share))
+                    for a in a_max * np.geomspace(1e-2, 1.0, self.N_LEVELS)
+                ]
 
-    def eps(self, a: float, spectrum: str | None = None) -> float:
-        ratio = self.design.excursion(a, spectrum) / self.excursion_now
+    def _inverse(self, a: float, spectrum: str | None = None, share: float = 0.5) -> np.ndarray:
+        info = self.design.v_information(
+            n_samples=1, excitation_std=a, spectrum=spectrum, share=share
+        )
+        return np.linalg.pinv(info)
+
+    def eps(self, a: float, spectrum: str | None = None, share: float = 0.5) -> float:
+        ratio = self.design.excursion(a, spectrum, share) / self.excursion_now
         return max(self.floor, self.eps_now * ratio)
+
+    def _var(self, g: np.ndarray, cov_n: np.ndarray, eps: float) -> float:
+        """Variance of the log-factor under ``cov_n + S_b + diag((eps v)^2)``."""
+        S = cov_n + self.S_b + np.diag(eps * eps * self.v2)
+        w = float(g @ np.linalg.lstsq(S, g, rcond=None)[0])
+        return 1.0 / w if w > 0 else math.inf
 
     def needs(self, h: FaultHypothesis, half_width: float, n_samples: int) -> _Need | None:
         """Shortest records and the excitation at this length resolving ``h`` (or None).
 
         The variance of the log-factor at ``n`` samples, level ``a`` and model
-        error ``eps`` is that of the isolation's own test (noise and model
-        error together, not their separate variances added):
-        ``1 / (g^T (kappa I_v(n, a)^-1 + diag((eps v)^2))^-1 g)``, with
-        ``kappa = se_n^2 g^T I_v(N, a_now) g`` matching the method's own noise
-        variance in this direction (1 for an efficient estimator, more for IV).
+        error ``eps`` is that of the isolation's own test (noise, baseline and
+        model error together, not their separate variances added):
+        ``1 / (g^T (kappa I_v(n, a)^-1 + S_b + diag((eps v)^2))^-1 g)``, with
+        ``kappa`` matching the isolation's noise variance (the method's and the
+        baseline's) in this direction: 1 for an efficient estimator, more for IV.
         """
+        from maglevid.identify.planning import smallest_satisfying
+
         g = np.asarray(h.sensitivity)
         f = h.factors[0]
         t2 = (half_width / f) ** 2  # resolved when z f se_log <= tol
-        d = self.design
-        q_now = float(g @ d.v_information(n_samples=n_samples, excitation_std=self.exc_now) @ g)
-        if q_now <= 0:
-            return None
-        kappa = (h.noise_std_errors[0] / f) ** 2 * q_now
-        v2 = np.square(np.asarray(d.v, float))
-
-        def var(n: float, info1: np.ndarray, eps: float) -> float:
-            S = kappa * np.linalg.pinv(n * info1) + np.diag(eps * eps * v2)
-            w = float(g @ np.linalg.lstsq(S, g, rcond=None)[0])
-            return 1.0 / w if w > 0 else math.inf
-
-        def samples(info1: np.ndarray, eps: float) -> float:
-            if var(1e12, info1, eps) > t2:
-                return math.inf
-            lo, hi = 0.0, 12.0  # log10 n
-            for _ in range(40):
-                mid = 0.5 * (lo + hi)
-                lo, hi = (lo, mid) if var(10**mid, info1, eps) <= t2 else (mid, hi)
-            return 10**hi
-
-        seconds = {}
-        for sp, rows in self.levels.items():
-            best = min(((samples(info1, eps) * d.dt, a) for a, info1, eps in rows))
-            seconds[sp] = best
-        now = samples(
-            d.v_information(n_samples=1, excitation_std=self.exc_now), self.eps(self.exc_now)
+        inv_now = self._inverse(self.exc_now) / n_samples
+        se_n2 = (h.noise_std_errors[0] / f) ** 2
+        # kappa: the method's noise variance over the bound's, with S_b unscaled.
+        log_kappa = smallest_satisfying(
+            lambda lk: self._var(g, 10**lk * inv_now, 0.0) >= se_n2, -12.0, 12.0, xtol=1e-6
         )
+        if log_kappa is None or not np.all(np.isfinite(inv_now)):
+            return None
+        kappa = 10**log_kappa
+
+        def samples(inv1: np.ndarray, eps: float) -> float:
+            n = smallest_satisfying(
+                lambda ln: self._var(g, kappa * inv1 / 10**ln, eps) <= t2, 0.0, 12.0, xtol=1e-3
+            )
+            return math.inf if n is None else 10**n
+
+        seconds = {
+            c: min((samples(inv1, eps) * self.design.dt, a) for a, inv1, eps in rows)
+            for c, rows in self.levels.items()
+        }
+        now = samples(self._inverse(self.exc_now), self.eps(self.exc_now))
 
         def resolved_at(a: float) -> bool:
-            info = d.v_information(n_samples=1, excitation_std=a)
-            return var(n_samples, info, self.eps(a)) <= t2
+            return self._var(g, kappa * self._inverse(a) / n_samples, self.eps(a)) <= t2
 
-        levels = [a for a, _, _ in self.levels[d.spectrum]]
+        # The smallest resolving level at this length: the first grid level that
+        # resolves, refined between it and the level below.
+        levels = [a for a, _, _ in self.levels[(self.design.spectrum, 0.5)]]
         first = next((a for a in levels if resolved_at(a)), None)
         if first is not None:
             lo = max([a for a in levels if a < first], default=0.0)
-            hi = first
-            for _ in range(30):
-                mid = 0.5 * (lo + hi)
-                lo, hi = (lo, mid) if resolved_at(mid) else (mid, hi)
-                if hi - lo < 1e-3 * hi:
-                    break
-            first = hi
+            first = smallest_satisfying(resolved_at, lo, first, xtol=1e-3 * first)
         return _Need(seconds=seconds, excitation_for_length=first, samples_now=now)
 
 
@@ -393,12 +475,15 @@ def plan_unresolved(
     *,
     tolerances: Mapping[str, float] | float,
     level: float = 0.95,
+    baseline_covariance: Any = None,
 ) -> tuple[list[Unresolved], str | None]:
     """:func:`with_cramer_rao_plan` for a recording and its identification result.
 
-    Returns the advice and, when no plan can be made (no logged excitation, no
-    operating point or noise model, a loop the plan cannot hold), the reason
-    (the scaling rule's advice is then kept).
+    ``baseline_covariance`` is the baseline's covariance of v1..v9 (as given to
+    the isolation; None for an exact baseline). Returns the advice and, when no
+    plan can be made (no logged excitation, no operating point or noise model,
+    a loop the plan cannot hold), the reason (the scaling rule's advice is
+    then kept).
     """
     from maglevid.exceptions import MaglevidError
     from maglevid.identify import planning
@@ -421,6 +506,7 @@ def plan_unresolved(
             excitation_std=exc,
             tolerances=tolerances,
             level=level,
+            baseline_covariance=baseline_covariance,
         )
     except (MaglevidError, ArithmeticError, np.linalg.LinAlgError) as exc:
         return unresolved, f"no Cramér-Rao plan for the advice: {exc or type(exc).__name__}"

@@ -188,10 +188,10 @@ def describe_excitation(excitation_std: float, share: float = 0.5) -> str:
     """Words for a level and split: "excite coil 1 only at 1.6 V rms", ..."""
     a1, a2 = input_levels(excitation_std, share)
     if share == 0.5:
-        return f"{a1:.3g} V rms on each input"
+        return f"excite both coils at {a1:.3g} V rms"
     if a2 == 0 or a1 == 0:
         return f"excite coil {1 if a2 == 0 else 2} only at {max(a1, a2):.3g} V rms"
-    return f"coil 1 at {a1:.3g} V rms and coil 2 at {a2:.3g} V rms"
+    return f"excite coil 1 at {a1:.3g} V rms and coil 2 at {a2:.3g} V rms"
 
 
 def smallest_satisfying(

@@ -425,11 +425,12 @@ class AMBStages:
         if iso is not None:
             unresolved = unresolved_parameters(
                 iso, tol, level=run.level, duration_s=data.n_samples * data.dt,
-                excitation_rms=_excitation_rms(data),
+                excitation_rms=_excitation_rms(data), baseline_covariance=base.v_cov,
             )  # fmt: skip
             unresolved, why = plan_unresolved(
-                unresolved, iso, data, run.result, tolerances=tol, level=run.level
-            )
+                unresolved, iso, data, run.result, tolerances=tol, level=run.level,
+                baseline_covariance=base.v_cov,
+            )  # fmt: skip
             run.notes.extend([why] if why else [])
         verdict, code, reasons = _verdict(c.changes, iso, tol, unresolved)
         op = c.operating_point
