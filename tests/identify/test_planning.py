@@ -11,10 +11,14 @@ from maglevid.cli.main import main
 from maglevid.exceptions import DataError
 from maglevid.identify.cramer_rao import NoiseModel, cramer_rao_bound
 from maglevid.identify.planning import (
+    DEFAULT_SPLITS,
+    describe_excitation,
     design_information,
     excitation_signal,
+    input_levels,
     plan_experiment,
     plan_for_recording,
+    smallest_satisfying,
 )
 from maglevid.physics.amb import AMBParameters
 from maglevid.simulate.amb import (
@@ -186,13 +190,14 @@ def test_the_plan_proposes_the_spectrum_that_needs_the_shortest_record(design):
     )
     assert plan.spectrum == "white"
     for row in plan.rows:
-        per_spectrum = {}
+        per_candidate = {}  # every spectrum and split, at its largest allowed level
         for sp in ("white", "lowpass:100"):
-            a = design.max_excitation(4.0, 0.02, sp)
-            var = design.bound(n_samples=1, excitation_std=a, spectrum=sp).std()[row.name] ** 2
-            per_spectrum[sp] = var / row.target_std**2 * design.dt
-        assert row.best_spectrum == min(per_spectrum, key=per_spectrum.get)
-        assert row.seconds_best == pytest.approx(min(per_spectrum.values()), rel=1e-9)
+            for share in DEFAULT_SPLITS:
+                a = design.max_excitation(4.0, 0.02, sp, share)
+                b = design.bound(n_samples=1, excitation_std=a, spectrum=sp, share=share)
+                per_candidate[sp, share] = b.std()[row.name] ** 2 / row.target_std**2 * design.dt
+        assert (row.best_spectrum, row.best_share) == min(per_candidate, key=per_candidate.get)
+        assert row.seconds_best == pytest.approx(min(per_candidate.values()), rel=1e-9)
     out = plan.to_dict()
     assert out["best_spectrum"] in ("white", "lowpass:100")
     if plan.best_spectrum != "white":
@@ -207,3 +212,94 @@ def test_a_recordings_own_excitation_is_the_present_spectrum():
         excitation_signal("pink", 10, 1e-4, rng=0)
     with pytest.raises(DataError, match="Nyquist"):
         excitation_signal("lowpass:6000", 10, 1e-4, rng=0)
+
+
+def test_the_baseline_variance_lengthens_the_record_as_var1_over_target2_minus_var_b(design):
+    """Analytic (plan_experiment notes): a diagnosis judges estimate - baseline, so the
+    record needs ``N = var1 / (t^2 - var_b)`` samples, and none when ``var_b >= t^2``.
+    A baseline recorded with the same design over M samples has ``var_b = var1 / M``
+    for every parameter (its covariance of v propagated by the same delta method
+    as the bound; finite differences, so 1e-6)."""
+    opts = {"n_samples": 20_000, "excitation_std": 1.0, "parameters": ("R1", "kw1", "x0")}
+    exact = plan_experiment(design, tolerance=0.01, **opts)
+    m = 200_000
+    cov_b = design.bound(n_samples=m, excitation_std=1.0).covariance[:9, :9]
+    with_b = plan_experiment(design, tolerance=0.01, baseline_covariance=cov_b, **opts)
+    for r0, rb in zip(exact.rows, with_b.rows, strict=True):
+        var1 = r0.std_now**2 * opts["n_samples"]  # per sample
+        t2 = r0.target_std**2
+        assert rb.baseline_std**2 == pytest.approx(var1 / m, rel=1e-6), r0.name
+        assert rb.seconds_now == pytest.approx(r0.seconds_now * t2 / (t2 - var1 / m), rel=1e-6)
+        assert rb.std_now**2 == pytest.approx(r0.std_now**2 + var1 / m, rel=1e-6)
+    # A relative std per parameter: R1's baseline alone wider than the target.
+    blocked = plan_experiment(design, tolerance=0.01, baseline_std={"R1": 0.004}, **opts)
+    r1 = blocked.rows[0]
+    assert r1.baseline_std == pytest.approx(0.004 * r1.value) and r1.baseline_limited
+    assert r1.seconds_now == r1.seconds_best == np.inf and r1.excitation_for_length is None
+    # Re-recording both with the best candidate: twice the information needed.
+    assert r1.seconds_rerecord == pytest.approx(2 * exact.rows[0].seconds_best, rel=1e-9)
+    text = blocked.sentence()
+    assert "R1: the baseline itself is uncertain by ±0.78 %" in text  # 1.96 x 0.4 %
+    assert "re-record the baseline" in text and "to resolve kw1 to" in text  # x0 is resolved
+    assert blocked.to_dict()["parameters"][0]["seconds_now"] is None  # JSON-safe
+
+
+def test_the_split_leans_the_excitation_towards_the_coil_of_the_open_parameter():
+    """The realistic bearing's noise (sensor noise and the 0.1 N force). At one total
+    power, coil 1's excitation alone tells R1 more than coil 2's alone, and the
+    other way round for R2 (the bound's own numbers: measured 0.49 % against
+    0.65 % for R1, 0.49 % against 0.55 % for R2 at 1 V and 2 s; the loop couples
+    the coils, so the other coil's excitation is far from useless). With the
+    displacement limit binding (0.5 % of the gap, shared by the two inputs) the
+    plan for R1 alone puts more of the excitation on coil 1 than the plan for R2
+    alone, each split the argmin of the bound over the candidates."""
+    d = design_information(FAULTY, nominal=NOMINAL, spectra=())
+    n = 20_000
+    for name, own, other in (("R1", 1.0, 0.0), ("R2", 0.0, 1.0)):
+        alone = {s: d.bound(n_samples=n, excitation_std=1.0, share=s).std()[name] for s in (0, 1)}
+        assert alone[own] < 0.95 * alone[other], (name, alone)
+    shares = {}
+    for name in ("R1", "R2"):
+        plan = plan_experiment(
+            d, n_samples=n, excitation_std=0.2, parameters=(name,), max_displacement=0.005
+        )
+        per_share = {
+            s: d.bound(n_samples=1, excitation_std=d.max_excitation(4.0, 0.005, "white", s),
+                       share=s).std()[name]
+            for s in DEFAULT_SPLITS
+        }  # fmt: skip
+        assert plan.best_share == plan.rows[0].best_share == min(per_share, key=per_share.get)
+        shares[name] = plan.best_share
+        # The levels respect the per-input amplifier limit and the shared displacement.
+        a1, a2 = input_levels(plan.excitation_best, plan.best_share)
+        assert max(a1, a2) <= 4.0 + 1e-12
+        disp = d.displacement_rms(plan.excitation_best, "white", plan.best_share)
+        assert disp <= 0.005 * FAULTY.x0 * (1 + 1e-9)
+    assert shares["R1"] > 0.5 > shares["R2"], shares
+
+
+def test_split_words_and_the_bisection_helper():
+    assert input_levels(1.0, 0.5) == (1.0, 1.0)
+    assert describe_excitation(1.6 / np.sqrt(2), 1.0) == "excite coil 1 only at 1.6 V rms"
+    assert describe_excitation(1.0, 0.0) == "excite coil 2 only at 1.41 V rms"
+    assert describe_excitation(2.0, 0.5) == "excite both coils at 2 V rms"
+    with pytest.raises(DataError, match="share"):
+        input_levels(1.0, 1.5)
+    assert smallest_satisfying(lambda x: x >= 0.3, 0.0, 1.0, xtol=1e-9) == pytest.approx(0.3)
+    assert smallest_satisfying(lambda x: x >= 2.0, 0.0, 1.0, xtol=1e-9) is None
+    assert smallest_satisfying(lambda x: True, 0.0, 1.0, xtol=1e-9) == 0.0
+
+
+def test_plan_command_with_a_baseline_std(capsys):
+    args = ["plan", "--parameters", "R1,kw1", "--baseline-std", "R1=0.03", "--seconds", "0.5"]
+    assert main(args) == 0
+    out = capsys.readouterr().out
+    assert "the baseline itself is uncertain by ±5.9 %" in out  # 1.96 x 3 %
+    assert "baseline" in out.splitlines()[2]  # the table shows the baseline's std
+    assert main(["--json", "plan", "--parameters", "R1,kw1", "--baseline-std", "0.001"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert [p["baseline_std"] for p in res["parameters"]] == pytest.approx(
+        [0.001 * 17.5, 0.001 * 1.0]
+    )
+    with pytest.raises(SystemExit):  # argparse's usage error
+        main(["plan", "--baseline-std", "R1=x"])

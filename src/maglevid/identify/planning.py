@@ -639,8 +639,9 @@ class ExperimentPlan:
             other = (self.best_spectrum, self.best_share) != (self.spectrum, 0.5)
             if other and self.seconds_best < 0.8 * min(worst.seconds_now, at_max):
                 out += (
-                    f"; {describe_excitation(self.excitation_best, self.best_share)}"
-                    f" ({spectrum_label(self.best_spectrum)}) needs {_fmt_s(self.seconds_best)}"
+                    f"; a {spectrum_label(self.best_spectrum)} excitation needs "
+                    f"{_fmt_s(self.seconds_best)} "
+                    f"({describe_excitation(self.excitation_best, self.best_share)})"
                 )
             parts.append(out)
         return "; ".join(parts)
