@@ -8,10 +8,12 @@ from __future__ import annotations
 
 import dataclasses
 
+import numpy as np
 import pytest
 
+from maglevid.diagnose.isolate import FaultHypothesis, IsolationResult, isolate_fault
 from maglevid.diagnose.pipeline import diagnose
-from maglevid.diagnose.resolve import plan_unresolved
+from maglevid.diagnose.resolve import plan_unresolved, unresolved_parameters
 from maglevid.physics.amb import AMBParameters
 from maglevid.simulate import simulate_amb_loop
 
@@ -69,3 +71,114 @@ def test_without_a_logged_excitation_the_scaling_rule_stays_with_the_reason(advi
     un = unresolved_parameters(d.isolation, TOL, duration_s=0.2)
     same, why = plan_unresolved(un, d.isolation, bare, fit_ml(rec), tolerances=TOL)
     assert same == un and "excitation r" in why
+
+
+# --- The baseline's own uncertainty (resolve.py, module notes) ---------------------
+
+
+def _single(se_n: float, se_f: float, g5: float = 50.0, f: float = 1.2) -> FaultHypothesis:
+    """An "only R1 changed" fit whose sensitivity is on v5 alone (R1 moves v5)."""
+    g = tuple(g5 if i == 4 else 0.0 for i in range(9))
+    se = (se_n**2 + se_f**2) ** 0.5
+    return FaultHypothesis(("R1",), (f,), (se,), 0.0, 8, 1.0, (se_n,), (se_f,), g)
+
+
+def _iso(h: FaultHypothesis) -> IsolationResult:
+    none = FaultHypothesis((), (), (), 50.0, 9, 1e-6)
+    return IsolationResult(best=h, candidates=(h,), no_change=none, alpha=0.01, explained=True)
+
+
+def test_the_scaling_rule_counts_the_baseline_it_cannot_shrink():
+    """Analytic: with the baseline's share ``se_b`` (from S_b and the sensitivity,
+    ``se_b = f sqrt(S_b,55) / g5``) the length factor is
+    ``k = (se_n^2 - se_b^2) / ((tol/z)^2 - se_b^2 - se_f^2)``."""
+    z, tol, f, g5 = 1.959963984540054, 0.03, 1.2, 50.0
+    h = _single(se_n=0.03, se_f=0.002, g5=g5, f=f)
+    se_b = 0.008
+    S_b = np.zeros((9, 9))
+    S_b[4, 4] = (se_b / f * g5) ** 2
+    (u,) = unresolved_parameters(_iso(h), {"R1": tol}, baseline_covariance=S_b, duration_s=2.0)
+    t2 = (tol / z) ** 2
+    k = (0.03**2 - se_b**2) / (t2 - se_b**2 - 0.002**2)
+    assert u.length_factor == pytest.approx(k, rel=1e-9)
+    assert u.more_seconds == pytest.approx((k - 1) * 2.0, rel=1e-9)
+    assert u.baseline_percent == pytest.approx(100 * z * se_b, rel=1e-9)
+    # Without the baseline the same fit would promise a shorter record.
+    (u0,) = unresolved_parameters(_iso(h), {"R1": tol}, duration_s=2.0)
+    assert u0.length_factor < k and u0.baseline_percent is None
+    # A baseline wider than the tolerance: no record of the present state helps.
+    S_b[4, 4] = (0.02 / f * g5) ** 2  # se_b = 2 %: 95 % half-width 3.9 % > 3 %
+    (ub,) = unresolved_parameters(_iso(h), {"R1": tol}, baseline_covariance=S_b)
+    assert ub.baseline_limited and not ub.resolvable
+    assert "the baseline itself is uncertain by ±3.9 %" in ub.advice()
+    assert "re-record the baseline" in ub.advice()
+
+
+def _r1(unresolved: list) -> list:
+    return [u for u in unresolved if u.parameter == "R1"]
+
+
+def test_the_cramer_rao_plan_with_a_baseline_needs_var_over_tol2_minus_var_b(advice):
+    """Analytic (Sherman-Morrison): a baseline covariance ``c g g^T`` along the
+    hypothesis's sensitivity adds exactly ``c`` to the log-factor's variance under
+    any other covariance, so the plan at tolerance ``tol`` with that baseline must
+    equal the plan without it at ``tol'`` with ``(tol'/z f)^2 = (tol/z f)^2 - c``
+    (N = var / (tol^2 - var_b)). The isolation with the baseline is built the same
+    way (its noise and total variances plus ``c``). Equal to the bisections'
+    resolution (1e-3 in log10 of the samples)."""
+    _, d = advice
+    rec = simulate_amb_loop(FAULTY, rng=1, n_samples=2000, **LOOP)
+    iso0 = d.isolation
+    h = next(x for x in iso0.singles if x.parameters == ("R1",))
+    g, f = np.asarray(h.sensitivity), h.factors[0]
+    z = 1.959963984540054
+    t2 = (TOL["R1"] / (z * f)) ** 2
+    c = 0.3 * t2
+    S_b = c * np.outer(g, g)
+    hb = dataclasses.replace(
+        h,
+        factor_std_errors=(f * ((h.factor_std_errors[0] / f) ** 2 + c) ** 0.5,),
+        noise_std_errors=(f * ((h.noise_std_errors[0] / f) ** 2 + c) ** 0.5,),
+    )
+    iso_b = dataclasses.replace(
+        iso0, candidates=tuple(hb if x is h else x for x in iso0.candidates)
+    )
+    tol0 = {"R1": z * f * (t2 - c) ** 0.5}
+    ub = unresolved_parameters(iso_b, TOL, baseline_covariance=S_b, duration_s=0.2)
+    u0 = unresolved_parameters(iso0, tol0, duration_s=0.2)
+    fit = d.identification
+    (pb,), _ = plan_unresolved(_r1(ub), iso_b, rec, fit, tolerances=TOL, baseline_covariance=S_b)
+    (p0,), _ = plan_unresolved(_r1(u0), iso0, rec, fit, tolerances=tol0)
+    assert pb.parameter == p0.parameter == "R1"
+    assert pb.plan_seconds == pytest.approx(p0.plan_seconds, rel=1e-2)
+    assert pb.more_seconds == pytest.approx(p0.more_seconds, rel=1e-2)
+    assert pb.baseline_percent == pytest.approx(100 * z * f * c**0.5, rel=1e-6)
+    assert "baseline's own" in pb.advice()
+    # And the baseline costs time against the same tolerance with an exact baseline.
+    (pe,), _ = plan_unresolved(
+        _r1(unresolved_parameters(iso0, TOL, duration_s=0.2)), iso0, rec, fit, tolerances=TOL
+    )
+    assert pb.plan_seconds > 1.2 * pe.plan_seconds
+
+
+def test_an_uncertain_baseline_is_named_not_planned(advice):
+    """The isolation itself with a baseline whose v5 (R1's element) is uncertain by
+    3 %: R1's baseline alone has a 95 % half-width of ~5.9 % > the 3 % tolerance."""
+    _, d = advice
+    rec = simulate_amb_loop(FAULTY, rng=1, n_samples=2000, **LOOP)
+    fit, iso0 = d.identification, d.isolation
+    names = list(fit.parameters)
+    idx = [names.index(f"v{i}") for i in range(1, 10)]
+    v_hat = np.array([fit.parameters[f"v{i}"] for i in range(1, 10)])
+    S_b = np.diag((0.03 * NOMINAL.v()) ** 2 * (np.arange(9) == 4) + (1e-4 * NOMINAL.v()) ** 2)
+    iso_b = isolate_fault(
+        v_hat, fit.covariance[np.ix_(idx, idx)], NOMINAL, baseline_covariance=S_b,
+        operating_point=iso0.operating_point, model_error=iso0.model_error,
+    )  # fmt: skip
+    un = unresolved_parameters(iso_b, TOL, baseline_covariance=S_b, duration_s=0.2)
+    u = next(x for x in un if x.parameter == "R1")
+    assert u.baseline_limited and 5.0 < u.baseline_percent < 7.0
+    planned, why = plan_unresolved(un, iso_b, rec, fit, tolerances=TOL, baseline_covariance=S_b)
+    assert why is None
+    assert next(x for x in planned if x.parameter == "R1") == u  # no plan can help
+    assert "the baseline itself is uncertain" in u.advice()
