@@ -140,22 +140,24 @@ class Unresolved:
         )
 
     def _plan_advice(self) -> str:
-        from maglevid.identify.planning import describe_excitation, spectrum_label
+        from maglevid.identify.planning import describe_excitation, format_seconds, spectrum_label
 
         parts = []
         if math.isfinite(self.more_seconds):
-            parts.append(f"record about {_fmt_s(self.more_seconds)} more of the same excitation")
+            parts.append(
+                f"record about {format_seconds(self.more_seconds)} more of the same excitation"
+            )
         if self.excitation_rms is not None and math.isfinite(self.excitation_factor):
             parts.append(f"raise it to {self.excitation_rms:.3g} V rms at this length")
         if self.plan_seconds is not None and math.isfinite(self.plan_seconds):
             parts.append(
-                f"{_fmt_s(self.plan_seconds)} in all at {self.plan_excitation:.3g} V rms"
+                f"{format_seconds(self.plan_seconds)} in all at {self.plan_excitation:.3g} V rms"
                 " (the best level within the amplifier and displacement limits)"
             )
         if self.plan_spectrum is not None and self.plan_seconds_spectrum is not None:
             how = describe_excitation(self.plan_excitation_spectrum or 0.0, self.plan_share or 0.5)
             parts.append(
-                f"{_fmt_s(self.plan_seconds_spectrum)} if you {how} "
+                f"{format_seconds(self.plan_seconds_spectrum)} if you {how} "
                 f"({spectrum_label(self.plan_spectrum)})"
             )
         if not parts:
@@ -175,14 +177,6 @@ class Unresolved:
                 d[k] = None
         d["advice"] = self.advice()
         return d
-
-
-def _fmt_s(seconds: float) -> str:
-    if not math.isfinite(seconds):
-        return "no finite time"
-    if seconds < 1:
-        return f"{seconds * 1e3:.3g} ms"
-    return f"{seconds:.3g} s" if seconds < 600 else f"{seconds / 60:.3g} min"
 
 
 def tolerance_of(name: str, tolerances: Mapping[str, float] | float) -> float:

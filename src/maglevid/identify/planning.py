@@ -92,6 +92,7 @@ __all__ = [
     "design_for_recording",
     "design_information",
     "excitation_signal",
+    "format_seconds",
     "input_levels",
     "noise_of_result",
     "plan_experiment",
@@ -540,14 +541,14 @@ class PlanRow:
                 f"{self.name}: the baseline itself is uncertain by ±{pct:.2g} %"
                 f" (95 %; target ±{self._percent(self.target_std):.2g} %), so no record of the "
                 f"present state resolves it; re-record the baseline and this state, "
-                f"{_fmt_s(self.seconds_rerecord)} each "
+                f"{format_seconds(self.seconds_rerecord)} each "
                 f"({describe_excitation(self.excitation_best, self.best_share)}, "
                 f"{spectrum_label(self.best_spectrum)}), or widen the tolerance"
             )
-        out = f"{self.name} needs {_fmt_s(self.seconds_now)} at this excitation"
+        out = f"{self.name} needs {format_seconds(self.seconds_now)} at this excitation"
         out += f" ({excitation_std:.3g} V rms)"
         if max_excitation_std > excitation_std * 1.01:
-            out += f", or {_fmt_s(self.seconds_at_max)} at {max_excitation_std:.3g} V rms"
+            out += f", or {format_seconds(self.seconds_at_max)} at {max_excitation_std:.3g} V rms"
         return out
 
     def to_dict(self) -> dict[str, Any]:
@@ -577,7 +578,8 @@ def _finite(x: float) -> float | None:
     return float(x) if math.isfinite(x) else None
 
 
-def _fmt_s(seconds: float) -> str:
+def format_seconds(seconds: float) -> str:
+    """A record length in words: "560 ms", "9 s", "12 min", "no finite time"."""
     if not math.isfinite(seconds):
         return "no finite time"
     if seconds < 1:
@@ -630,17 +632,18 @@ class ExperimentPlan:
             worst = max(rows, key=lambda r: r.seconds_now)
             out = (
                 f"to resolve {', '.join(r.name for r in rows)} to {self.fraction:g} of the "
-                f"tolerance, the record needs {_fmt_s(worst.seconds_now)} at this excitation "
+                f"tolerance, the record needs {format_seconds(worst.seconds_now)} at this "
+                "excitation "
                 f"({self.excitation_std:.3g} V rms)"
             )
             at_max = max(r.seconds_at_max for r in rows)
             if self.max_excitation_std > self.excitation_std * 1.01:
-                out += f", or {_fmt_s(at_max)} at {self.max_excitation_std:.3g} V rms"
+                out += f", or {format_seconds(at_max)} at {self.max_excitation_std:.3g} V rms"
             other = (self.best_spectrum, self.best_share) != (self.spectrum, 0.5)
             if other and self.seconds_best < 0.8 * min(worst.seconds_now, at_max):
                 out += (
                     f"; a {spectrum_label(self.best_spectrum)} excitation needs "
-                    f"{_fmt_s(self.seconds_best)} "
+                    f"{format_seconds(self.seconds_best)} "
                     f"({describe_excitation(self.excitation_best, self.best_share)})"
                 )
             parts.append(out)
