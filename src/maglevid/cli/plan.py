@@ -14,6 +14,14 @@ which excitation level within the amplifier and displacement limits, resolves
 each parameter to a fraction of its tolerance (95 % half-width <= fraction x
 tolerance x value).
 
+It also compares candidate spectra (white, low-pass) and splits of the
+excitation between the two coils (the amplifier limit is per coil, the
+displacement limit shared) and names the one that needs the shortest record
+("white, coil 1 only 2.1 V"). A diagnosis judges the difference from its
+baseline: when the baseline is itself an estimate, --baseline-std gives its
+relative std; it does not fall with a longer record, and where it alone exceeds
+the target the plan says to re-record the baseline.
+
 For a design (the nominal bearing under the default loop, optionally with a
 fault), or for an existing recording (at its parameters: the simulated truth,
 or an estimate given with --from-fit of the ml method):
@@ -21,6 +29,7 @@ or an estimate given with --from-fit of the ml method):
   maglevid plan
   maglevid plan --fault R1=1.2 --seconds 2 --excitation-std 1 --tolerance 0.02
   maglevid plan rec.npz --parameters R1,kw1 --max-excitation-std 3
+  maglevid plan --parameters R1,kw1 --baseline-std R1=0.01 --max-displacement 0.005
 """
 
 
