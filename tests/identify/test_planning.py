@@ -301,5 +301,7 @@ def test_plan_command_with_a_baseline_std(capsys):
     assert [p["baseline_std"] for p in res["parameters"]] == pytest.approx(
         [0.001 * 17.5, 0.001 * 1.0]
     )
+    assert main(["plan", "--parameters", "R1", "--baseline-std", "R9=0.01"]) == 1
+    assert "unknown parameters ['R9']" in capsys.readouterr().err
     with pytest.raises(SystemExit):  # argparse's usage error
         main(["plan", "--baseline-std", "R1=x"])

@@ -834,6 +834,9 @@ def _baseline_variance(
         _, full = propagate_covariance(chain, np.asarray(design.v, float), cov)
         var_b = np.clip(np.diag(full)[list(index)], 0.0, None)
     if baseline_std is not None:
+        unknown = set(baseline_std) - set(now.names) if isinstance(baseline_std, Mapping) else ()
+        if unknown:
+            raise DataError(f"`baseline_std` names unknown parameters {sorted(unknown)}")
         for j, (p, i) in enumerate(zip(parameters, index, strict=True)):
             if isinstance(baseline_std, Mapping) and p not in baseline_std:
                 continue
