@@ -182,3 +182,25 @@ def test_an_uncertain_baseline_is_named_not_planned(advice):
     assert why is None
     assert next(x for x in planned if x.parameter == "R1") == u  # no plan can help
     assert "the baseline itself is uncertain" in u.advice()
+
+
+def test_against_a_history_of_the_same_quality_the_advice_names_the_baseline(tmp_path):
+    """End to end: the history baseline's standard errors reach the advice
+    (plants/amb.py passes them to the resolver). The baseline is an ``ml``
+    identification of a healthy record as noisy and as short as the new one, so
+    R1's baseline alone has about the new record's half-width (~4 %, against the
+    3 % tolerance): no record of the present state resolves R1."""
+    from maglevid.diagnose.history import open_history
+
+    store = open_history(tmp_path / "h.sqlite")
+    opts = {"baseline": "history", "machine": "B1", "history": store, "method": "ml"}
+    rec0 = simulate_amb_loop(NOMINAL, rng=3, n_samples=2000, **LOOP)
+    diagnose(rec0.with_metadata(recorded_at="2026-01-01T00:00:00+00:00"), tolerances=TOL, **opts)
+    rec1 = simulate_amb_loop(FAULTY, rng=1, n_samples=2000, **LOOP)
+    d = diagnose(rec1.with_metadata(recorded_at="2026-01-08T00:00:00+00:00"), tolerances=TOL,
+                 **opts)  # fmt: skip
+    store.close()
+    assert d.baseline["source"].startswith("earlier identification")
+    r1 = next(u for u in d.resolution if u["parameter"] == "R1")
+    assert 2.0 < r1["baseline_percent"] < 8.0, r1
+    assert r1["baseline_percent"] >= 3.0 and "the baseline itself is uncertain" in r1["advice"]
