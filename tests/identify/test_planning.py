@@ -305,3 +305,22 @@ def test_plan_command_with_a_baseline_std(capsys):
     assert "unknown parameters ['R9']" in capsys.readouterr().err
     with pytest.raises(SystemExit):  # argparse's usage error
         main(["plan", "--baseline-std", "R1=x"])
+
+
+def test_one_amplifier_with_less_headroom_moves_the_excitation_to_the_other(design):
+    """Amplifier limits 4 V on coil 1 and 0.5 V on coil 2 (coil 2's amplifier near
+    saturation): alike on both inputs the level stops at 0.5 V; each input at its
+    own limit (the share 16/16.25, always a candidate) carries ~(4^2 + 0.5^2) /
+    (2 x 0.5^2) = 32x the excitation power, so wherever the displacement limit
+    does not bind the plan drives coil 1 harder and needs a much shorter record
+    (information from the excitation ~ power; the noise part keeps it below 32x)."""
+    plan = plan_experiment(design, n_samples=2000, excitation_std=0.3, parameters=("R1", "kw1"),
+                           tolerance=0.01, max_excitation_std=(4.0, 0.5))  # fmt: skip
+    assert plan.max_excitation_std == pytest.approx(0.5)
+    a1, a2 = input_levels(plan.excitation_best, plan.best_share)
+    assert a1 > 3 * a2 and a2 <= 0.5 + 1e-12 and a1 <= 4.0 + 1e-12
+    assert plan.seconds_best < plan.seconds_at_max / 5
+    assert "excite coil 1 at" in plan.sentence()
+    assert plan.to_dict()["amplifier_limit"] == (4.0, 0.5)
+    with pytest.raises(DataError, match="one per input"):
+        plan_experiment(design, n_samples=10, excitation_std=1.0, max_excitation_std=(1, 2, 3))

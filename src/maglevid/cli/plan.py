@@ -113,9 +113,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--max-excitation-std",
-        type=float,
+        type=_limits,
         default=DEFAULT_MAX_EXCITATION_STD,
-        help="amplifier limit [V rms per input] (default %(default)s)",
+        metavar="V or V1,V2",
+        help="amplifier limit [V rms], one for both inputs or one per input (e.g. 4,0.5 when "
+        "coil 2's amplifier has less headroom) (default %(default)s)",
     )
     parser.add_argument(
         "--baseline-std",
@@ -174,6 +176,17 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     out = plan.to_dict()
     out["source"] = source
     return out
+
+
+def _limits(text: str) -> float | tuple[float, ...]:
+    """``"4"`` -> 4.0; ``"4,0.5"`` -> (4.0, 0.5)."""
+    try:
+        values = tuple(float(x) for x in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected V or V1,V2; got {text!r}") from None
+    if len(values) not in (1, 2) or not all(v > 0 for v in values):
+        raise argparse.ArgumentTypeError(f"expected one or two positive volts; got {text!r}")
+    return values[0] if len(values) == 1 else values
 
 
 def _baseline_std(text: str) -> tuple[str | None, float]:
@@ -243,7 +256,7 @@ def format_text(result: dict[str, Any]) -> str:
     lines = [
         f"plan for {r['source']}: {r['seconds']:.3g} s at {r['excitation_std']:.3g} V rms; "
         f"largest allowed excitation {r['max_excitation_std']:.3g} V rms "
-        f"(amplifier {r['amplifier_limit']:.3g} V, rms displacement "
+        f"(amplifier {_volts(r['amplifier_limit'])}, rms displacement "
         f"<= {100 * r['displacement_limit']:.3g} % of the gap)",
         f"target: 95 % half-width <= {r['fraction']:g} x tolerance"
         + ("; std now includes the baseline's own std" if with_base else ""),
@@ -261,6 +274,12 @@ def format_text(result: dict[str, Any]) -> str:
         )
     lines.append(r["sentence"])
     return "\n".join(lines)
+
+
+def _volts(limit: Any) -> str:
+    if isinstance(limit, (list, tuple)):
+        return f"{limit[0]:.3g} V on coil 1, {limit[1]:.3g} V on coil 2"
+    return f"{limit:.3g} V"
 
 
 def _s(seconds: float | None, unit: str = "") -> str:

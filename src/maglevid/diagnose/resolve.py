@@ -277,7 +277,7 @@ def with_cramer_rao_plan(
     excitation_std: float,
     tolerances: Mapping[str, float] | float,
     level: float = 0.95,
-    max_excitation_std: float | None = None,
+    max_excitation_std: Any = None,
     max_displacement: float | None = None,
     baseline_covariance: Any = None,
     splits: Any = None,
@@ -308,6 +308,7 @@ def with_cramer_rao_plan(
     amp = planning.DEFAULT_MAX_EXCITATION_STD if max_excitation_std is None else max_excitation_std
     disp = planning.DEFAULT_MAX_DISPLACEMENT if max_displacement is None else max_displacement
     splits = planning.DEFAULT_SPLITS if splits is None else tuple(splits)
+    splits = (*splits, planning.limit_share(amp))  # each input at its own limit
     z = float(special.ndtri(0.5 + level / 2))
     singles = {h.parameters[0]: h for h in iso.singles if h.sensitivity}
     S_b = None if baseline_covariance is None else np.asarray(baseline_covariance, float)
@@ -371,7 +372,7 @@ class _ExcitationGrid:
     def __init__(
         self,
         design: Any,
-        amp: float,
+        amp: Any,
         disp: float,
         excitation_std: float,
         model_error: float,

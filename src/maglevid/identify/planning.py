@@ -88,12 +88,14 @@ __all__ = [
     "ExperimentPlan",
     "PlanRow",
     "SpectrumPart",
+    "amplifier_limits",
     "describe_excitation",
     "design_for_recording",
     "design_information",
     "excitation_signal",
     "format_seconds",
     "input_levels",
+    "limit_share",
     "noise_of_result",
     "plan_experiment",
     "plan_for_recording",
@@ -183,6 +185,27 @@ def input_levels(excitation_std: float, share: float = 0.5) -> tuple[float, floa
     if not 0.0 <= share <= 1.0:
         raise DataError(f"`share` must be in [0, 1]; got {share!r}")
     return excitation_std * math.sqrt(2 * share), excitation_std * math.sqrt(2 * (1 - share))
+
+
+def amplifier_limits(max_excitation_std: float | Sequence[float]) -> tuple[float, float]:
+    """The amplifier limits ``(A1, A2)`` [V rms] of the two inputs (one value: both)."""
+    try:
+        lim = np.asarray(max_excitation_std, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        lim = np.zeros(0)
+    lim = np.repeat(lim, 2) if lim.size == 1 else lim
+    if lim.size != 2 or not np.all(np.isfinite(lim) & (lim > 0)):
+        raise DataError(
+            f"`max_excitation_std` must be one positive value or one per input; "
+            f"got {max_excitation_std!r}"
+        )
+    return float(lim[0]), float(lim[1])
+
+
+def limit_share(max_excitation_std: float | Sequence[float]) -> float:
+    """The split that drives each input at its own amplifier limit."""
+    a1, a2 = amplifier_limits(max_excitation_std)
+    return a1 * a1 / (a1 * a1 + a2 * a2)
 
 
 def describe_excitation(excitation_std: float, share: float = 0.5) -> str:
@@ -322,19 +345,20 @@ class DesignInformation:
 
     def max_excitation(
         self,
-        max_excitation_std: float,
+        max_excitation_std: float | Sequence[float],
         max_displacement: float,
         spectrum: str | None = None,
         share: float = 0.5,
     ) -> float:
         """The largest level [V rms] within the amplifier and displacement limits.
 
-        The amplifier limit is per input (the larger of ``a1, a2`` at most
-        ``max_excitation_std``); the displacement limit is shared: the two
-        inputs' contributions to the rms displacement add in power.
+        The amplifier limit is per input (``a_k`` at most ``max_excitation_std``,
+        one value for both or one per input); the displacement limit is shared:
+        the two inputs' contributions to the rms displacement add in power.
         """
         a1, a2 = input_levels(1.0, share)
-        a_amp = max_excitation_std / max(a1, a2)
+        A1, A2 = amplifier_limits(max_excitation_std)
+        a_amp = min(A1 / a1 if a1 > 0 else math.inf, A2 / a2 if a2 > 0 else math.inf)
         x = self._part(spectrum).x_rms
         per_level = math.hypot(a1 * x[0], a2 * x[1])  # rms displacement per V rms
         x_lim = max_displacement * self.gap
@@ -598,7 +622,7 @@ class ExperimentPlan:
     dt: float
     excitation_std: float
     max_excitation_std: float
-    amplifier_limit: float
+    amplifier_limit: float | tuple[float, float]
     displacement_limit: float
     tolerance: Mapping[str, float]
     fraction: float
@@ -683,7 +707,7 @@ def plan_experiment(
     parameters: Sequence[str] = DEFAULT_PARAMETERS,
     tolerance: float | Mapping[str, float] = 0.05,
     fraction: float = DEFAULT_FRACTION,
-    max_excitation_std: float = DEFAULT_MAX_EXCITATION_STD,
+    max_excitation_std: float | Sequence[float] = DEFAULT_MAX_EXCITATION_STD,
     max_displacement: float = DEFAULT_MAX_DISPLACEMENT,
     splits: Sequence[float] = DEFAULT_SPLITS,
     baseline_covariance: Any = None,
@@ -705,12 +729,14 @@ def plan_experiment(
         Relative engineering tolerance (per parameter, default 5 %).
     fraction : float
         The 95 % half-width must be at most ``fraction x tolerance``.
-    max_excitation_std : float
-        Amplifier limit [V rms per input].
+    max_excitation_std : float or (float, float)
+        Amplifier limit [V rms], one for both inputs or one per input.
     max_displacement : float
         Largest rms displacement as a fraction of the air gap.
     splits : sequence of float
-        Candidate shares of the excitation power on input 1 (:func:`input_levels`).
+        Candidate shares of the excitation power on input 1 (:func:`input_levels`);
+        the share that drives each input at its own limit (:func:`limit_share`)
+        is always a candidate.
     baseline_covariance : array_like, shape (9, 9), optional
         Covariance of the baseline's v1..v9 when it is itself an estimate (a
         stored history, an earlier fit); propagated to every parameter.
@@ -732,13 +758,14 @@ def plan_experiment(
     """
     if not (0 < fraction <= 10) or n_samples < 1 or excitation_std < 0:
         raise DataError("`fraction` must be in (0, 10], `n_samples` >= 1, `excitation_std` >= 0")
-    if max_excitation_std <= 0 or max_displacement <= 0:
-        raise DataError("`max_excitation_std` and `max_displacement` must be positive")
+    amp = amplifier_limits(max_excitation_std)
+    if max_displacement <= 0:
+        raise DataError("`max_displacement` must be positive")
     if not splits or not all(0.0 <= s <= 1.0 for s in splits):
         raise DataError(f"`splits` must be shares in [0, 1]; got {list(splits)}")
     tol = {p: _per_parameter(tolerance, p, 0.05) for p in parameters}
     # Largest excitation: the amplifier or the displacement limit, whichever is smaller.
-    a_max = design.max_excitation(max_excitation_std, max_displacement)
+    a_max = design.max_excitation(amp, max_displacement)
     now = design.bound(n_samples=1, excitation_std=excitation_std)
     names = list(now.names)
     unknown = [p for p in parameters if p not in names]
@@ -749,8 +776,8 @@ def plan_experiment(
     # Per-sample variances at each spectrum's and split's largest allowed excitation.
     at_max: dict[tuple[str, float], tuple[float, np.ndarray]] = {}
     for sp in design.parts:
-        for share in dict.fromkeys([0.5, *splits]):
-            a_sp = design.max_excitation(max_excitation_std, max_displacement, sp, share)
+        for share in dict.fromkeys([0.5, *splits, limit_share(amp)]):
+            a_sp = design.max_excitation(amp, max_displacement, sp, share)
             cov = design.bound(n_samples=1, excitation_std=a_sp, spectrum=sp, share=share)
             at_max[(sp, share)] = (a_sp, np.diag(cov.covariance)[index])
     present = (design.spectrum, 0.5)
@@ -791,7 +818,7 @@ def plan_experiment(
         dt=design.dt,
         excitation_std=float(excitation_std),
         max_excitation_std=a_max,
-        amplifier_limit=float(max_excitation_std),
+        amplifier_limit=amp[0] if amp[0] == amp[1] else amp,
         displacement_limit=float(max_displacement),
         tolerance=tol,
         fraction=float(fraction),
