@@ -226,12 +226,6 @@ LEVITATOR_HYPOTHESES: dict[str, tuple[str, str, str, str]] = {
         "the gap sensor reads low",
         "factor",
     ),
-    "a": (
-        "length scale a of the magnet's law",
-        "a larger length scale (pole face, core)",
-        "a smaller length scale (pole face, core)",
-        "factor",
-    ),
     "k": (
         "force constant k of the magnet (its inductance increment)",
         "more force per ampere (ball or magnet changed, more turns)",
@@ -243,6 +237,12 @@ LEVITATOR_HYPOTHESES: dict[str, tuple[str, str, str, str]] = {
         "current-sensor gain",
         "the current sensor reads high",
         "the current sensor reads low",
+        "factor",
+    ),
+    "a": (
+        "length scale a of the magnet's law",
+        "a larger length scale (pole face, core)",
+        "a smaller length scale (pole face, core)",
         "factor",
     ),
     "R": (
