@@ -98,8 +98,9 @@ def _twin(params, offset=0.0, seed=3):
     d = simulate_uaq_twin(yd + offset, params=params, rng=np.random.default_rng(seed))
     y = np.array(d.y, dtype=float)
     y[:, 0] -= offset
+    law = "L(y) = k0 + k/(1 + y/a)"
     plant = {"m_kg": UAQ_TWIN.m, "R_ohm": UAQ_TWIN.R, "k0_H": UAQ_TWIN.k0, "k_H": UAQ_TWIN.k,
-             "a_m": UAQ_TWIN.a, "ku": UAQ_TWIN.ku, "inductance_model": "L(y) = k0 + k/(1 + y/a)"}  # fmt: skip
+             "a_m": UAQ_TWIN.a, "ku": UAQ_TWIN.ku, "inductance_model": law}  # fmt: skip
     return ClosedLoopData(
         y=y, u=d.u, r=yd, dt=d.dt, names={"y": ("y", "i"), "u": ("u",), "r": ("yd",)},
         units={"y": ("m", "A"), "u": ("V",), "r": ("m",)}, loop=dict(d.loop),
@@ -164,3 +165,14 @@ def test_real_session_names_a_shifted_gap_zero_and_says_what_cannot_be_told_apar
     # the published physics state no driver: R and the driver gain are not judged
     assert {n for n, _ in iso.not_tested} == {"R", "ku"}
     assert any("known gap reference" in r for r in d.reasons)
+
+
+def test_levitator_report_shows_the_levitator_panels_only():
+    from maglevid.report.html import render_report
+
+    d = _diagnose(_twin(replace(UAQ_TWIN, R=1.3 * UAQ_TWIN.R)))
+    assert d.plant_kind == "levitator"
+    page = render_report(d)
+    # plants/levitator.py: no percentage index (an AMB panel over the v1..v9 matrices)
+    assert 'id="percentage"' not in page and 'href="#percentage"' not in page
+    assert 'id="poles"' in page and "equilibrium currents" in page

@@ -628,7 +628,9 @@ def isolate_levitator_fault(
     tie = tuple(h for h in tied[1:]) + tuple(
         h
         for h in accepted
-        if h not in tied and len(h.parameters) == 1 and len(best.parameters) == 1
+        if h not in tied
+        and len(h.parameters) == 1
+        and len(best.parameters) == 1
         and frozenset((*best.parameters, *h.parameters)) in pair
     )
     return LevitatorIsolation(best, tuple(cands), none, alpha, True, tie, **extra)
