@@ -26,7 +26,7 @@ from maglevid.data import ClosedLoopData
 from maglevid.diagnose import levitator as lev
 from maglevid.diagnose.compare import DEFAULT_TOLERANCE, compare_parameters
 from maglevid.diagnose.diagnosis import Diagnosis, QualityCheck
-from maglevid.exceptions import MaglevidError
+from maglevid.exceptions import DataError, MaglevidError
 from maglevid.plants.amb import STAGES, AMBStages
 from maglevid.plants.base import BaseKind, DiagnosisRun, as_mapping, cannot_diagnose, shape_of
 
@@ -283,8 +283,11 @@ class Levitator(BaseKind):
         }
     )
     hypotheses: Mapping[str, str] = MappingProxyType(
-        {}
-    )  # no fault model of the levitator in maglevid yet
+        {
+            name: f"{what}: up = {up}; down = {down}"
+            for name, (what, up, down, _) in lev.LEVITATOR_HYPOTHESES.items()
+        }
+    )
     report_panels = ("verdict", "parameters", "poles", "responses", "trends", "quality", "method")
 
     def recognise(self, data: ClosedLoopData) -> str | None:
@@ -306,6 +309,35 @@ class Levitator(BaseKind):
 
     def stages(self, method: str) -> LevitatorStages | AMBStages:
         return STAGES_LEVITATOR if method in self.diagnosis_methods else STAGES
+
+    def signature(  # type: ignore[override]
+        self,
+        hypothesis: str,
+        baseline: Any,
+        operating_point: lev.LevitatorObservations | None = None,
+        *,
+        step: float = 0.01,
+    ) -> dict[str, float]:
+        """Relative change of each observation (the pole, the equilibrium current at each
+        gap, ``R/L`` and ``ku/L``) when only ``hypothesis`` moves by ``step``.
+
+        ``operating_point``: the record's observations (their gaps and reference gap;
+        default 4, 5 and 6 mm, pole at 5 mm). A factor moves by ``1 + step``; the
+        gap-sensor zero by ``step`` times the reference gap (1 % of 5 mm = 50 um).
+        """
+        if hypothesis not in lev.LEVITATOR_HYPOTHESES:
+            raise DataError(
+                f"no fault hypothesis {hypothesis!r}; expected one of "
+                f"{', '.join(lev.LEVITATOR_HYPOTHESES)}"
+            )
+        obs = operating_point or lev.observations_of(
+            baseline, y_ref=0.005, gaps=(0.004, 0.005, 0.006)
+        )
+        offset = lev.LEVITATOR_HYPOTHESES[hypothesis][3] == "offset"
+        value = step * obs.y_ref if offset else 1.0 + step
+        z0 = lev.predict_observations(baseline, obs)
+        z1 = lev.predict_observations(baseline, obs, {hypothesis: value})
+        return dict(zip(obs.names, np.expm1(z1 - z0).tolist()))
 
 
 KIND = Levitator()
