@@ -176,3 +176,24 @@ def test_levitator_report_shows_the_levitator_panels_only():
     # plants/levitator.py: no percentage index (an AMB panel over the v1..v9 matrices)
     assert 'id="percentage"' not in page and 'href="#percentage"' not in page
     assert 'id="poles"' in page and "equilibrium currents" in page
+
+
+def test_history_baseline_compares_the_coil_circuit_and_names_a_driver_fault(tmp_path):
+    # Against an earlier identification of the same rig (history), the baseline holds R,
+    # ku, k0, a, k, so the coil circuit R/L, ku/L is compared: a driver gain down 20 %
+    # (nothing else) must be named, R must not.
+    from maglevid.diagnose.history import open_history
+
+    store = open_history(tmp_path / "h.sqlite")
+    kw = {"method": "greybox-levitator", "method_options": {"model": "electromechanical"},
+          "baseline": "history", "machine": "lev1", "history": store}  # fmt: skip
+    diagnose(_twin(UAQ_TWIN), recorded_at="2026-01-01T00:00:00+00:00", **kw)
+    d = diagnose(
+        _twin(replace(UAQ_TWIN, ku=0.8 * UAQ_TWIN.ku), seed=4),
+        recorded_at="2026-02-01T00:00:00+00:00", **kw,
+    )  # fmt: skip
+    assert d.baseline["source"].startswith("earlier identification")
+    iso = d.isolation
+    assert iso.observations.electrical is not None and not iso.not_tested
+    assert iso.best.parameters == ("ku",), d.verdict
+    assert iso.best.values[0] == pytest.approx(0.8, abs=max(4 * iso.best.std_errors[0], 0.03))
