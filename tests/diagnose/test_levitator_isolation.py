@@ -164,6 +164,7 @@ def test_real_session_names_a_shifted_gap_zero_and_says_what_cannot_be_told_apar
     assert 1e3 * iso.best.values[0] == pytest.approx(offset_mm, abs=0.6)
     # the published physics state no driver: R and the driver gain are not judged
     assert {n for n, _ in iso.not_tested} == {"R", "ku"}
+    assert "R and the driver gain: not judged" in d.verdict
     assert any("known gap reference" in r for r in d.reasons)
 
 
@@ -196,4 +197,5 @@ def test_history_baseline_compares_the_coil_circuit_and_names_a_driver_fault(tmp
     iso = d.isolation
     assert iso.observations.electrical is not None and not iso.not_tested
     assert iso.best.parameters == ("ku",), d.verdict
+    assert d.verdict_code == "fault" and "driver" in d.verdict
     assert iso.best.values[0] == pytest.approx(0.8, abs=max(4 * iso.best.std_errors[0], 0.03))

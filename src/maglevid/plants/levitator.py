@@ -191,16 +191,57 @@ def _verdict(
         )
     if not big:
         return f"Change within tolerance ({best.describe()})", "within_tolerance"
+    verdict, code = _cause_verdict(iso)
+    return verdict + _coil_words(iso, params), code
+
+
+def _coil_words(iso: lev.LevitatorIsolation, params: Any) -> str:
+    """What the verdict says about the coil circuit (R, driver gain)."""
+    if iso.not_tested:
+        names = " and ".join("the driver gain" if n == "ku" else n for n, _ in iso.not_tested)
+        return f". {names[0].upper()}{names[1:]}: not judged (the baseline states no driver)"
+    named = {n for h in (iso.best, *iso.indistinguishable) for n in h.parameters}
+    obs = iso.observations
+    if obs.electrical is None or named & {"R", "ku"}:
+        return ""
+    z = obs.vector()[-2:]
+    z_b = lev.predict_observations(params, obs, dict(zip(iso.best.parameters, iso.best.values)))
+    sd = np.sqrt(np.diag(obs.covariance())[-2:])
+    if np.all(np.abs(z - z_b[-2:]) < 2 * sd):
+        return ". No change in R or the driver gain (the coil circuit as predicted)"
+    return ""
+
+
+def _cause_verdict(iso: lev.LevitatorIsolation) -> tuple[str, str]:
+    best = iso.best
     together = "two changes together, " if len(best.parameters) > 1 else ""
     if not iso.indistinguishable:
         return f"Changed: explained by {together}{best.describe()}", "fault"
-    alts = ", ".join(h.short() for h in iso.indistinguishable)
     hints = iso.resolve_hints()
     return (
-        f"Changed: explained by {together}{best.short()} - or equally by {alts}: cannot be "
-        "told apart with these records" + (f"; to resolve: {'; '.join(hints)}" if hints else ""),
+        f"Changed: explained by {together}{_grouped([best, *iso.indistinguishable])}: cannot "
+        "be told apart with these records"
+        + (f"; to resolve: {'; '.join(hints)}" if hints else ""),
         "inconclusive",
     )
+
+
+def _grouped(hyps: list[lev.LevitatorFault]) -> str:
+    """Tied explanations in few words, pairs that share their first change grouped:
+    'gap_offset -2.4 mm + (k -33 % | m +50 %), or a -47 % + (k +25 % | m -20 %)'."""
+    groups: dict[str, list[str]] = {}
+    gap_scale = ("gap_offset", "gap_gain", "a")  # where the gap is, first
+    for h in hyps:
+        parts = sorted(h.short().split(" + "), key=lambda t: t.split()[0] not in gap_scale)
+        groups.setdefault(parts[0], []).append(" + ".join(parts[1:]))
+    out = []
+    for head, rest in groups.items():
+        rest = [r for r in rest if r]
+        if not rest:
+            out.append(head)
+        else:
+            out.append(f"{head} + " + (rest[0] if len(rest) == 1 else f"({' | '.join(rest)})"))
+    return ", or ".join(out)
 
 
 def isolation_reasons(iso: lev.LevitatorIsolation, params: Any) -> list[str]:
