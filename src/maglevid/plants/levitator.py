@@ -6,10 +6,14 @@ family (``levitator``), or by ``pem`` when the log has no coil current.
 
 Its diagnosis (:class:`LevitatorStages`, for ``levitator`` and
 ``greybox-levitator``) delegates to :mod:`maglevid.diagnose.levitator`: the
-levitating segments are the quality check, the unstable pole ``sqrt(2 g / (a +
-y0))`` at the operating gap and the inductance law's ``a`` are compared with an
-earlier identification or the published physics. maglevid has no fault model of
-the levitator: a change is reported with its numbers, not attributed to a cause.
+levitating segments are the quality check; the unstable pole ``sqrt(2 g / (a +
+y0))`` at the operating gap, the current gain and ``i0`` are compared with an
+earlier identification or the published physics; the fault hypotheses
+(:data:`maglevid.diagnose.levitator.LEVITATOR_HYPOTHESES`: gap-sensor zero and
+gain, ``k``, ``m``, current-sensor gain, ``a``, ``R``, driver gain) are fitted to
+the pole, the segments' equilibrium currents and (when the baseline states the
+driver) the coil circuit ``R/L``, ``ku/L``; the verdict names the cause, or the
+causes these records cannot tell apart and what would resolve them.
 Any other method runs the shared stages (:class:`maglevid.plants.amb.AMBStages`).
 """
 
