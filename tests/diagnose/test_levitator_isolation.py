@@ -13,8 +13,8 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from benchmarks.bench_levitator_isolation import diagnose_twin, faulty_twin
 
-from maglevid.data import ClosedLoopData
 from maglevid.diagnose.levitator import (
     LEVITATOR_HYPOTHESES,
     isolate_levitator_fault,
@@ -22,7 +22,7 @@ from maglevid.diagnose.levitator import (
     predict_observations,
 )
 from maglevid.diagnose.pipeline import diagnose
-from maglevid.experiments.rigs import UAQ_TWIN, simulate_uaq_twin
+from maglevid.experiments.rigs import UAQ_TWIN
 from maglevid.physics.levitator import LevitatorParameters
 
 P = LevitatorParameters.uaq()
@@ -89,29 +89,11 @@ def test_unknown_hypothesis_is_refused():
 
 
 def _twin(params, offset=0.0, seed=3):
-    """20 s of the twin under its cascade, 10 s at 5 mm then 10 s at 4.5 mm (a 1 mm step
-    saturates the twin's driver and drops the ball); the gap
-    sensor's zero shifted by ``offset`` (true gap = reading + offset) by running the true
-    loop at ``yd + offset`` and logging the reading. The recording states the published
-    physics with its driver (``ku``), so the coil circuit is compared too."""
-    yd = np.r_[np.full(1000, 0.005), np.full(1000, 0.0045)]
-    d = simulate_uaq_twin(yd + offset, params=params, rng=np.random.default_rng(seed))
-    y = np.array(d.y, dtype=float)
-    y[:, 0] -= offset
-    law = "L(y) = k0 + k/(1 + y/a)"
-    plant = {"m_kg": UAQ_TWIN.m, "R_ohm": UAQ_TWIN.R, "k0_H": UAQ_TWIN.k0, "k_H": UAQ_TWIN.k,
-             "a_m": UAQ_TWIN.a, "ku": UAQ_TWIN.ku, "inductance_model": law}  # fmt: skip
-    return ClosedLoopData(
-        y=y, u=d.u, r=yd, dt=d.dt, names={"y": ("y", "i"), "u": ("u",), "r": ("yd",)},
-        units={"y": ("m", "A"), "u": ("V",), "r": ("m",)}, loop=dict(d.loop),
-        metadata={"plant": plant},
-    )  # fmt: skip
+    return faulty_twin(params, offset, seed=seed)
 
 
 def _diagnose(data):
-    return diagnose(
-        data, method="greybox-levitator", method_options={"model": "electromechanical"}
-    )
+    return diagnose_twin(data)
 
 
 @pytest.mark.parametrize(
