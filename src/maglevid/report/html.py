@@ -364,10 +364,12 @@ def _isolation_table(d: Diagnosis) -> str:
     # A levitator's isolation reads the pole, equilibrium currents and coil circuit
     # (diagnose/levitator.py), the AMB's the v1..v9 of eq. (4).
     space = "observation" if getattr(iso, "observations", None) is not None else "v_i"
+    obs = getattr(iso, "observations", None)
     seen_what = (
-        "the pole, the equilibrium currents and the coil circuit"
-        if space == "observation"
-        else "the identified v1..v9"
+        "the identified v1..v9"
+        if obs is None
+        else "the pole and the equilibrium currents"
+        + (" and the coil circuit" if obs.electrical is not None else "")
     )
     seen: set[tuple[str, ...]] = set()
     body = []
