@@ -76,8 +76,13 @@ def run_case(name: str, seed: int) -> dict:
     if truth is None:
         out["false_alarm"] = d.verdict_code not in ("no_change", "within_tolerance")
         return out
+    if iso is None:  # e.g. the ball fell: cannot diagnose (counted as not named)
+        out.update(named=False, verdict=d.verdict[:200])
+        return out
     hit = next((h for h in (iso.best, *iso.indistinguishable) if h.parameters == (name,)), None)
     out["named"] = hit is not None
+    if hit is None:
+        out["verdict"] = d.verdict[:200]
     if hit is not None:
         v, se = hit.values[0], hit.std_errors[0]
         out.update(value=v, se=se, covered=bool(abs(v - truth) <= 1.96 * se))
@@ -103,6 +108,9 @@ def main(argv: list[str] | None = None) -> dict:
                 "mean_value": float(np.mean([r["value"] for r in named])) if named else None,
                 "truth": CASES[c][2],
             }  # fmt: skip
+    for r in rows:
+        if "verdict" in r or r.get("false_alarm"):
+            print(r)
     print(json.dumps(summary, indent=1))
     return summary
 
