@@ -14,6 +14,7 @@ from maglevid.diagnose.diagnosis import Diagnosis, QualityCheck
 from maglevid.diagnose.pipeline import diagnose
 from maglevid.exceptions import DataError
 from maglevid.physics.amb import V_NAMES, AMBParameters
+from maglevid.physics.levitator import LevitatorParameters
 from maglevid.physics.units import UNIT_WORDS
 from maglevid.plants import (
     KINDS,
@@ -78,8 +79,15 @@ def test_amb_fault_signatures_follow_eq_4_at_the_design_point():
     assert gx["v2"] == pytest.approx(0.01) and gx["v4"] == pytest.approx(1 / 1.01 - 1)
     with pytest.raises(DataError, match="no fault hypothesis 'R9'"):
         amb.KIND.signature("R9", p)
-    with pytest.raises(DataError, match="no fault-isolation model of the levitator"):
-        levitator.KIND.signature("a", None)
+    # The levitator has a fault model since issue 14 (diagnose/levitator.py): R moves
+    # only R/L (eq. (LIN2)), a gap-sensor zero moves the pole and the currents.
+    lp = LevitatorParameters.uaq()
+    r = levitator.KIND.signature("R", lp)
+    assert r["R/L"] == pytest.approx(0.01, rel=1e-9)
+    assert all(abs(v) < 1e-12 for k, v in r.items() if k != "R/L")
+    assert levitator.KIND.signature("gap_offset", lp)["pole"] < 0
+    with pytest.raises(DataError, match="no fault hypothesis 'R9'"):
+        levitator.KIND.signature("R9", lp)
 
 
 def test_a_kind_that_is_not_a_plant_kind_is_refused():

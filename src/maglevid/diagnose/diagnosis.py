@@ -101,6 +101,8 @@ class Diagnosis:
         as a dict: ``parameter``, ``more_seconds``, ``excitation_rms``, ``advice``).
     percentage_index : mapping or None
         ``{"A_p": array, "B_p": array}`` (NaN where the baseline element is zero).
+    plant_kind : str or None
+        The recording's plant kind; the HTML report shows its ``report_panels``.
     machine, recording, recording_hash : str or None
     dt : float or None
         Control period of the recording (for the discrete models).
@@ -127,6 +129,8 @@ class Diagnosis:
     notes: tuple[str, ...] = ()
     drifts: tuple[Mapping[str, Any], ...] = ()
     resolution: tuple[Mapping[str, Any], ...] = ()
+    #: The recording's plant kind (:mod:`maglevid.plants`; the report shows its panels).
+    plant_kind: str | None = None
 
     def __post_init__(self) -> None:
         if self.verdict_code not in VERDICT_CODES:
@@ -253,6 +257,7 @@ class Diagnosis:
             "version": DIAGNOSIS_VERSION,
             "verdict": self.verdict,
             "verdict_code": self.verdict_code,
+            "plant_kind": self.plant_kind,
             "reasons": list(self.reasons),
             "machine": self.machine,
             "recording": self.recording,

@@ -18,18 +18,32 @@ tracking are cut out first, each with its reason.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+import itertools
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from typing import Any
+
+import numpy as np
+from scipy import optimize, special
 
 from maglevid.data import ClosedLoopData
 from maglevid.diagnose.diagnosis import QualityCheck
+from maglevid.exceptions import DataError
 
 __all__ = [
     "LAW_INDEPENDENT",
+    "LEVITATOR_HYPOTHESES",
     "MIN_LEVITATING_SECONDS",
+    "LevitatorFault",
+    "LevitatorIsolation",
+    "LevitatorObservations",
     "is_levitator",
+    "isolate_levitator_fault",
     "levitator_baseline",
     "levitator_checks",
+    "observations_of",
+    "predict_observations",
 ]
 
 #: Fewest seconds of usable levitation for a diagnosis: the grey box fits the
@@ -62,6 +76,7 @@ def levitator_baseline(data: ClosedLoopData) -> Any:
         k0=float(plant["k0_H"]),
         k=float(plant["k_H"]),
         a=float(plant["a_m"]),
+        ku=float(plant.get("ku", 1.0)),
     )
 
 
@@ -174,3 +189,575 @@ def levitator_without_baseline(
         notes=(*notes, "record this diagnosis in a history store to compare later ones with it"),
         **common,
     )
+
+
+# ========================================================================================
+# Fault isolation of the levitator
+# ========================================================================================
+#
+# What a levitator record says without naming a force law (docs/real-rigs.md, "Diagnosis
+# of a levitator"):
+#
+#   p(y_ref)     the unstable pole at the operating gap, sqrt(2 g/(a + y_true))   (LIN1)
+#   i_s          the equilibrium (mean) current at each logged segment gap y_s: measured
+#                directly, c (a + y_true,s) with c = sqrt(2 m g/(k a))              (Q1)
+#   r_e, g_e     the coil circuit seen from the command: R/L(y_ref) [1/s] and
+#                ku/L(y_ref) [A/(V s)], from the command-frame fit (E1)/(LIN2)
+#
+# A sensor reads y = gs (y_true - d) ("gap-sensor zero shifted by d": the true gap is
+# the reading plus d) and i_meas = gi i. Each hypothesis moves one physical or sensor
+# parameter; its signature is the change of (p, i_1..i_S, r_e, g_e) it predicts at the
+# logged gaps. The observations are compared in relative units (log), weighted by their
+# noise plus a model-error floor, and each hypothesis "only this changed" is fitted by
+# weighted least squares over its one parameter (as the AMB's, diagnose/isolate.py).
+
+#: Levitator fault hypotheses: name -> (what, meaning if up, meaning if down, kind).
+#: ``kind`` "factor" multiplies the baseline value; "offset" is added (metres).
+LEVITATOR_HYPOTHESES: dict[str, tuple[str, str, str, str]] = {
+    "gap_offset": (
+        "gap-sensor zero",
+        "the sensor reads less than the gap (its zero moved toward the ball)",
+        "the sensor reads more than the gap (its zero moved toward the magnet)",
+        "offset",
+    ),
+    "gap_gain": (
+        "gap-sensor gain",
+        "the gap sensor reads high",
+        "the gap sensor reads low",
+        "factor",
+    ),
+    "k": (
+        "force constant k of the magnet (its inductance increment)",
+        "more force per ampere (ball or magnet changed, more turns)",
+        "less force per ampere (ball or magnet changed, shorted turns)",
+        "factor",
+    ),
+    "m": ("levitated mass m", "heavier body", "lighter body", "factor"),
+    "current_gain": (
+        "current-sensor gain",
+        "the current sensor reads high",
+        "the current sensor reads low",
+        "factor",
+    ),
+    "a": (
+        "length scale a of the magnet's law",
+        "a larger length scale (pole face, core)",
+        "a smaller length scale (pole face, core)",
+        "factor",
+    ),
+    "R": (
+        "coil circuit resistance R",
+        "heating or a bad connection in the coil circuit",
+        "lower circuit resistance than before",
+        "factor",
+    ),
+    "ku": (
+        "driver (amplifier) gain ku",
+        "driver gain up",
+        "driver gain down (the driver or its supply)",
+        "factor",
+    ),
+}
+
+#: Relative model error of the pole: the spread between folds, candidates and sessions
+#: of one rig (51-53 rad/s over the five UAQ sessions, +-2 %); a single fit's Fisher
+#: interval (+-0.2 %) understates it (docs/real-rigs.md, item 4).
+POLE_FLOOR = 0.02
+#: Relative model error of an equilibrium current: the steel-ball law over a few mm (the
+#: four gaps of multiescalon lie on eq. (Q1)'s straight line to within 1 %).
+CURRENT_FLOOR = 0.01
+#: Relative model error of R/L and ku/L: the command-frame candidates (flux lag, delay)
+#: move them by several per cent on one record.
+ELECTRICAL_FLOOR = 0.05
+#: Two hypotheses whose whitened signatures have |cos| above this cannot be told apart.
+COLLINEAR_COS = 0.99
+
+#: What would separate two hypotheses that these records cannot tell apart.
+RESOLVE_HINTS: dict[frozenset[str], str] = {
+    frozenset({"gap_offset", "a"}): (
+        "a known gap reference (a feeler gauge, or the reading with the ball on the magnet "
+        "face) fixes the sensor's zero; records at gaps further apart (the equilibrium "
+        "line's slope) separate a changed law from a shifted zero"
+    ),
+    frozenset({"gap_offset", "gap_gain"}): (
+        "a known gap reference at two gaps (the sensor's calibration)"
+    ),
+    frozenset({"a", "gap_gain"}): "a known gap reference at two gaps (the sensor's calibration)",
+    frozenset({"k", "m"}): "weighing the levitated body, or the coil's inductance at a known gap",
+    frozenset({"k", "current_gain"}): (
+        "a reference reading of the coil current (a clamp meter), or the command frame's "
+        "u -> i dynamics compared with a baseline that states the driver"
+    ),
+    frozenset({"m", "current_gain"}): (
+        "weighing the levitated body, or a reference reading of the coil current"
+    ),
+}
+
+
+@dataclass(frozen=True)
+class LevitatorObservations:
+    """The law-independent and static quantities of one levitator record.
+
+    ``pole`` [rad/s] at the measured gap ``y_ref`` [m]; ``gaps`` [m] and ``currents``
+    [A]: the mean gap and current of each levitating segment (the equilibrium
+    currents); ``electrical``: ``(R/L, ku/L)`` at ``y_ref`` with their covariance
+    ``electrical_cov`` (``None``: not compared). Standard errors are noise only; the
+    model-error floors are added by :func:`isolate_levitator_fault`.
+    """
+
+    y_ref: float
+    pole: float
+    pole_se: float
+    gaps: tuple[float, ...]
+    currents: tuple[float, ...]
+    current_se: tuple[float, ...]
+    electrical: tuple[float, float] | None = None
+    electrical_cov: tuple[tuple[float, float], tuple[float, float]] | None = None
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        cur = tuple(f"i_eq@{1e3 * y:.3g}mm" for y in self.gaps)
+        return ("pole", *cur, *(("R/L", "ku/L") if self.electrical is not None else ()))
+
+    def vector(self) -> np.ndarray:
+        """The observations in log units (relative changes compare across kinds)."""
+        el = np.log(self.electrical) if self.electrical is not None else np.zeros(0)
+        return np.r_[np.log(self.pole), np.log(self.currents), el]
+
+    def covariance(self) -> np.ndarray:
+        """Covariance of :meth:`vector`: noise plus the model-error floors."""
+        v_p = (self.pole_se / self.pole) ** 2 + POLE_FLOOR**2
+        v_i = (np.asarray(self.current_se) / np.asarray(self.currents)) ** 2 + CURRENT_FLOOR**2
+        S = np.diag(np.r_[v_p, v_i])
+        if self.electrical is None:
+            return S
+        e = np.asarray(self.electrical)
+        Se = np.asarray(self.electrical_cov) / np.outer(e, e) + ELECTRICAL_FLOOR**2 * np.eye(2)
+        out = np.zeros((S.shape[0] + 2, S.shape[0] + 2))
+        out[:-2, :-2], out[-2:, -2:] = S, Se
+        return out
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "y_ref": self.y_ref,
+            "pole": [self.pole, self.pole_se],
+            "gaps": list(self.gaps),
+            "currents": list(self.currents),
+            "current_se": list(self.current_se),
+            "electrical": None if self.electrical is None else list(self.electrical),
+        }
+
+
+def predict_observations(
+    base: Any, obs: LevitatorObservations, changes: Mapping[str, float] | None = None
+) -> np.ndarray:
+    """The observation vector (log units) that ``base`` with ``changes`` predicts.
+
+    ``changes``: hypothesis name -> value (a factor, or the offset in metres for
+    ``gap_offset``). The sensor reads ``y = gs (y_true - d)``, ``i = gi i_true``.
+    """
+    from dataclasses import replace
+
+    ch = dict(changes or {})
+    d = ch.pop("gap_offset", 0.0)
+    gs = ch.pop("gap_gain", 1.0)
+    gi = ch.pop("current_gain", 1.0)
+    p = replace(base, **{k: getattr(base, k) * f for k, f in ch.items()}) if ch else base
+
+    def true_gap(y: Any) -> Any:
+        return np.asarray(y, dtype=float) / gs + d
+
+    s_ref = p.a + true_gap(obs.y_ref)
+    s = p.a + true_gap(obs.gaps)
+    if s_ref <= 0 or np.any(s <= 0):
+        raise ValueError("the gap plus a is not positive")
+    pole = np.sqrt(2.0 * p.g / s_ref)  # eq. (LIN1)
+    cur = gi * s * np.sqrt(2.0 * p.m * p.g / (p.k * p.a))  # eq. (Q1)
+    out = [np.log([pole]), np.log(cur)]
+    if obs.electrical is not None:
+        L = p.k0 + p.k * p.a / s_ref  # eq. (L1)
+        out.append(np.log([p.R / L, gi * p.ku / L]))  # eq. (LIN2)
+    return np.concatenate(out)
+
+
+@dataclass(frozen=True)
+class LevitatorFault:
+    """One fitted levitator hypothesis ("only this changed") and how well it fits."""
+
+    parameters: tuple[str, ...]
+    values: tuple[float, ...]
+    std_errors: tuple[float, ...]
+    chi2: float
+    dof: int
+    p_value: float
+
+    @property
+    def changes_percent(self) -> dict[str, float]:
+        """Per cent change of each factor; the offset in mm for ``gap_offset``."""
+        return {
+            k: (1e3 * v if LEVITATOR_HYPOTHESES[k][3] == "offset" else 100.0 * (v - 1.0))
+            for k, v in zip(self.parameters, self.values)
+        }
+
+    def describe(self) -> str:
+        """Plain words, e.g. 'gap-sensor zero -2.9 mm ± 0.3 mm (the sensor reads more ...)'."""
+        if not self.parameters:
+            return "no significant change"
+        parts = []
+        for k, v, se in zip(self.parameters, self.values, self.std_errors):
+            what, up, down, kind = LEVITATOR_HYPOTHESES[k]
+            if kind == "offset":
+                amount = f"{1e3 * v:+.2g} mm ± {1e3 * se:.1g} mm"
+                parts.append(f"{what} {amount} ({up if v > 0 else down})")
+            else:
+                amount = f"{100 * (v - 1):+.1f} % ± {100 * se:.2g} %"
+                parts.append(f"{what} {amount} ({up if v > 1 else down})")
+        return "; ".join(parts)
+
+    def short(self) -> str:
+        """The changes in a few words, e.g. 'gap_offset -2.4 mm + k -34 %'."""
+        return " + ".join(
+            f"{k} {v:+.2g} mm" if LEVITATOR_HYPOTHESES[k][3] == "offset" else f"{k} {v:+.3g} %"
+            for k, v in self.changes_percent.items()
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "parameters": list(self.parameters),
+            "values": list(self.values),
+            "std_errors": list(self.std_errors),
+            "changes_percent": self.changes_percent,
+            "chi2": self.chi2,
+            "dof": self.dof,
+            "p_value": self.p_value,
+            "description": self.describe(),
+        }
+
+
+@dataclass(frozen=True)
+class LevitatorIsolation:
+    """Outcome of :func:`isolate_levitator_fault` (the fields the report reads are the
+    AMB's :class:`~maglevid.diagnose.isolate.IsolationResult`'s)."""
+
+    best: LevitatorFault
+    candidates: tuple[LevitatorFault, ...]
+    no_change: LevitatorFault
+    alpha: float
+    explained: bool
+    indistinguishable: tuple[LevitatorFault, ...] = ()
+    #: Pairs of hypotheses whose signatures on these observations are collinear.
+    collinear: tuple[tuple[str, str], ...] = ()
+    #: Hypotheses these observations cannot see (zero signature), with why.
+    not_tested: tuple[tuple[str, str], ...] = ()
+    observations: LevitatorObservations | None = None
+    single_cause_p_value: float = 1.0
+    model_error: float = POLE_FLOOR
+    operating_point: Any = None
+
+    def resolve_hints(self) -> list[str]:
+        """What would separate the best hypothesis from those tied with it."""
+        out = []
+        for h in self.indistinguishable:
+            for x in self.best.parameters:
+                for y in h.parameters:
+                    hint = RESOLVE_HINTS.get(frozenset((x, y)))
+                    if x != y and hint and hint not in out:
+                        out.append(hint)
+        return out
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "best": self.best.to_dict(),
+            "no_change": self.no_change.to_dict(),
+            "explained": self.explained,
+            "alpha": self.alpha,
+            "single_cause_p_value": self.single_cause_p_value,
+            "indistinguishable": [h.to_dict() for h in self.indistinguishable],
+            "collinear": [list(c) for c in self.collinear],
+            "not_tested": [list(c) for c in self.not_tested],
+            "resolve": self.resolve_hints(),
+            "candidates": [h.to_dict() for h in self.candidates],
+            "observations": None if self.observations is None else self.observations.to_dict(),
+        }
+
+
+def _to_x(name: str, value: float) -> float:
+    """Fit coordinate of a hypothesis value: log factor, or the offset in mm."""
+    return 1e3 * value if LEVITATOR_HYPOTHESES[name][3] == "offset" else math.log(value)
+
+
+def _from_x(name: str, x: float) -> float:
+    return 1e-3 * x if LEVITATOR_HYPOTHESES[name][3] == "offset" else math.exp(x)
+
+
+def _fit_one(names: Sequence[str], base: Any, obs: LevitatorObservations, L: np.ndarray):
+    """Weighted least squares over the hypotheses' parameters (none: "no change")."""
+    z = obs.vector()
+
+    def resid(x: np.ndarray) -> np.ndarray:
+        ch = {n: _from_x(n, float(v)) for n, v in zip(names, x)}
+        try:
+            return L.T @ (z - predict_observations(base, obs, ch))
+        except ValueError:
+            return np.full(z.size, 1e6)
+
+    if not names:
+        r = resid(np.zeros(0))
+        chi2, dof = float(r @ r), z.size
+        return LevitatorFault((), (), (), chi2, dof, float(special.chdtrc(dof, chi2)))
+    x0 = [_to_x(n, 0.0 if LEVITATOR_HYPOTHESES[n][3] == "offset" else 1.0) for n in names]
+    sol = optimize.least_squares(resid, x0, method="lm", xtol=1e-12, ftol=1e-12)
+    # Standard errors of the fit coordinates from the whitened Jacobian (Gauss-Newton).
+    se_x = np.sqrt(np.clip(np.diag(np.linalg.pinv(sol.jac.T @ sol.jac)), 0, None))
+    vals, ses = [], []
+    for n, x, e in zip(names, sol.x, se_x):
+        v = _from_x(n, float(x))
+        vals.append(v)
+        ses.append(1e-3 * e if LEVITATOR_HYPOTHESES[n][3] == "offset" else v * e)
+    chi2, dof = float(sol.fun @ sol.fun), z.size - len(names)
+    p = float(special.chdtrc(dof, chi2)) if dof > 0 else float("nan")
+    return LevitatorFault(tuple(names), tuple(vals), tuple(ses), chi2, dof, p)
+
+
+def _signatures(base: Any, obs: LevitatorObservations, names: list[str]) -> np.ndarray:
+    """d z / d x of each hypothesis at the baseline (columns), by central differences."""
+    cols = []
+    for n in names:
+        x0, h = _to_x(n, 0.0 if LEVITATOR_HYPOTHESES[n][3] == "offset" else 1.0), 1e-5
+        zp = predict_observations(base, obs, {n: _from_x(n, x0 + h)})
+        zm = predict_observations(base, obs, {n: _from_x(n, x0 - h)})
+        cols.append((zp - zm) / (2 * h))
+    return np.column_stack(cols)
+
+
+def isolate_levitator_fault(
+    obs: LevitatorObservations,
+    baseline: Any,
+    *,
+    hypotheses: Sequence[str] | None = None,
+    alpha: float = 0.01,
+) -> LevitatorIsolation:
+    """Which single change of the levitator explains its observations (see the section).
+
+    Parameters
+    ----------
+    obs : LevitatorObservations
+        The pole, the equilibrium currents and (optionally) the coil circuit.
+    baseline : LevitatorParameters
+        The rig as published or identified before (sensors: zero 0, gains 1).
+    hypotheses : sequence of str, optional
+        Names from :data:`LEVITATOR_HYPOTHESES` (default: all).
+    alpha : float
+        Significance level: "no change" is rejected when its chi-square or the
+        likelihood ratio against the best single cause (Bonferroni over the causes) is
+        significant at ``alpha / 2``; a hypothesis fits when its p-value is >= ``alpha``.
+
+    Returns
+    -------
+    LevitatorIsolation
+        Best hypothesis, all candidates ranked by chi-square, those within a chi-square
+        of 1 of the best whose signatures are collinear (``indistinguishable``), the
+        collinear pairs, and the hypotheses these observations cannot see.
+
+    Examples
+    --------
+    >>> from maglevid.physics.levitator import LevitatorParameters
+    >>> p = LevitatorParameters.uaq()
+    >>> o = observations_of(p.with_changes(R=1.3 * p.R), y_ref=0.005, gaps=(0.004, 0.005))
+    >>> iso = isolate_levitator_fault(o, p)
+    >>> iso.best.parameters, round(iso.best.values[0], 6)
+    (('R',), 1.3)
+    """
+    from maglevid.diagnose.isolate import _single_cause_p_value
+
+    names = list(hypotheses) if hypotheses is not None else list(LEVITATOR_HYPOTHESES)
+    unknown = [n for n in names if n not in LEVITATOR_HYPOTHESES]
+    if unknown:
+        raise DataError(
+            f"unknown hypotheses {unknown}; expected names from {list(LEVITATOR_HYPOTHESES)}"
+        )
+    try:
+        Ls = np.linalg.cholesky(obs.covariance())
+    except np.linalg.LinAlgError:
+        raise DataError("the observations' covariance is not positive definite") from None
+    L = np.linalg.solve(Ls, np.eye(Ls.shape[0])).T  # L L^T = S^-1
+    G = L.T @ _signatures(baseline, obs, names)
+    norms = np.linalg.norm(G, axis=0)
+    blind = [n for n, g in zip(names, norms) if g < 1e-9]
+    not_tested = tuple((n, _why_blind(n)) for n in blind)
+    seen = [n for n in names if n not in blind]
+    Gs = G[:, [names.index(n) for n in seen]] / norms[[names.index(n) for n in seen]]
+    cos = Gs.T @ Gs
+    collinear = tuple(
+        (seen[i], seen[j])
+        for i in range(len(seen))
+        for j in range(i + 1, len(seen))
+        if abs(cos[i, j]) > COLLINEAR_COS
+    )
+    none = _fit_one((), baseline, obs, L)
+    singles = sorted((_fit_one((n,), baseline, obs, L) for n in seen), key=lambda h: h.chi2)
+    p_lr = _single_cause_p_value(none, singles)  # type: ignore[arg-type]
+    changed = min(none.p_value, p_lr) < alpha / 2
+    extra = {"collinear": collinear, "not_tested": not_tested, "observations": obs,
+             "single_cause_p_value": p_lr}  # fmt: skip
+    if not changed:
+        return LevitatorIsolation(none, tuple(singles), none, alpha, True, (), **extra)
+    cands = list(singles)
+    accepted = [h for h in singles if h.p_value >= alpha]
+    if not accepted and obs.vector().size > 2:
+        # Two changes at once (dof >= 1), as the AMB's pairs: e.g. a shifted gap zero
+        # together with less force per ampere.
+        pairs = [
+            _fit_one(pair, baseline, obs, L)
+            for pair in itertools.combinations(seen, 2)
+            if frozenset(pair) not in {frozenset(c) for c in collinear}
+        ]
+        pairs.sort(key=lambda h: h.chi2)
+        cands += pairs
+        accepted = [h for h in pairs if h.p_value >= alpha]
+    if not accepted:
+        return LevitatorIsolation(cands[0], tuple(cands), none, alpha, False, (), **extra)
+    # Ties (chi-square within 1 of the best, or a collinear partner) are ordered as
+    # LEVITATOR_HYPOTHESES lists them: the sensors' zero before the plant's parameters.
+    low = min(h.chi2 for h in accepted)
+    pair = {frozenset(c) for c in collinear}
+    order = list(LEVITATOR_HYPOTHESES)
+    tied = [h for h in accepted if h.chi2 - low < 1.0]
+    tied.sort(key=lambda h: [order.index(n) for n in h.parameters])
+    best = tied[0]
+    tie = tuple(h for h in tied[1:]) + tuple(
+        h
+        for h in accepted
+        if h not in tied
+        and len(h.parameters) == 1
+        and len(best.parameters) == 1
+        and frozenset((*best.parameters, *h.parameters)) in pair
+    )
+    return LevitatorIsolation(best, tuple(cands), none, alpha, True, tie, **extra)
+
+
+def _why_blind(name: str) -> str:
+    if name in ("R", "ku"):
+        return (
+            "the pole and the equilibrium currents do not depend on it, and the coil "
+            "circuit (R/L, ku/L) was not compared: the baseline states no driver"
+        )
+    return "no compared quantity depends on it"
+
+
+def observations_of(
+    params: Any,
+    *,
+    y_ref: float,
+    gaps: Sequence[float],
+    electrical: bool = True,
+    rel_se: float = 1e-4,
+) -> LevitatorObservations:
+    """The exact observations of the rig ``params`` (sensors ideal) at the given gaps,
+    with relative standard errors ``rel_se`` (for tests and planning)."""
+    from maglevid.physics.levitator import equilibrium, unstable_pole
+
+    pole = unstable_pole(params, y_ref)
+    cur = [equilibrium(params, y)[0] for y in gaps]
+    el = None
+    cov = None
+    if electrical:
+        L = float(params.inductance(y_ref))
+        el = (params.R / L, params.ku / L)
+        cov = ((rel_se * el[0]) ** 2, 0.0), (0.0, (rel_se * el[1]) ** 2)
+    return LevitatorObservations(
+        y_ref=float(y_ref), pole=pole, pole_se=rel_se * pole,
+        gaps=tuple(float(y) for y in gaps), currents=tuple(cur),
+        current_se=tuple(rel_se * c for c in cur), electrical=el, electrical_cov=cov,
+    )  # fmt: skip
+
+
+#: Seconds per block when the standard error of a segment's mean current is estimated
+#: from block means (the loop's chatter and quantisation are correlated over a period).
+BLOCK_SECONDS = 0.5
+
+
+def _mean_and_se(x: np.ndarray, n_block: int) -> tuple[float, float]:
+    m = x.size // n_block
+    if m < 2:
+        return float(x.mean()), float(np.std(x) / math.sqrt(max(x.size, 1)))
+    means = x[: m * n_block].reshape(m, n_block).mean(axis=1)
+    return float(x.mean()), float(np.std(means, ddof=1) / math.sqrt(m))
+
+
+def _electrical(result: Any, y_ref: float) -> tuple[tuple[float, float], Any] | None:
+    """``(R/L, ku/L)`` at ``y_ref`` and their covariance (delta method) from a command-frame
+    fit (parameters ``R``, ``ku``, ``k0``, ``a``, ``k``), else ``None``."""
+    p, names = result.parameters, list(result.parameters)
+    need = ("R", "ku", "k0", "a", "k")
+    if result.covariance is None or not all(n in p for n in need):
+        return None
+    idx = [names.index(n) for n in need]
+    th = np.array([p[n] for n in need])
+
+    def f(t: np.ndarray) -> np.ndarray:
+        R, ku, k0, a, k = t
+        L = k0 + k * a / (a + y_ref)  # eq. (L1)
+        return np.array([R / L, ku / L])
+
+    J = np.empty((2, 5))
+    for j in range(5):
+        h = 1e-6 * max(abs(th[j]), 1e-12)
+        tp, tm = th.copy(), th.copy()
+        tp[j] += h
+        tm[j] -= h
+        J[:, j] = (f(tp) - f(tm)) / (2 * h)
+    cov = J @ result.covariance[np.ix_(idx, idx)] @ J.T
+    val = f(th)
+    if not (np.all(np.isfinite(val)) and np.all(val > 0) and np.all(np.isfinite(cov))):
+        return None
+    return (float(val[0]), float(val[1])), tuple(map(tuple, cov.tolist()))
+
+
+def levitator_observations(
+    result: Any, data: ClosedLoopData, *, electrical: bool = True
+) -> LevitatorObservations:
+    """The observations of a levitator identification: its pole (the consensus interval
+    when there is one) at ``y_ref``, each segment's mean gap and current measured from
+    ``data`` (standard error from block means), and with ``electrical`` the command
+    frame's ``R/L`` and ``ku/L`` at ``y_ref``."""
+    from maglevid.identify.closedloop import resolve_channel
+
+    est, y_ref = levitator_estimates(result)
+    pole, pole_se = est["pole_rad_s"]
+    segs = result.options.get("segments") or [(0, data.n_samples)]
+    y = resolve_channel(data, result.options.get("gap", "y:0")).values
+    i = resolve_channel(data, result.options.get("current", "y:1")).values
+    n_block = max(2, round(BLOCK_SECONDS / data.dt))
+    gaps = [float(y[a:b].mean()) for a, b in segs]
+    cur = [_mean_and_se(i[a:b], n_block) for a, b in segs]
+    el = _electrical(result, y_ref) if electrical else None
+    return LevitatorObservations(
+        y_ref=float(y_ref), pole=float(pole), pole_se=float(pole_se), gaps=tuple(gaps),
+        currents=tuple(c for c, _ in cur), current_se=tuple(s for _, s in cur),
+        electrical=None if el is None else el[0], electrical_cov=None if el is None else el[1],
+    )  # fmt: skip
+
+
+def levitator_parameters_of(values: Mapping[str, Any], m: float) -> Any:
+    """A baseline :class:`LevitatorParameters` from stored estimates (``a``, ``k``, ``k0``,
+    ``R``, ``ku``; values or ``(value, se)``), or ``None`` when one is missing."""
+    from maglevid.physics.levitator import LevitatorParameters
+
+    def val(k: str) -> float | None:
+        v = values.get(k)
+        if v is None:
+            return None
+        return float(getattr(v, "value", v[0] if isinstance(v, (tuple, list)) else v))
+
+    got = {k: val(k) for k in ("a", "k", "k0", "R", "ku")}
+    if any(v is None or not np.isfinite(v) or v <= 0 for v in got.values()):
+        return None
+    return LevitatorParameters(m=m, **got)  # type: ignore[arg-type]
+
+
+def baseline_states_driver(data: ClosedLoopData) -> bool:
+    """Whether the recording's published physics state the driver (``ku``; then its
+    ``R`` is the circuit the command sees and the coil circuit is compared)."""
+    plant = data.metadata.get("plant") if hasattr(data.metadata, "get") else None
+    return isinstance(plant, Mapping) and "ku" in plant

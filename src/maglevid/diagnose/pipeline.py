@@ -113,7 +113,9 @@ def _start(
     if method is not None and method != chosen:
         why, note = "chosen by the user", None
     method = method or chosen
+    kind = kind_of(data)[0]
     common = {
+        "plant_kind": kind.name,
         "machine": machine,
         "recording": source,
         "recording_hash": recording_hash(data),
@@ -132,7 +134,7 @@ def _start(
         when=recorded_at or meta.get("recorded_at") or datetime.now(timezone.utc),
         **run_args,
     )
-    return run, kind_of(data)[0].stages(method)
+    return run, kind.stages(method)
 
 
 def _quality(run: DiagnosisRun, stages: DiagnosisStages) -> Diagnosis | None:

@@ -6,10 +6,14 @@ family (``levitator``), or by ``pem`` when the log has no coil current.
 
 Its diagnosis (:class:`LevitatorStages`, for ``levitator`` and
 ``greybox-levitator``) delegates to :mod:`maglevid.diagnose.levitator`: the
-levitating segments are the quality check, the unstable pole ``sqrt(2 g / (a +
-y0))`` at the operating gap and the inductance law's ``a`` are compared with an
-earlier identification or the published physics. maglevid has no fault model of
-the levitator: a change is reported with its numbers, not attributed to a cause.
+levitating segments are the quality check; the unstable pole ``sqrt(2 g / (a +
+y0))`` at the operating gap, the current gain and ``i0`` are compared with an
+earlier identification or the published physics; the fault hypotheses
+(:data:`maglevid.diagnose.levitator.LEVITATOR_HYPOTHESES`: gap-sensor zero and
+gain, ``k``, ``m``, current-sensor gain, ``a``, ``R``, driver gain) are fitted to
+the pole, the segments' equilibrium currents and (when the baseline states the
+driver) the coil circuit ``R/L``, ``ku/L``; the verdict names the cause, or the
+causes these records cannot tell apart and what would resolve them.
 Any other method runs the shared stages (:class:`maglevid.plants.amb.AMBStages`).
 """
 
@@ -24,9 +28,9 @@ import numpy as np
 
 from maglevid.data import ClosedLoopData
 from maglevid.diagnose import levitator as lev
-from maglevid.diagnose.compare import compare_parameters
+from maglevid.diagnose.compare import DEFAULT_TOLERANCE, compare_parameters
 from maglevid.diagnose.diagnosis import Diagnosis, QualityCheck
-from maglevid.exceptions import MaglevidError
+from maglevid.exceptions import DataError, MaglevidError
 from maglevid.plants.amb import STAGES, AMBStages
 from maglevid.plants.base import BaseKind, DiagnosisRun, as_mapping, cannot_diagnose, shape_of
 
@@ -39,10 +43,15 @@ class _Compared:
     values: dict[str, tuple[float, float]]
     source: str
     y_ref: float
+    #: The baseline as a parameter set for fault isolation (``None``: none), and whether
+    #: it states the driver (then the coil circuit R/L, ku/L is compared too).
+    params: Any = None
+    driver: bool = False
 
 
 class LevitatorStages:
-    """Segments, grey box, the pole and ``a`` against the baseline (see the module)."""
+    """Segments, grey box, the law-independent quantities against the baseline, and the
+    levitator's fault hypotheses (see the module)."""
 
     drift_parameters: tuple[str, ...] = ()
 
@@ -65,7 +74,7 @@ class LevitatorStages:
         run.base = stored
 
     def compare(self, run: DiagnosisRun) -> Diagnosis | None:
-        """The pole, ``a``, ``k``, current gain and ``i0`` against the baseline."""
+        """The pole, current gain and ``i0`` against the baseline."""
         result, data = run.result, run.data
         estimates, y_ref = lev.levitator_estimates(result)
         if not np.isfinite(estimates["pole_rad_s"][0]):
@@ -76,28 +85,47 @@ class LevitatorStages:
             )
         values = {k: (e.value, e.std_error or 0.0) for k, e in run.base.items() if k in estimates}
         source = "earlier identification (history)" if run.base else ""
-        if not values and lev.levitator_baseline(data) is None:
+        published = lev.levitator_baseline(data)
+        if not values and published is None:
             return lev.levitator_without_baseline(
                 result, estimates, y_ref, run.quality, run.notes, run.common
             )
+        m = published.m if published is not None else float(result.options.get("m", 0.018))
+        params = lev.levitator_parameters_of(run.base, m) if values else None
+        driver = params is not None
         if not values:
-            values = lev.levitator_baseline_values(lev.levitator_baseline(data), y_ref)
+            values = lev.levitator_baseline_values(published, y_ref)
             source = "published physics of the rig (recording metadata)"
+            params, driver = published, lev.baseline_states_driver(data)
             if run.baseline == "history":
                 run.notes.append(
                     "no earlier diagnosis in the history: compared with the published physics"
                 )
         changes = compare_parameters(estimates, values, tolerances=run.tolerances, level=run.level)
-        run.compared = _Compared(changes, values, source, y_ref)
+        run.compared = _Compared(changes, values, source, y_ref, params, driver)
         return None
 
+    def _isolation(self, run: DiagnosisRun) -> lev.LevitatorIsolation | None:
+        c = run.compared
+        if c.params is None:
+            run.notes.append("the baseline is not a full parameter set: no fault isolation")
+            return None
+        try:
+            obs = lev.levitator_observations(run.result, run.data, electrical=c.driver)
+            return lev.isolate_levitator_fault(obs, c.params, alpha=run.alpha)
+        except (MaglevidError, ArithmeticError, np.linalg.LinAlgError) as exc:
+            run.notes.append(f"fault isolation not possible: {exc or type(exc).__name__}")
+            return None
+
     def isolate(self, run: DiagnosisRun) -> Diagnosis:
-        """No fault model: the verdict says what changed, with its numbers."""
+        """The levitator's fault hypotheses fitted to the pole, the equilibrium currents
+        and (when the baseline states the driver) the coil circuit; the verdict."""
         c, result = run.compared, run.result
         changes = c.changes
-        sig = [ch for ch in changes if ch.significant]
         pole = next(ch for ch in changes if ch.name == "pole_rad_s")
         lo, hi = result.confidence_intervals(run.level)["pole_rad_s"]
+        if "consensus" in result.extras:
+            lo, hi = result.extras["consensus"]["ci95"]
         reasons = [
             f"unstable pole {pole.estimate:.4g} rad/s (95 % CI {lo:.4g} … {hi:.4g}) at the "
             f"operating gap {1e3 * c.y_ref:.3g} mm; baseline {pole.baseline:.4g} rad/s "
@@ -106,35 +134,168 @@ class LevitatorStages:
         reasons += [
             f"{ch.name} = {ch.estimate:.4g} vs baseline {ch.baseline:.4g}: "
             f"{ch.change_percent:+.1f} %"
-            for ch in sig
-            if ch.name != "pole_rad_s"
+            for ch in changes
+            if ch.significant and ch.name != "pole_rad_s"
         ]
-        if sig:
-            verdict = "Changed against the baseline: " + ", ".join(
-                f"{ch.name} {ch.change_percent:+.1f} %" for ch in sig
-            )
-            code = "unexplained_change"
-            run.notes.append(
-                "a levitator has no fault-isolation model in maglevid yet: the change is "
-                "reported with its numbers, not attributed to a cause ('a' also absorbs a "
-                "gap-sensor offset)"
-            )
-        elif any(ch.statistically_significant for ch in changes):
-            verdict, code = "Change within tolerance", "within_tolerance"
+        iso = self._isolation(run)
+        if iso is None:
+            verdict, code = _verdict_without_isolation(changes, run.notes)
         else:
-            verdict, code = "No significant change", "no_change"
+            reasons += isolation_reasons(iso, c.params)
+            verdict, code = _verdict(changes, iso, c.params, run.tolerances)
         return Diagnosis(
             verdict=verdict,
             verdict_code=code,
             reasons=tuple(reasons),
             identification=result,
             changes=tuple(changes),
+            isolation=iso,
             quality=run.quality,
             baseline={"source": c.source, "parameters": {k: list(v) for k, v in c.values.items()}},
             identified_model=result.continuous_model,
             notes=tuple(run.notes),
             **run.common,
         )
+
+
+def _verdict_without_isolation(changes: list[Any], notes: list[str]) -> tuple[str, str]:
+    sig = [ch for ch in changes if ch.significant]
+    if sig:
+        notes.append("no fault isolation: the change is reported with its numbers only")
+        return "Changed against the baseline: " + ", ".join(
+            f"{ch.name} {ch.change_percent:+.1f} %" for ch in sig
+        ), "unexplained_change"
+    if any(ch.statistically_significant for ch in changes):
+        return "Change within tolerance", "within_tolerance"
+    return "No significant change", "no_change"
+
+
+def _largest_move(iso: lev.LevitatorIsolation, params: Any) -> float:
+    """Largest relative change of any observation against the baseline's prediction."""
+    obs = iso.observations
+    z0 = lev.predict_observations(params, obs)
+    return float(np.max(np.abs(np.expm1(obs.vector() - z0))))
+
+
+def _verdict(
+    changes: list[Any], iso: lev.LevitatorIsolation, params: Any, tolerances: Any
+) -> tuple[str, str]:
+    """Verdict and code from the isolation (docs/diagnosis.md, "Levitator")."""
+    best = iso.best
+    if not best.parameters:
+        if any(ch.statistically_significant for ch in changes):
+            return "Change within tolerance", "within_tolerance"
+        return "No significant change", "no_change"
+    tol = tolerances if isinstance(tolerances, float) else DEFAULT_TOLERANCE
+    big = any(ch.significant for ch in changes) or _largest_move(iso, params) > tol
+    if not iso.explained:
+        head = "Changed; no single cause explains it" if big else "Change within tolerance"
+        return f"{head} (closest: {best.describe()})", (
+            "unexplained_change" if big else "within_tolerance"
+        )
+    if not big:
+        return f"Change within tolerance ({best.describe()})", "within_tolerance"
+    verdict, code = _cause_verdict(iso)
+    return verdict + _coil_words(iso, params), code
+
+
+def _coil_words(iso: lev.LevitatorIsolation, params: Any) -> str:
+    """What the verdict says about the coil circuit (R, driver gain)."""
+    if iso.not_tested:
+        names = " and ".join("the driver gain" if n == "ku" else n for n, _ in iso.not_tested)
+        return f". {names[0].upper()}{names[1:]}: not judged (the baseline states no driver)"
+    named = {n for h in (iso.best, *iso.indistinguishable) for n in h.parameters}
+    obs = iso.observations
+    if obs.electrical is None or named & {"R", "ku"}:
+        return ""
+    z = obs.vector()[-2:]
+    z_b = lev.predict_observations(params, obs, dict(zip(iso.best.parameters, iso.best.values)))
+    sd = np.sqrt(np.diag(obs.covariance())[-2:])
+    if np.all(np.abs(z - z_b[-2:]) < 2 * sd):
+        return ". No change in R or the driver gain (the coil circuit as predicted)"
+    return ""
+
+
+def _cause_verdict(iso: lev.LevitatorIsolation) -> tuple[str, str]:
+    best = iso.best
+    together = "two changes together, " if len(best.parameters) > 1 else ""
+    if not iso.indistinguishable:
+        return f"Changed: explained by {together}{best.describe()}", "fault"
+    hints = iso.resolve_hints()
+    return (
+        f"Changed: explained by {together}{_grouped([best, *iso.indistinguishable])}: cannot "
+        "be told apart with these records"
+        + (f"; to resolve: {'; '.join(hints)}" if hints else ""),
+        "inconclusive",
+    )
+
+
+def _grouped(hyps: list[lev.LevitatorFault]) -> str:
+    """Tied explanations in few words, pairs that share their first change grouped:
+    'gap_offset -2.4 mm + (k -33 % | m +50 %), or a -47 % + (k +25 % | m -20 %)'."""
+    groups: dict[str, list[str]] = {}
+    gap_scale = ("gap_offset", "gap_gain", "a")  # where the gap is, first
+    for h in hyps:
+        parts = sorted(h.short().split(" + "), key=lambda t: t.split()[0] not in gap_scale)
+        groups.setdefault(parts[0], []).append(" + ".join(parts[1:]))
+    out = []
+    for head, rest in groups.items():
+        rest = [r for r in rest if r]
+        if not rest:
+            out.append(head)
+        else:
+            out.append(f"{head} + " + (rest[0] if len(rest) == 1 else f"({' | '.join(rest)})"))
+    return ", or ".join(out)
+
+
+def isolation_reasons(iso: lev.LevitatorIsolation, params: Any) -> list[str]:
+    """The isolation's evidence in words: the observations against the baseline, the best
+    and tied hypotheses, those rejected, and those the record cannot see."""
+    obs = iso.observations
+    z0 = np.exp(lev.predict_observations(params, obs))
+    n = len(obs.gaps)
+    cur = ", ".join(
+        f"{1e3 * i:.4g} mA at {1e3 * y:.3g} mm (baseline {1e3 * b:.4g})"
+        for i, y, b in zip(obs.currents, obs.gaps, z0[1 : 1 + n])
+    )
+    out = [f"equilibrium currents {cur}"]
+    if obs.electrical is not None:
+        out.append(
+            f"coil circuit R/L = {obs.electrical[0]:.4g} 1/s (baseline {z0[-2]:.4g}), "
+            f"ku/L = {obs.electrical[1]:.4g} A/(V s) (baseline {z0[-1]:.4g})"
+        )
+    none, best = iso.no_change, iso.best
+    out.append(
+        f"no change: chi2 = {none.chi2:.3g} with {none.dof} dof (p = {none.p_value:.2g}); "
+        f"single-cause likelihood ratio p = {iso.single_cause_p_value:.2g} (model error "
+        f"±{100 * lev.POLE_FLOOR:.0f} % pole, ±{100 * lev.CURRENT_FLOOR:.0f} % currents, "
+        f"±{100 * lev.ELECTRICAL_FLOOR:.0f} % coil circuit included)"
+    )
+    if best.parameters:
+        out.append(
+            f"{'best' if iso.explained else 'closest'} single cause: {best.describe()}, "
+            f"chi2 = {best.chi2:.3g} with {best.dof} dof (p = {best.p_value:.2g})"
+        )
+        for h in iso.indistinguishable:
+            out.append(
+                f"cannot be told apart from it with these records: {h.describe()} "
+                f"(chi2 = {h.chi2:.3g}, p = {h.p_value:.2g})"
+            )
+        if iso.collinear:
+            out.append(
+                "collinear signatures on these observations: "
+                + ", ".join(f"{x} and {y}" for x, y in iso.collinear)
+            )
+        out += [f"to resolve: {hint}" for hint in iso.resolve_hints()]
+        rejected = [h for h in iso.candidates if h.p_value < iso.alpha]
+        if rejected:
+            out.append(
+                "rejected (p < "
+                f"{iso.alpha:g}): "
+                + ", ".join(f"{' + '.join(h.parameters)} (p = {h.p_value:.2g})" for h in rejected)
+            )
+    out += [f"{n_}: not judged - {why}" for n_, why in iso.not_tested]
+    return out
 
 
 #: The levitator's own stages.
@@ -167,8 +328,11 @@ class Levitator(BaseKind):
         }
     )
     hypotheses: Mapping[str, str] = MappingProxyType(
-        {}
-    )  # no fault model of the levitator in maglevid yet
+        {
+            name: f"{what}: up = {up}; down = {down}"
+            for name, (what, up, down, _) in lev.LEVITATOR_HYPOTHESES.items()
+        }
+    )
     report_panels = ("verdict", "parameters", "poles", "responses", "trends", "quality", "method")
 
     def recognise(self, data: ClosedLoopData) -> str | None:
@@ -190,6 +354,35 @@ class Levitator(BaseKind):
 
     def stages(self, method: str) -> LevitatorStages | AMBStages:
         return STAGES_LEVITATOR if method in self.diagnosis_methods else STAGES
+
+    def signature(  # type: ignore[override]
+        self,
+        hypothesis: str,
+        baseline: Any,
+        operating_point: lev.LevitatorObservations | None = None,
+        *,
+        step: float = 0.01,
+    ) -> dict[str, float]:
+        """Relative change of each observation (the pole, the equilibrium current at each
+        gap, ``R/L`` and ``ku/L``) when only ``hypothesis`` moves by ``step``.
+
+        ``operating_point``: the record's observations (their gaps and reference gap;
+        default 4, 5 and 6 mm, pole at 5 mm). A factor moves by ``1 + step``; the
+        gap-sensor zero by ``step`` times the reference gap (1 % of 5 mm = 50 um).
+        """
+        if hypothesis not in lev.LEVITATOR_HYPOTHESES:
+            raise DataError(
+                f"no fault hypothesis {hypothesis!r}; expected one of "
+                f"{', '.join(lev.LEVITATOR_HYPOTHESES)}"
+            )
+        obs = operating_point or lev.observations_of(
+            baseline, y_ref=0.005, gaps=(0.004, 0.005, 0.006)
+        )
+        offset = lev.LEVITATOR_HYPOTHESES[hypothesis][3] == "offset"
+        value = step * obs.y_ref if offset else 1.0 + step
+        z0 = lev.predict_observations(baseline, obs)
+        z1 = lev.predict_observations(baseline, obs, {hypothesis: value})
+        return dict(zip(obs.names, np.expm1(z1 - z0).tolist()))
 
 
 KIND = Levitator()

@@ -361,6 +361,16 @@ def _isolation_table(d: Diagnosis) -> str:
     if iso is None:
         return ""
     rows: list[FaultHypothesis] = [iso.no_change, *iso.candidates[:4]]
+    # A levitator's isolation reads the pole, equilibrium currents and coil circuit
+    # (diagnose/levitator.py), the AMB's the v1..v9 of eq. (4).
+    space = "observation" if getattr(iso, "observations", None) is not None else "v_i"
+    obs = getattr(iso, "observations", None)
+    seen_what = (
+        "the identified v1..v9"
+        if obs is None
+        else "the pole and the equilibrium currents"
+        + (" and the coil circuit" if obs.electrical is not None else "")
+    )
     seen: set[tuple[str, ...]] = set()
     body = []
     for h in rows:
@@ -370,7 +380,7 @@ def _isolation_table(d: Diagnosis) -> str:
         fits = h.p_value >= iso.alpha
         best = h is iso.best or h.parameters == iso.best.parameters
         name = " + ".join(h.parameters) if h.parameters else "no change"
-        what = h.describe() if h.parameters else "every v_i as in the baseline"
+        what = h.describe() if h.parameters else f"every {space} as in the baseline"
         cls = ' class="best"' if best and iso.explained else ""
         body.append(
             f"<tr{cls}><td><b>{_e(name)}</b></td><td>{_e(what)}</td>"
@@ -386,11 +396,12 @@ def _isolation_table(d: Diagnosis) -> str:
             f"{_e(names)}.</p>"
         )
     return (
-        "<h3>Which physical cause explains the identified v1..v9</h3>"
+        f"<h3>Which physical cause explains {_e(seen_what)}</h3>"
         f'<p class="small">Each hypothesis "only this changed" is fitted by weighted least '
-        f"squares in v-space and judged by its χ² (accepted when p ≥ α = {iso.alpha:g}), "
+        f"squares ({_e(space)}s) and judged by its χ² (accepted when p ≥ α = {iso.alpha:g}), "
         + (
-            f"with a model error of ±{100 * iso.model_error:.2g} % of each v_i beside the noise"
+            f"with a model error of ±{100 * iso.model_error:.2g} % of each {space} "
+            "beside the noise"
             if iso.model_error > 0
             else "with no model-error allowance beside the noise"
         )
@@ -1081,6 +1092,16 @@ _SCRIPT = """
 
 
 # --------------------------------------------------------------------------- public
+def report_panels(d: Diagnosis) -> tuple[str, ...]:
+    """The section ids to show: the diagnosis' plant kind's ``report_panels`` (every
+    section when the kind is not stated or not registered, e.g. an older stored one)."""
+    from maglevid.plants import KINDS
+
+    kind = KINDS.get(d.plant_kind) if d.plant_kind else None
+    panels = tuple(getattr(kind, "report_panels", ()) or ())
+    return ("verdict", *panels) if panels else tuple(k for k, _ in _SECTIONS)
+
+
 def render_report(
     diagnosis: Diagnosis,
     *,
@@ -1148,7 +1169,11 @@ def render_report(
     loops, loop_note = (None, "")
     if d.identified_model is not None:
         loops, loop_note = _closed_loops(d, controller)
-    toc = "".join(f'<a href="#{k}">{i + 1}. {_e(t)}</a>' for i, (k, t) in enumerate(_SECTIONS))
+    shown = report_panels(d)
+    toc = "".join(
+        f'<a href="#{k}">{i + 1}. {_e(t)}</a>'
+        for i, (k, t) in enumerate((k, t) for k, t in _SECTIONS if k in shown)
+    )
     if d.identified_model is None and not d.changes:
         # Nothing identified: one card instead of four empty ones.
         why = (
@@ -1166,18 +1191,18 @@ def render_report(
         ]
     else:
         evidence = [
-            _parameters_section(d),
-            _percentage_section(d),
-            _poles_section(d, loops, loop_note),
-            _responses_section(d, loops),
+            _parameters_section(d) if "parameters" in shown else "",
+            _percentage_section(d) if "percentage" in shown else "",
+            _poles_section(d, loops, loop_note) if "poles" in shown else "",
+            _responses_section(d, loops) if "responses" in shown else "",
         ]
     sections = [
         _verdict_section(d),
         f'<nav class="toc">{toc}</nav>',
         *evidence,
-        _trends_section(d, trends),
-        _quality_section(d),
-        _method_section(d, loop_note),
+        _trends_section(d, trends) if "trends" in shown else "",
+        _quality_section(d) if "quality" in shown else "",
+        _method_section(d, loop_note) if "method" in shown else "",
     ]
     header_right = " · ".join(_e(x) for x in (d.machine, d.recording, d.created_at) if x)
     data = _script_json(d.to_dict())
