@@ -59,7 +59,7 @@ from collections.abc import Iterator
 
 import numpy as np
 import scipy.linalg as sla
-from numpy.lib.stride_tricks import sliding_window_view
+from numpy.lib.stride_tricks import as_strided, sliding_window_view
 from scipy.linalg import lapack
 
 from maglevid.exceptions import DataError
@@ -208,9 +208,12 @@ class _LagGram:
         # E[a, :, c, :] = block (a, c) of [W, C]: the partner of start a at lag tau is
         # column block c = a + tau (c >= p: the next group, C).
         E = np.concatenate([self._W.reshape(p, m, p, m), self._C.reshape(p, m, p, m)], axis=2)
-        a = np.arange(p)[None, :]
-        tau = np.arange(self.L + 1)[:, None]
-        return E[a, :, a + tau, :].sum(axis=1)  # (L+1, m, m)
+        # A strided view D[tau, i, j, a] = E[a, i, a + tau, j] (no copy), summed over a
+        # along its last axis: ~100x faster than gathering by fancy indices (which was
+        # half of SSARX's time at N = 1e4, issue 16); the same sums in another order.
+        s0, s1, s2, s3 = E.strides
+        D = as_strided(E, (self.L + 1, m, m, p), (s2, s1, s3, s0 + s2), writeable=False)
+        return D.sum(axis=-1)  # (L+1, m, m)
 
     def min_samples(self) -> int:
         """Samples needed for the edge formula (head and tail disjoint from the middle)."""
