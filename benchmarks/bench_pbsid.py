@@ -207,6 +207,48 @@ def _interleaved_times(rows: list[dict[str, Any]], data: Any) -> None:
         r["moesp_ratio"] = statistics.median(a / b for a, b in zip(t, ref, strict=True))
 
 
+# ----------------------------------------------------------------- coverage
+#: Records of the structured fit's interval check (issue 16: >= 30).
+COVERAGE_RECORDS = 30
+
+
+def bench_coverage(
+    n: int = 10_000, records: int = COVERAGE_RECORDS, case: str = "issue"
+) -> dict[str, Any]:
+    """Monte Carlo of the structured fit's covariance (P15): ``records`` seeds, default window.
+
+    Per parameter: the RMS of ``(v - truth) / se`` (1 when the covariance is
+    right) and how often the 95 % interval holds the truth; the same pooled.
+    """
+    z, t0 = [], time.perf_counter()
+    for seed in range(1000, 1000 + records):
+        d, truth = bearing_case(n, seed=seed, case=case)
+        res = fit_pbsid(
+            d.y, d.u, order=4, dt=d.dt, coordinates="physical", physical_fit="structured"
+        )
+        se = res.std_errors()
+        z.append(
+            [(res.parameters[f"v{i}"] - truth["v"][i - 1]) / se[f"v{i}"] for i in range(1, 10)]
+        )
+    Z = np.asarray(z)
+    out = {
+        "case": case,
+        "N": n,
+        "records": records,
+        "rms_z": np.sqrt(np.mean(Z**2, axis=0)).tolist(),
+        "cover95": np.mean(np.abs(Z) <= 1.96, axis=0).tolist(),
+        "rms_z_all": float(np.sqrt(np.mean(Z**2))),
+        "cover95_all": float(np.mean(np.abs(Z) <= 1.96)),
+        "time_s": time.perf_counter() - t0,
+    }
+    print(
+        f"coverage {case} {n:.0e}: {out['cover95_all']:.3f}, rms z {out['rms_z_all']:.2f}",
+        file=sys.stderr,
+        flush=True,
+    )
+    return out
+
+
 # ------------------------------------------------------------------ generic
 def bench_generic(sizes: tuple[int, ...], seed: int = 3) -> list[dict[str, Any]]:
     plant, K, ctrl = example_unstable_mimo()
@@ -310,6 +352,7 @@ def run(sizes: tuple[int, ...] = SIZES) -> dict[str, Any]:
         "bearing": bench_bearing(sizes, ("issue", "diagnostic")),
         "generic": bench_generic(sizes),
         "suspension": bench_suspension(sizes),
+        "coverage": bench_coverage(),
         "load": os.getloadavg(),
     }
 
@@ -361,6 +404,24 @@ def markdown_section(results: dict[str, Any]) -> list[str]:
         f"| {r['N']:.0e} | {r['tool']} | {r['time_s']:.3g} | {_e(r['pole_error'])} |"
         for r in results["suspension"]
     ]
+    cov = results.get("coverage")
+    if cov:
+        out += [
+            "",
+            f"Structured fit's intervals (P15), PBSID-opt, default window (P16): "
+            f"{cov['records']} records of the {cov['case']} bearing record at N = "
+            f"{cov['N']:.0e} (seeds 1000+), {cov['time_s']:.0f} s in all. RMS of "
+            "(v - truth) / se (1 when the covariance is right) and the 95 % interval's coverage:",
+            "",
+            "| | " + " | ".join(f"v{i}" for i in range(1, 10)) + " | all |",
+            "|---" * 11 + "|",
+            "| RMS z | "
+            + " | ".join(f"{x:.2f}" for x in cov["rms_z"])
+            + f" | {cov['rms_z_all']:.2f} |",
+            "| coverage | "
+            + " | ".join(f"{x:.2f}" for x in cov["cover95"])
+            + f" | {cov['cover95_all']:.3f} |",
+        ]
     return out
 
 
@@ -396,6 +457,8 @@ def targets(results: dict[str, Any], judge: Any) -> None:
                 ratio = r["moesp_ratio"]
                 checks["moesp"].append((f"{where}: {ratio:.2g}x", ratio <= 2.0))
         _v_checks(rows, get, STRUCTURED[method], f"{method}, structured fit", judge)
+        if method == "pbsid":
+            _coverage_check(results.get("coverage"), judge)
         names = {
             "v": "v_i error within 2x of the best consistent method (ML, else physical IV)",
             "pole": "unstable pole as accurate as the best peer (PARSIM-K)",
@@ -434,6 +497,22 @@ def _v_checks(rows: list[dict[str, Any]], get: Any, tool: str, label: str, judge
             judge.add(target, "no measurement on this run", None)
         else:
             judge.add(target, "; ".join(t for t, _ in checks), all(ok for _, ok in checks))
+
+
+def _coverage_check(cov: dict[str, Any] | None, judge: Any) -> None:
+    """The structured fit's 95 % intervals hold the truth 90-99 % of the time (Monte Carlo)."""
+    target = (
+        "pbsid, structured fit (bearing): 95 % intervals cover the truth (90-99 %, Monte Carlo)"
+    )
+    if not cov:
+        judge.add(target, "no measurement on this run", None)
+        return
+    c = cov["cover95_all"]
+    text = (
+        f"{cov['case']} {cov['N']:.0e}, {cov['records']} records x 9: {c:.3f} "
+        f"(RMS z {cov['rms_z_all']:.2f})"
+    )
+    judge.add(target, text, 0.90 <= c <= 0.99)
 
 
 def _measure(run_: Any, plan: dict[str, Any], args: Any) -> dict[str, Any]:

@@ -991,11 +991,13 @@ def fit_pbsid(
         transformed to physical coordinates (default), or ``"structured"``:
         v1..v9 and the Kalman gain fitted to the window's Gram matrix by
         weighted least squares in the bearing's structure, started from the
-        transform (docs/subspace.md (P11)-(P14); near maximum likelihood on
-        the bearing, 1-10 s on 1e4-1e5 samples; no pass over the data).
+        transform (docs/subspace.md (P11)-(P16); near maximum likelihood on
+        the bearing, 1-10 s on 1e4-1e6 samples; no pass over the data; with
+        intervals, (P15)).
     structure_past : int, optional
-        Lags of the structured fit's window (default 240,
-        ``DEFAULT_STRUCTURE_PAST``, within what the record supports).
+        Lags of the structured fit's window (default: chosen from the data,
+        ``ceil(ln N / (-2 ln rho))`` with ``rho`` the transform's predictor
+        spectral radius, docs/subspace.md (P16); within what the record supports).
     rng : numpy.random.Generator, optional
         Unused (deterministic); accepted for a uniform ``fit_*`` API.
 
@@ -1197,7 +1199,12 @@ def _declaration(algorithm: str) -> tuple[Option, ...]:
         Option("physical_fit", "str", "how v1..v9 come from the model: 'transform' to "
                "physical coordinates, or 'structured' (weighted fit of the bearing's "
                "structure to the VARX, docs/subspace.md (P11)-(P14))", choices=_PHYSICAL_FITS),
-        Option("structure_past", "int", "lags kept for physical_fit='structured'", low=1),
+        Option(
+            "structure_past",
+            "int",
+            "window of physical_fit='structured' (default: from the data, (P16))",
+            low=1,
+        ),
     ]  # fmt: skip
     return bind_defaults(opts, fit_pbsid if algorithm == "pbsid" else fit_ssarx)
 
