@@ -568,7 +568,10 @@ def fit_predictor_streamed(
     ``fit``; ``structure_past`` is the window of ``physical_fit="structured"``
     (default: chosen from the data, up to ``DEFAULT_STRUCTURE_PAST`` lags kept).
     """
-    keep = DEFAULT_STRUCTURE_PAST if fit_options.get("physical_fit") == "structured" else None
+    fit = fit_options.get("physical_fit") or (
+        "structured" if fit_options.get("coordinates") == "physical" else "transform"
+    )  # pbsid's default
+    keep = DEFAULT_STRUCTURE_PAST if fit == "structured" else None
     acc, dt, n_chunks = _feed_plant_io(
         _opener(source, chunk_size),
         progress,
