@@ -219,16 +219,16 @@ def _left_svd(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _corrected_future(st: _Stats, V: np.ndarray, D: np.ndarray, p: int, f: int) -> np.ndarray:
-    """``ytil_f = y_f - Htil_f z_f`` (f ny x r), eq. (P7)."""
-    ny, m = st.ny, st.m
-    out = np.empty((f * ny, st.F.shape[1]))
-    for i in range(f):
-        yi = st.F[st.y_rows(p + i, p + i + 1)] - D @ st.F[st.u_rows(p + i, p + i + 1)]
-        if i:  # sum_{k=1}^{i} Xi_k z(p+i-k); Xi_k is V's block p-k
-            Xi = V[:, (p - i) * m :]  # Xi_i .. Xi_1 on z(p..p+i-1)
-            yi = yi - Xi @ st.F[_z_rows(st, p, p + i)]
-        out[i * ny : (i + 1) * ny] = yi
-    return out
+    """``ytil_f = y_f - Htil_f z_f`` (f ny x r), eq. (P7): one product with the block-Toeplitz
+    ``Htil_f`` (row block i: ``Xi_{i-c}`` on ``z(p+c)``, c < i, and ``D`` on ``u(p+i)``)."""
+    ny, nu, m = st.ny, st.nu, st.m
+    Zf = st.F[p * m : (p + f) * m]  # z(p..p+f-1), time-major: a view, no copy
+    H = np.zeros((f, ny, f, m))
+    for i in range(1, f):  # Xi_k is V's block p - k
+        H[i, :, :i, :] = V[:, (p - i) * m :].reshape(ny, i, m)
+    H[np.arange(f), :, np.arange(f), :nu] = D
+    Yf = Zf.reshape(f, m, -1)[:, nu:, :].reshape(f * ny, -1)
+    return Yf - H.reshape(f * ny, f * m) @ Zf
 
 
 def _cholesky_solver(Zp: np.ndarray):  # type: ignore[no-untyped-def]
