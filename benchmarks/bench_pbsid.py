@@ -504,7 +504,8 @@ def _v_checks(rows: list[dict[str, Any]], get: Any, tool: str, label: str, judge
 def _coverage_check(cov: dict[str, Any] | None, judge: Any) -> None:
     """The structured fit's 95 % intervals hold the truth 90-99 % of the time (Monte Carlo)."""
     target = (
-        "pbsid, structured fit (bearing): 95 % intervals cover the truth (90-99 %, Monte Carlo)"
+        "pbsid, structured fit (default) (bearing): 95 % intervals cover the truth "
+        "(90-99 %, Monte Carlo)"
     )
     if not cov:
         judge.add(target, "no measurement on this run", None)
