@@ -10,6 +10,7 @@ the case where open-loop subspace (MOESP) is biased.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -323,7 +324,28 @@ def test_structured_window_is_chosen_from_the_data(bearing):
     rho, P = res.extras["structure_predictor_radius"], res.extras["structure_lags"]
     assert res.options["structure_past_rule"] == "auto"
     assert res.options["structure_past"] == P == _structure_window(10**9, bearing.n_samples, rho)
-    assert res.extras["structure_start_samples"] == 0  # the long window: start state at 0
+    # (P17): this record's noise (1e-7 m, 1e-4 A) leaves the truncated start state below
+    # the innovations, so it is left at 0; a high-SNR record rebuilds it (P14)
+    assert res.extras["structure_start_samples"] == 0
+    from maglevid.identify.pbsid import _options, _start_samples
+
+    auto = _options(
+        "pbsid",
+        order=4,
+        past=None,
+        future=None,
+        max_past=None,
+        dt=1e-4,
+        feedthrough=False,
+        weighting="cca",
+        rank_tol=None,
+        remove_mean=True,
+        coordinates="physical",
+    )
+    auto = dataclasses.replace(auto, structure_auto=True)
+    y_rms = np.ones(3)
+    assert _start_samples(auto, 0.98, 300, y_rms, np.eye(3) * 1e-2) == 0  # 2.3e-3 x 10 < 1
+    assert _start_samples(auto, 0.98, 300, y_rms, np.eye(3) * 1e-8) == 8  # 2.3e-3 x 1e4 > 1
     # streamed with the default lags kept: the same window and fit (rtol: summation order)
     st = identify_streamed(bearing, "pbsid", chunk_size=7000, **kw)
     assert st.extras["structure_lags"] == P

@@ -410,6 +410,22 @@ def _structure_cap(N: int) -> int:
     return math.ceil(math.log(max(N, 2)) / (-2.0 * math.log(_STRUCTURE_RHO)))
 
 
+def _start_samples(opt: _Options, rho: float, P: int, y_rms: np.ndarray, Re: np.ndarray) -> int:
+    """Samples the window-start state is rebuilt from, (P14), or 0 (P17).
+
+    With the window of (P16) the state is left at 0 unless the truncated term
+    ``C Abar^P x(t-P)``, ~ ``rho^P`` times the outputs' RMS, would exceed the
+    innovations (``rho^P max_i y_rms_i / sqrt(Re_ii) > 1``: a high-SNR record,
+    where the noise-free rebuild is accurate); on a noisier record the rebuild's
+    noise, correlated with the window's first regressors, biased v1..v3 by ~1e-3
+    at N = 1e6 (docs/subspace.md). A given window keeps (P14).
+    """
+    if not opt.structure_auto:
+        return START_SAMPLES
+    snr = float(np.max(y_rms / np.sqrt(np.maximum(np.diag(Re), 1e-300))))
+    return START_SAMPLES if rho**P * snr > 1.0 else 0
+
+
 def _structure_window(cap: int, N: int, rho: float) -> int:
     """(P16): ``P = ln N / (-2 ln rho)``, between ``_STRUCTURE_MIN`` and ``cap``."""
     if not 0.0 < rho < 1.0:
@@ -553,7 +569,7 @@ def _coordinates(
     if opt.coordinates == "physical":
         model, continuous, K, v = _bearing_coordinates(model, K)
         if opt.physical_fit == "structured":
-            model, continuous, K, Re, v = _structured(model, K, v, st_all, opt, notes, extras)
+            model, continuous, K, Re, v = _structured(model, K, Re, v, st_all, opt, notes, extras)
         params.update(zip(V_NAMES, v.tolist()))
     else:
         try:
@@ -567,6 +583,7 @@ def _coordinates(
 def _structured(
     model: StateSpace,
     K: np.ndarray,
+    Re: np.ndarray,
     v: np.ndarray,
     st_all: _Stats,
     opt: _Options,
@@ -592,9 +609,7 @@ def _structured(
         dt=opt.dt,
         scale=st_all.scale,
         j=st_all.j,
-        # the window of (P16) leaves rho^P ~ N^{-1/2}: the start state is left at 0, since
-        # its rebuild from noisy samples biased v1..v3 by 1e-3 at N = 1e6 (docs/subspace.md)
-        initial_state=0 if opt.structure_auto else START_SAMPLES,
+        initial_state=_start_samples(opt, rho, P, st_all.scale[st_all.nu :], Re),
     )
     notes.append(
         f"v1..v9 by the structured weighted least-squares fit over a window of {P} lags "
