@@ -10,6 +10,7 @@ the case where open-loop subspace (MOESP) is biased.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -102,7 +103,17 @@ def test_kalman_gain_is_consistent():
 @pytest.mark.parametrize("fit", [fit_pbsid, fit_ssarx])
 def test_bearing_physical_parameters_unbiased_where_moesp_is_not(bearing, fit):
     truth = np.asarray(bearing.metadata["truth_v"])
-    res = fit(bearing.y, bearing.u, order=4, past=40, dt=bearing.dt, coordinates="physical")
+    # the transform path (the default in physical coordinates is now the structured fit,
+    # which has its own tests below): the same poles as the identified model
+    res = fit(
+        bearing.y,
+        bearing.u,
+        order=4,
+        past=40,
+        dt=bearing.dt,
+        coordinates="physical",
+        physical_fit="transform",
+    )
     v = np.array([res.parameters[f"v{i}"] for i in range(1, 10)])
     # Measured 4-6 % at N = 2e4 (0.4-0.7 % at 1e5, bench_pbsid); MOESP's v5/v7 ~50 %.
     assert np.max(np.abs(v / truth - 1.0)) < 0.15
@@ -240,8 +251,8 @@ def test_structured_fit_is_closer_to_the_truth_than_the_transform(bearing):
     kw = dict(order=4, past=40, dt=bearing.dt, coordinates="physical")
     got = {}
     for fit in (fit_pbsid, fit_ssarx):
-        ref = fit(bearing.y, bearing.u, **kw)
-        res = fit(bearing.y, bearing.u, physical_fit="structured", structure_past=100, **kw)
+        ref = fit(bearing.y, bearing.u, physical_fit="transform", **kw)
+        res = fit(bearing.y, bearing.u, structure_past=100, **kw)  # structured: the default
         assert _v_error(res, truth) < min(0.015, _v_error(ref, truth))
         assert res.options["physical_fit"] == "structured"
         assert res.options["structure_past"] == res.extras["structure_lags"] == 100
@@ -297,3 +308,73 @@ def test_start_state_is_exact_on_noise_free_plant_data():
         x = Ad @ x + Bd @ u
     M = _state_map(Ad, Bd * su[None, :], C_AMB / sy[:, None], 8)
     np.testing.assert_allclose(M @ np.concatenate(z), x0, rtol=1e-8, atol=1e-20)
+
+
+def test_structured_window_is_chosen_from_the_data(bearing):
+    # (P16): P = ln N / (-2 ln rho), so that the truncation rho^P = N^{-1/2} falls like
+    # the standard error; analytic values: ln(1e6) / (-2 ln 0.9826) = 393.9 -> 394.
+    from maglevid.identify.pbsid import _structure_window
+
+    assert _structure_window(1000, 1_000_000, 0.9826) == 394
+    assert _structure_window(1000, 10_000, 0.9826) == 263
+    assert _structure_window(300, 1_000_000, 0.9826) == 300  # capped by the lags kept
+    assert _structure_window(300, 1_000_000, 1.01) == 300  # unstable predictor: the cap
+    kw = dict(order=4, dt=bearing.dt, coordinates="physical", physical_fit="structured")
+    res = fit_pbsid(bearing.y, bearing.u, **kw)
+    rho, P = res.extras["structure_predictor_radius"], res.extras["structure_lags"]
+    assert res.options["structure_past_rule"] == "auto"
+    assert res.options["structure_past"] == P == _structure_window(10**9, bearing.n_samples, rho)
+    # (P17): this record's noise (1e-7 m, 1e-4 A) leaves the truncated start state below
+    # the innovations, so it is left at 0; a high-SNR record rebuilds it (P14)
+    assert res.extras["structure_start_samples"] == 0
+    from maglevid.identify.pbsid import _options, _start_samples
+
+    auto = _options(
+        "pbsid",
+        order=4,
+        past=None,
+        future=None,
+        max_past=None,
+        dt=1e-4,
+        feedthrough=False,
+        weighting="cca",
+        rank_tol=None,
+        remove_mean=True,
+        coordinates="physical",
+    )
+    auto = dataclasses.replace(auto, structure_auto=True)
+    y_rms = np.ones(3)
+    assert _start_samples(auto, 0.98, 300, y_rms, np.eye(3) * 1e-2) == 0  # 2.3e-3 x 10 < 1
+    assert _start_samples(auto, 0.98, 300, y_rms, np.eye(3) * 1e-8) == 8  # 2.3e-3 x 1e4 > 1
+    # streamed with the default lags kept: the same window and fit (rtol: summation order)
+    st = identify_streamed(bearing, "pbsid", chunk_size=7000, **kw)
+    assert st.extras["structure_lags"] == P
+    for name in [f"v{i}" for i in range(1, 10)]:
+        assert st.parameters[name] == pytest.approx(res.parameters[name], rel=1e-6)
+    # intervals like the other AMB methods: cov(v) (P15), v1..v9 and a1..a4
+    assert res.covariance is not None and res.covariance.shape == (13, 13)
+    se = res.std_errors()
+    assert all(np.isfinite(se[f"v{i}"]) and se[f"v{i}"] > 0 for i in range(1, 10))
+
+
+def test_structured_covariance_matches_the_scatter():
+    # (P15) against the truth over a few records (the >= 30-record Monte Carlo is in
+    # benchmarks/bench_pbsid.py): the normalised errors (v - truth) / se of 4 records
+    # x 9 parameters have mean square 1 when the covariance is right; a 2x error in
+    # the standard errors gives 0.25 or 4. Window 60 lags given (fast).
+    z = []
+    for seed in range(4):
+        d = simulate_amb_loop(AMBParameters.nominal(), n_samples=6000, rng=100 + seed)
+        truth = np.asarray(d.metadata["truth_v"])
+        res = fit_pbsid(
+            d.y,
+            d.u,
+            order=4,
+            dt=d.dt,
+            coordinates="physical",
+            physical_fit="structured",
+            structure_past=60,
+        )
+        se = res.std_errors()
+        z += [(res.parameters[f"v{i}"] - truth[i - 1]) / se[f"v{i}"] for i in range(1, 10)]
+    assert 0.4 < float(np.mean(np.square(z))) < 2.5

@@ -68,6 +68,8 @@ class StructuredFit:
     Bd: np.ndarray
     Re: np.ndarray  # innovation covariance of the window's predictor
     iterations: int
+    start_samples: int  # samples the window-start state was rebuilt from (0: left at 0)
+    covariance: np.ndarray  # (9, 9) of v1..v9, physical units, (P15)
 
 
 def _zoh(v: np.ndarray, dt: float) -> tuple[np.ndarray, ...]:
@@ -163,14 +165,14 @@ def fit_bearing_structure(
     ``Fy`` (ny, r) are the factor's rows of ``y(t)``, ``Fz`` (P m, r) those of
     ``z(t-P..t-1)`` (oldest first), in the data stage's channel-scaled units
     (``scale`` the ``[u, y]`` RMS); ``v0``, ``K0`` the start in physical units.
+    ``initial_state``: samples the window-start state is rebuilt from (P14), 0
+    to leave it at zero (the long windows of (P16)).
     """
     su, sy = scale[:2], scale[2:]
     P = Fz.shape[0] // 5
     theta = np.concatenate([np.zeros(9), (K0 * sy[None, :]).ravel()])
-
-    k0 = min(initial_state, P)
-
     Cs = C_AMB / sy[:, None]
+    k0 = min(initial_state, P)
 
     def start_term(th: np.ndarray) -> np.ndarray:  # C Abar^P x_hat(t-P), (P14)
         Ad, Bd = _plant(v0 * (1.0 + th[:9]), dt)
@@ -207,7 +209,29 @@ def fit_bearing_structure(
         E = np.linalg.solve(W12, R)  # unweighted again
     _, _, _, _, _, v, Ad, Bd, Ks = _model(theta, v0, dt, sy, su)
     Re = (E @ E.T) * np.outer(sy, sy)
-    return StructuredFit(v, Ks / sy[None, :], Ad, Bd, 0.5 * (Re + Re.T), iterations)
+    cov = _covariance(residual, theta, E, j) * np.outer(v0, v0)
+    return StructuredFit(v, Ks / sy[None, :], Ad, Bd, 0.5 * (Re + Re.T), iterations, k0, cov)
+
+
+def _covariance(residual, theta: np.ndarray, E: np.ndarray, j: int) -> np.ndarray:  # type: ignore[no-untyped-def]
+    """``cov(dv/v0)`` (9, 9), (P15): ``(J^T J)^{-1} / j`` with ``W = Re^{-1}`` at the optimum.
+
+    (P11) is the weighted least-squares fit (P12) of the structured Markov
+    parameters to the VARX's, weighted by the VARX's inverse covariance
+    ``Sigma_varx^{-1} = j (G (x) Re^{-1})``: the sandwich
+    ``(J' W J)^{-1} J' W Sigma W J (J' W J)^{-1}`` collapses to
+    ``(J' Sigma^{-1} J)^{-1}``, here ``(J^T J)^{-1} / j`` with ``J`` the
+    Jacobian of the whitened residual of the normalised factor, ``W``
+    re-estimated at the optimum.
+    """
+    Re = E @ E.T + _RE_FLOOR * np.eye(3)
+    W12 = np.linalg.inv(sla.cholesky(Re, lower=True))
+    _, J = residual(theta, True, W12)
+    d = np.linalg.norm(J, axis=0)
+    d[d == 0] = 1.0
+    Rinv = np.linalg.inv(np.linalg.qr(J / d, mode="r"))  # (J^T J)^{-1} = R^{-1} R^{-T}, scaled
+    cov = (Rinv @ Rinv.T) / np.outer(d, d) / j
+    return cov[:9, :9]
 
 
 def _gauss_newton(residual, theta: np.ndarray, j: int, max_iter: int):  # type: ignore[no-untyped-def]

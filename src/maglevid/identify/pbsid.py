@@ -57,10 +57,10 @@ import scipy.linalg as sla
 from maglevid._validation import as_signal, check_positive
 from maglevid.exceptions import DataError, IdentificationError, ModelError
 from maglevid.identify._hankel import _LagGram, factor_gram, lower_factor
-from maglevid.identify._structured import fit_bearing_structure
+from maglevid.identify._structured import START_SAMPLES, _plant, fit_bearing_structure
 from maglevid.identify.options import Option, bind_defaults
 from maglevid.identify.physical import to_physical_coordinates
-from maglevid.identify.result import IdentificationResult
+from maglevid.identify.result import IdentificationResult, propagate_covariance
 from maglevid.identify.subspace import (
     _arx_horizon,
     _char_poly,
@@ -93,14 +93,19 @@ _ALGORITHMS = ("pbsid", "ssarx")
 _WEIGHTINGS = ("cca", "none")
 _COORDINATES = ("identified", "physical")
 _PHYSICAL_FITS = ("transform", "structured")
-#: Default window (lags) of the structured fit (P11): the bearing's predictor has
-#: a pole at ~0.98 (the unstable pole's mirror), 0.98^240 = 8e-3 where the VARX's
-#: 80 lags leave 0.2, and the predictor's state at the window's start is
-#: reconstructed (P14) rather than left at 0. Largest v error on the simulator's
-#: records at N = 1e5 with 160 / 240 lags: 1.7e-3 / 1.2e-3 (issue), 1.8e-5 /
-#: 1.4e-5 (paper-like); docs/subspace.md, "Structured fit". 21 parameters, not
-#: a VARX's P m ny: a long window costs no variance, only time.
-DEFAULT_STRUCTURE_PAST = 240
+#: Lags a stream keeps for the structured fit when not told (the in-memory cap
+#: ``_structure_cap`` at N = 1e6): the window itself is chosen from the data,
+#: (P16), up to the lags kept. docs/subspace.md, "Structured fit".
+DEFAULT_STRUCTURE_PAST = 460
+#: The structured fit's window grows like log N (P16): ``P = ln N / (-2 ln rho)``
+#: with ``rho`` the transform's predictor spectral radius (the truncation
+#: ``rho^P`` then falls like the standard error, ``N^{-1/2}``). The lags
+#: accumulated before ``rho`` is known are those of this design radius (the
+#: bearing's predictor: 0.983 on both simulated records); a slower predictor
+#: gets the cap and a note.
+_STRUCTURE_RHO = 0.985
+#: Shortest automatic window of the structured fit.
+_STRUCTURE_MIN = 40
 #: Relative singular-value floor of the order choice (Gram route, as MOESP's).
 _DEFAULT_RANK_TOL = 1e-6
 #: Relative rank threshold of the least-squares steps.
@@ -214,16 +219,16 @@ def _left_svd(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _corrected_future(st: _Stats, V: np.ndarray, D: np.ndarray, p: int, f: int) -> np.ndarray:
-    """``ytil_f = y_f - Htil_f z_f`` (f ny x r), eq. (P7)."""
-    ny, m = st.ny, st.m
-    out = np.empty((f * ny, st.F.shape[1]))
-    for i in range(f):
-        yi = st.F[st.y_rows(p + i, p + i + 1)] - D @ st.F[st.u_rows(p + i, p + i + 1)]
-        if i:  # sum_{k=1}^{i} Xi_k z(p+i-k); Xi_k is V's block p-k
-            Xi = V[:, (p - i) * m :]  # Xi_i .. Xi_1 on z(p..p+i-1)
-            yi = yi - Xi @ st.F[_z_rows(st, p, p + i)]
-        out[i * ny : (i + 1) * ny] = yi
-    return out
+    """``ytil_f = y_f - Htil_f z_f`` (f ny x r), eq. (P7): one product with the block-Toeplitz
+    ``Htil_f`` (row block i: ``Xi_{i-c}`` on ``z(p+c)``, c < i, and ``D`` on ``u(p+i)``)."""
+    ny, nu, m = st.ny, st.nu, st.m
+    Zf = st.F[p * m : (p + f) * m]  # z(p..p+f-1), time-major: a view, no copy
+    H = np.zeros((f, ny, f, m))
+    for i in range(1, f):  # Xi_k is V's block p - k
+        H[i, :, :i, :] = V[:, (p - i) * m :].reshape(ny, i, m)
+    H[np.arange(f), :, np.arange(f), :nu] = D
+    Yf = Zf.reshape(f, m, -1)[:, nu:, :].reshape(f * ny, -1)
+    return Yf - H.reshape(f * ny, f * m) @ Zf
 
 
 def _cholesky_solver(Zp: np.ndarray):  # type: ignore[no-untyped-def]
@@ -347,6 +352,7 @@ class _Options:
     coordinates: str
     physical_fit: str = "transform"
     structure_past: int | None = None
+    structure_auto: bool = False  # structure_past is then the cap of (P16)
 
 
 def _options(algorithm: str, **kw: Any) -> _Options:
@@ -364,11 +370,17 @@ def _options(algorithm: str, **kw: Any) -> _Options:
         rank_tol=_DEFAULT_RANK_TOL if rank_tol is None else rank_tol,
         remove_mean=bool(kw["remove_mean"]),
         coordinates=_check_choice(kw["coordinates"], "coordinates", _COORDINATES),
-        physical_fit=_check_choice(
-            kw.get("physical_fit", "transform"), "physical_fit", _PHYSICAL_FITS
-        ),
+        physical_fit=_physical_fit(kw.get("physical_fit"), kw["coordinates"]),
         structure_past=_check_int(kw.get("structure_past"), "structure_past", 1),
     )
+
+
+def _physical_fit(physical_fit: str | None, coordinates: str) -> str:
+    """As given; by default ``"structured"`` in physical coordinates (issue 16: closer
+    to ML than the transform on every measured record), else ``"transform"``."""
+    if physical_fit is None:
+        return "structured" if coordinates == "physical" else "transform"
+    return _check_choice(physical_fit, "physical_fit", _PHYSICAL_FITS)
 
 
 def _resolve_structure(opt: _Options, N: int, m: int, lags: int | None = None) -> _Options:
@@ -385,11 +397,41 @@ def _resolve_structure(opt: _Options, N: int, m: int, lags: int | None = None) -
     if opt.physical_fit != "structured":
         return replace(opt, structure_past=None)
     P = opt.structure_past
-    if P is None:
-        P = min(DEFAULT_STRUCTURE_PAST, (N + 1) // (1 + 2 * m) - 1)
-        if lags is not None:
-            P = min(P, lags)
-    return replace(opt, structure_past=max(P, 1))
+    if P is not None:
+        return opt
+    P = min(_structure_cap(N), (N + 1) // (1 + 2 * m) - 1)
+    if lags is not None:
+        P = min(P, lags)
+    return replace(opt, structure_past=max(P, 1), structure_auto=True)
+
+
+def _structure_cap(N: int) -> int:
+    """Lags accumulated for the automatic window (P16) at the design radius."""
+    return math.ceil(math.log(max(N, 2)) / (-2.0 * math.log(_STRUCTURE_RHO)))
+
+
+def _start_samples(opt: _Options, rho: float, P: int, y_rms: np.ndarray, Re: np.ndarray) -> int:
+    """Samples the window-start state is rebuilt from, (P14), or 0 (P17).
+
+    With the window of (P16) the state is left at 0 unless the truncated term
+    ``C Abar^P x(t-P)``, ~ ``rho^P`` times the outputs' RMS, would exceed the
+    innovations (``rho^P max_i y_rms_i / sqrt(Re_ii) > 1``: a high-SNR record,
+    where the noise-free rebuild is accurate); on a noisier record the rebuild's
+    noise, correlated with the window's first regressors, biased v1..v3 by ~1e-3
+    at N = 1e6 (docs/subspace.md). A given window keeps (P14).
+    """
+    if not opt.structure_auto:
+        return START_SAMPLES
+    snr = float(np.max(y_rms / np.sqrt(np.maximum(np.diag(Re), 1e-300))))
+    return START_SAMPLES if rho**P * snr > 1.0 else 0
+
+
+def _structure_window(cap: int, N: int, rho: float) -> int:
+    """(P16): ``P = ln N / (-2 ln rho)``, between ``_STRUCTURE_MIN`` and ``cap``."""
+    if not 0.0 < rho < 1.0:
+        return cap
+    P = math.ceil(math.log(max(N, 2)) / (-2.0 * math.log(rho)))
+    return max(min(P, cap), min(_STRUCTURE_MIN, cap))
 
 
 def _structure_lags(opt: _Options) -> int:
@@ -527,7 +569,7 @@ def _coordinates(
     if opt.coordinates == "physical":
         model, continuous, K, v = _bearing_coordinates(model, K)
         if opt.physical_fit == "structured":
-            model, continuous, K, Re, v = _structured(model, K, v, st_all, opt, notes, extras)
+            model, continuous, K, Re, v = _structured(model, K, Re, v, st_all, opt, notes, extras)
         params.update(zip(V_NAMES, v.tolist()))
     else:
         try:
@@ -541,14 +583,24 @@ def _coordinates(
 def _structured(
     model: StateSpace,
     K: np.ndarray,
+    Re: np.ndarray,
     v: np.ndarray,
     st_all: _Stats,
     opt: _Options,
     notes: list[str],
     extras: dict[str, Any],
 ) -> tuple[StateSpace, StateSpace, np.ndarray, np.ndarray, np.ndarray]:
-    """v1..v9 and ``K`` by the structured weighted least-squares fit (P11)-(P14)."""
+    """v1..v9, ``K`` and cov(v) by the structured weighted least-squares fit (P11)-(P16)."""
     P = _structure_lags(opt)
+    rho = float(np.max(np.abs(np.linalg.eigvals(model.A - K @ model.C))))
+    if opt.structure_auto:
+        P = _structure_window(P, st_all.n_samples, rho)
+        if P == _structure_lags(opt) and rho >= _STRUCTURE_RHO:
+            notes.append(
+                f"the transform's predictor has spectral radius {rho:.4f}: the structured "
+                f"fit's window {P} (the lags kept) leaves a truncation of {rho**P:.1e} "
+                "(pass structure_past for a longer one)"
+            )
     sf = fit_bearing_structure(
         st_all.F[st_all.y_rows(P, P + 1)],
         st_all.F[_z_rows(st_all, 0, P)],
@@ -557,13 +609,22 @@ def _structured(
         dt=opt.dt,
         scale=st_all.scale,
         j=st_all.j,
+        initial_state=_start_samples(opt, rho, P, st_all.scale[st_all.nu :], Re),
     )
     notes.append(
         f"v1..v9 by the structured weighted least-squares fit over a window of {P} lags "
-        f"(docs/subspace.md (P11)-(P14); {sf.iterations} Gauss-Newton steps), started "
-        "from the transform to physical coordinates"
+        f"({'chosen from the data, (P16)' if opt.structure_auto else 'given'}; "
+        f"docs/subspace.md (P11)-(P16); {sf.iterations} Gauss-Newton steps, window-start "
+        f"state from {sf.start_samples} samples), started from the transform to "
+        "physical coordinates"
     )
-    extras.update(structure_lags=P, structure_iterations=sf.iterations)
+    extras.update(
+        structure_lags=P,
+        structure_iterations=sf.iterations,
+        structure_start_samples=sf.start_samples,
+        structure_covariance=sf.covariance,
+        structure_predictor_radius=rho,
+    )
     disc = StateSpace(sf.Ad, sf.Bd, C_AMB.copy(), np.zeros((3, 2)), opt.dt)
     Ac, Bc = amb_matrices(sf.v)
     cont = StateSpace(Ac, Bc, C_AMB.copy(), np.zeros((3, 2)))
@@ -616,7 +677,9 @@ def _stability_notes(model: StateSpace, K: np.ndarray, notes: list[str]) -> floa
     return rho
 
 
-def _options_used(opt: _Options, n: int, p: int, f: int, past_rule: str) -> dict[str, Any]:
+def _options_used(
+    opt: _Options, n: int, p: int, f: int, past_rule: str, extras: dict[str, Any]
+) -> dict[str, Any]:
     options = {
         "order": n,
         "order_rule": "given" if opt.order is not None else "auto",
@@ -634,7 +697,8 @@ def _options_used(opt: _Options, n: int, p: int, f: int, past_rule: str) -> dict
     if opt.coordinates == "physical":
         options["physical_fit"] = opt.physical_fit
         if opt.physical_fit == "structured":
-            options["structure_past"] = _structure_lags(opt)
+            options["structure_past"] = extras.get("structure_lags", _structure_lags(opt))
+            options["structure_past_rule"] = "auto" if opt.structure_auto else "given"
     if opt.algorithm == "ssarx":
         options["weighting"] = opt.weighting
     return options
@@ -683,9 +747,9 @@ def _fit(
         method=opt.algorithm,
         model=model,
         parameters=params,
-        covariance=None,
+        covariance=_parameter_covariance(params, extras.get("structure_covariance"), opt.dt),
         n_samples=acc.n,
-        options=_options_used(opt, n, p, f, past_rule),
+        options=_options_used(opt, n, p, f, past_rule, extras),
         residuals=residuals,
         fit=fit,
         singular_values=s,
@@ -693,6 +757,19 @@ def _fit(
         continuous_model=continuous,
         extras=extras,
     )
+
+
+def _parameter_covariance(
+    params: dict[str, float], cov_v: np.ndarray | None, dt: float
+) -> np.ndarray | None:
+    """cov of ``[v1..v9, a1..a4]`` from the structured fit's cov(v) (P15), delta method."""
+    if cov_v is None:
+        return None
+    v = np.array([params[k] for k in V_NAMES])
+    _, cov = propagate_covariance(
+        lambda x: np.concatenate([x, _char_poly(_plant(x, dt)[0])]), v, cov_v
+    )
+    return 0.5 * (cov + cov.T)
 
 
 def _bearing_coordinates(
@@ -744,9 +821,13 @@ class PredictorAccumulator:
     remove_mean : bool
         Centre the data (offset-invariant fit; default True).
     structure_past : int, optional
-        Lags to keep for ``physical_fit="structured"`` (default: none beyond
-        the VARX's); the structured fit's window is the default 240 lags
-        capped by the lags kept and by the record (noted in ``notes``).
+        The structured fit's window (``physical_fit="structured"``), kept as
+        given, as in :func:`fit_pbsid`.
+    structure_lags : int, optional
+        Without ``structure_past``: lags kept for the structured fit's window
+        chosen from the data, (P16), up to them and the record (default: none
+        beyond the VARX's; :func:`~maglevid.identify.streaming.identify_streamed`
+        keeps ``DEFAULT_STRUCTURE_PAST``).
 
     Examples
     --------
@@ -773,6 +854,7 @@ class PredictorAccumulator:
         max_past: int = DEFAULT_MAX_PAST,
         remove_mean: bool = True,
         structure_past: int | None = None,
+        structure_lags: int | None = None,
     ) -> None:
         self.ny = _check_int(ny, "ny", 1, allow_none=False)
         self.nu = _check_int(nu, "nu", 1, allow_none=False)
@@ -786,7 +868,8 @@ class PredictorAccumulator:
         assert p_top is not None
         lags = p_top if self.algorithm == "pbsid" else p_top + _future("ssarx", future, p_top) - 1
         self.structure_past = _check_int(structure_past, "structure_past", 1)
-        self._acc = _LagGram(self.nu + self.ny, max(lags, self.structure_past or 0, 1))
+        keep = _check_int(structure_lags, "structure_lags", 1) or 0
+        self._acc = _LagGram(self.nu + self.ny, max(lags, self.structure_past or keep, 1))
         self._shift: np.ndarray | None = None
 
     @property
@@ -816,7 +899,7 @@ class PredictorAccumulator:
         weighting: str = "cca",
         rank_tol: float | None = None,
         coordinates: str = "identified",
-        physical_fit: str = "transform",
+        physical_fit: str | None = None,
     ) -> IdentificationResult:
         """Identify from the data seen so far (options as in :func:`fit_pbsid`)."""
         opt = _options(
@@ -832,6 +915,7 @@ class PredictorAccumulator:
             remove_mean=self.remove_mean,
             coordinates=coordinates,
             physical_fit=physical_fit,
+            structure_past=self.structure_past,  # given: as in memory; None: (P16)
         )
         assert self.ny is not None and self.nu is not None
         N = self.n_samples
@@ -882,7 +966,7 @@ def fit_pbsid(
     remove_mean: bool = True,
     coordinates: str = "identified",
     max_past: int | None = None,
-    physical_fit: str = "transform",
+    physical_fit: str | None = None,
     structure_past: int | None = None,
     rng: np.random.Generator | None = None,
 ) -> IdentificationResult:
@@ -923,16 +1007,19 @@ def fit_pbsid(
         (4 states, outputs ``[x, i1, i2]``), with ``v1..v9`` in ``parameters``.
     max_past : int, optional
         Upper limit of the automatic past (default 80, ``DEFAULT_MAX_PAST``).
-    physical_fit : {"transform", "structured"}
-        With ``coordinates="physical"``: v1..v9 read off the black-box model
-        transformed to physical coordinates (default), or ``"structured"``:
+    physical_fit : {"structured", "transform"}, optional
+        With ``coordinates="physical"``: ``"structured"`` (the default there):
         v1..v9 and the Kalman gain fitted to the window's Gram matrix by
         weighted least squares in the bearing's structure, started from the
-        transform (docs/subspace.md (P11)-(P14); near maximum likelihood on
-        the bearing, 1-10 s on 1e4-1e5 samples; no pass over the data).
+        transform (docs/subspace.md (P11)-(P16); near maximum likelihood on
+        the bearing, 1-10 s on 1e4-1e6 samples; no pass over the data; with
+        intervals, (P15)); or ``"transform"``: v1..v9 read off the black-box
+        model transformed to physical coordinates (0.03-0.5 s, no covariance,
+        4-50x ML's v error on the closed-loop bearing).
     structure_past : int, optional
-        Lags of the structured fit's window (default 240,
-        ``DEFAULT_STRUCTURE_PAST``, within what the record supports).
+        Lags of the structured fit's window (default: chosen from the data,
+        ``ceil(ln N / (-2 ln rho))`` with ``rho`` the transform's predictor
+        spectral radius, docs/subspace.md (P16); within what the record supports).
     rng : numpy.random.Generator, optional
         Unused (deterministic); accepted for a uniform ``fit_*`` API.
 
@@ -1013,7 +1100,7 @@ def fit_ssarx(
     remove_mean: bool = True,
     coordinates: str = "identified",
     max_past: int | None = None,
-    physical_fit: str = "transform",
+    physical_fit: str | None = None,
     structure_past: int | None = None,
     rng: np.random.Generator | None = None,
 ) -> IdentificationResult:
@@ -1131,10 +1218,16 @@ def _declaration(algorithm: str) -> tuple[Option, ...]:
         Option("max_past", "int", f"largest automatic past window (default "
                f"{DEFAULT_MAX_PAST})", low=1),
         Option("rng", "object", "random generator of the randomised checks"),
-        Option("physical_fit", "str", "how v1..v9 come from the model: 'transform' to "
-               "physical coordinates, or 'structured' (weighted fit of the bearing's "
-               "structure to the VARX, docs/subspace.md (P11)-(P14))", choices=_PHYSICAL_FITS),
-        Option("structure_past", "int", "lags kept for physical_fit='structured'", low=1),
+        Option("physical_fit", "str", "how v1..v9 come from the model with "
+               "coordinates='physical': 'structured' (default; weighted fit of the "
+               "bearing's structure to the VARX, docs/subspace.md (P11)-(P16)) or "
+               "'transform' to physical coordinates", choices=_PHYSICAL_FITS),
+        Option(
+            "structure_past",
+            "int",
+            "window of physical_fit='structured' (default: from the data, (P16))",
+            low=1,
+        ),
     ]  # fmt: skip
     return bind_defaults(opts, fit_pbsid if algorithm == "pbsid" else fit_ssarx)
 

@@ -565,11 +565,13 @@ def fit_predictor_streamed(
     equals :func:`~maglevid.identify.pbsid.fit_pbsid` / ``fit_ssarx`` on the whole
     record to rounding, without ``residuals``. ``fit_options`` (order,
     feedthrough, weighting, rank_tol, coordinates, physical_fit) go to its
-    ``fit``; ``structure_past`` is the lags kept for ``physical_fit="structured"``
-    (default: the structured fit's default window, when it is asked for).
+    ``fit``; ``structure_past`` is the window of ``physical_fit="structured"``
+    (default: chosen from the data, up to ``DEFAULT_STRUCTURE_PAST`` lags kept).
     """
-    if structure_past is None and fit_options.get("physical_fit") == "structured":
-        structure_past = DEFAULT_STRUCTURE_PAST
+    fit = fit_options.get("physical_fit") or (
+        "structured" if fit_options.get("coordinates") == "physical" else "transform"
+    )  # pbsid's default
+    keep = DEFAULT_STRUCTURE_PAST if fit == "structured" else None
     acc, dt, n_chunks = _feed_plant_io(
         _opener(source, chunk_size),
         progress,
@@ -583,6 +585,7 @@ def fit_predictor_streamed(
             max_past=max_past,
             remove_mean=remove_mean,
             structure_past=structure_past,
+            structure_lags=keep,
         ),
     )
     fit_options.setdefault("dt", dt)
