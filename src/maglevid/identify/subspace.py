@@ -32,6 +32,7 @@ Nothing here stabilises an estimate: an unstable plant gives an unstable model.
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import warnings
@@ -134,9 +135,16 @@ class _Stats:
         return self.F[idx]
 
 
+@functools.lru_cache(maxsize=256)
 def _channel_rows(m: int, c0: int, nc: int, t0: int, t1: int) -> np.ndarray:
-    """Rows ``t m + c0 + c`` for ``t0 <= t < t1``, ``c < nc`` (time-major), ascending."""
-    return (np.arange(t0, t1)[:, None] * m + np.arange(c0, c0 + nc)[None, :]).ravel()
+    """Rows ``t m + c0 + c`` for ``t0 <= t < t1``, ``c < nc`` (time-major), ascending.
+
+    Cached (read-only): a fit asks for the same dozen index sets, each a few numpy
+    calls, a fixed cost of every fit.
+    """
+    rows = (np.arange(t0, t1)[:, None] * m + np.arange(c0, c0 + nc)[None, :]).ravel()
+    rows.flags.writeable = False
+    return rows
 
 
 def _auto_max_horizon(n_samples: int, m: int, cap: int) -> int:
@@ -168,7 +176,8 @@ def _stats_from(acc: _LagGram | _HankelQR, nu: int, ny: int, i_rows: int) -> _St
     m = nu + ny
     w = 2 * i_rows
     j = N - w + 1
-    scale = acc.moments.rms()
+    moments = acc.moments  # (a property that assembles the sums: read once)
+    scale = moments.rms()
     zero = np.flatnonzero(scale == 0.0)
     if zero.size:
         c = int(zero[0])
@@ -197,7 +206,7 @@ def _stats_from(acc: _LagGram | _HankelQR, nu: int, ny: int, i_rows: int) -> _St
         j=j,
         n_samples=N,
         scale=scale,
-        mean=acc.moments.mean(),
+        mean=moments.mean(),
         rank=rank,
         factorization=fact,
     )
@@ -326,9 +335,12 @@ def _toeplitz(h: np.ndarray) -> np.ndarray:
     return H
 
 
-def _char_poly(A: np.ndarray) -> np.ndarray:
-    """``[a1, ..., an]`` of ``det(zI - A) = z^n + a1 z^{n-1} + ... + an``."""
-    return np.real(np.poly(A))[1:] if A.size else np.zeros(0)
+def _char_poly(A_or_poles: np.ndarray) -> np.ndarray:
+    """``[a1, ..., an]`` of ``det(zI - A) = z^n + a1 z^{n-1} + ... + an``.
+
+    Takes ``A`` or its eigenvalues (``np.poly`` of the matrix computes them first).
+    """
+    return np.real(np.poly(A_or_poles))[1:] if A_or_poles.size else np.zeros(0)
 
 
 # ------------------------------------------------------------ order and horizon
@@ -709,7 +721,12 @@ def _kalman_gain(
         except (ValueError, np.linalg.LinAlgError) as exc:
             return None, None, f"the Kalman-filter Riccati equation has no solution ({exc})"
     Re = C @ P @ C.T + R
-    K = sla.solve(Re.T, (A @ P @ C.T + S).T, assume_a="pos").T
+    # K = (A P C^T + S) Re^-1 by Cholesky (LAPACK posv: what scipy.linalg.solve with
+    # assume_a="pos" computes, without its checks, a fixed cost of every fit).
+    _, Kt, info = lapack.dposv(Re.T, (A @ P @ C.T + S).T)
+    if info != 0:
+        return None, None, "the innovation covariance is not positive definite"
+    K = Kt.T
     rho = float(np.max(np.abs(np.linalg.eigvals(A - K @ C)))) if n else 0.0
     if not np.isfinite(rho) or rho >= 1.0:
         return None, None, f"the Kalman predictor is not stable (spectral radius {rho:.6g})"
@@ -826,7 +843,10 @@ def _predictor_residuals(
         Ub = u[t0:t1].reshape(-1, b * nu)
         Yb = y[t0:t1].reshape(-1, b * ny)
         S, x = linear_recursion(Fp[b], Ub @ Eu + Yb @ Ey, x)  # block states s_k, and x(t1)
-        e[t0:t1] = (Ub @ Gu + Yb @ Gy + S @ Phi).reshape(-1, ny)
+        eb = e[t0:t1].reshape(-1, b * ny)  # a view: the sums land in e, no temporaries
+        np.matmul(Ub, Gu, out=eb)
+        eb += Yb @ Gy
+        eb += S @ Phi
     if n_full < N:  # the last, partial block: zero-padded inputs, its start state x
         Z = np.zeros((b, m))
         Z[: N - n_full, :nu] = u[n_full:]
@@ -996,7 +1016,8 @@ def _fit(
             "noise model not computed (noise_model=False): no noise covariances, Kalman "
             "gain, residuals or fit percentages"
         )
-    if not model.is_stable():
+    poles = np.linalg.eigvals(model.A)  # once: stability and the characteristic polynomial
+    if not np.all(np.abs(poles) < 1.0):
         notes.append(
             "the model is unstable (poles outside the unit circle); it is reported as found"
         )
@@ -1017,7 +1038,7 @@ def _fit(
     return IdentificationResult(
         method=opt.algorithm,
         model=model,
-        parameters={f"a{k + 1}": float(v) for k, v in enumerate(_char_poly(model.A))},
+        parameters={f"a{k + 1}": float(v) for k, v in enumerate(_char_poly(poles))},
         covariance=None,
         n_samples=st.n_samples,
         options=_used_options(opt, st, i, core, horizon_rule, rank_tol, i_rows),
