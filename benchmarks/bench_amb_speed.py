@@ -227,12 +227,80 @@ def regression_speed(
     return out
 
 
+def versus_ctrlsys(
+    sizes: list[int], *, repeat: int = 7, parsim_at: int | None = None
+) -> list[dict[str, Any]]:
+    """``moesp + physical coordinates`` (horizon 40) against ctrlsys MOESP at horizon 40.
+
+    The bearing's speed targets in one process, interleaved: each round times the
+    maglevid fit and SLICOT's IB01AD + IB01BD (Cholesky, ``nobr = 40``) on the same
+    record, ``repeat`` rounds after one warm-up; the best wall and CPU
+    (``process_time``) time of each. At ``parsim_at`` samples SIPPY's PARSIM-K is
+    timed too (2 rounds: it takes seconds). On a loaded machine compare the CPU
+    ratios (docs/performance.md, 'Subspace against SLICOT').
+    """
+    import gc
+    import os
+
+    from benchmarks.peers import ctrlsys_slicot, sippy
+
+    run = BEARING_METHODS["moesp + physical coordinates"]
+    rows = []
+    for n in sizes:
+        data, _ = bearing_case(int(n), case="issue")
+        y, u = np.asarray(data.y), np.asarray(data.u)
+        fns: dict[str, Callable[[], Any]] = {
+            "maglevid": lambda data=data: run(data),
+            "ctrlsys": lambda y=y, u=u: ctrlsys_slicot.identify(y, u, 4, BEARING_HORIZON),
+        }
+        rounds = {k: repeat for k in fns}
+        if parsim_at is not None and int(n) == parsim_at:
+            fns["PARSIM-K"] = lambda y=y, u=u: sippy.identify(y, u, 4, None, "PARSIM-K")
+            rounds["PARSIM-K"] = 2
+        for fn in fns.values():
+            fn()
+        wall: dict[str, list[float]] = {k: [] for k in fns}
+        cpu: dict[str, list[float]] = {k: [] for k in fns}
+        for r in range(repeat):
+            for k, fn in fns.items():
+                if r >= rounds[k]:
+                    continue
+                gc.collect()
+                c0, t0 = time.process_time(), time.perf_counter()
+                fn()
+                wall[k].append(time.perf_counter() - t0)
+                cpu[k].append(time.process_time() - c0)
+        row: dict[str, Any] = {"n": int(n), "load": os.getloadavg()[0]}
+        row.update({k: min(v) for k, v in wall.items()})
+        row.update({f"{k} cpu": min(v) for k, v in cpu.items()})
+        rows.append(row)
+    return rows
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--sizes", nargs="+", type=float, default=[1e4, 1e5, 1e6])
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--profile", action="store_true", help="profile every fit")
+    ap.add_argument(
+        "--versus-ctrlsys",
+        action="store_true",
+        help="moesp + physical coordinates against ctrlsys (horizon 40) and, at 1e4, PARSIM-K",
+    )
     args = ap.parse_args(argv)
+    if args.versus_ctrlsys:
+        sizes = [int(s) for s in args.sizes]
+        print(f"{'N':>7} {'maglevid':>9} {'ctrlsys':>9} {'ratio':>6} {'cpu ratio':>9}  PARSIM-K")
+        for r in versus_ctrlsys(sizes, repeat=args.repeat, parsim_at=10**4):
+            pk = ""
+            if "PARSIM-K" in r:
+                pk = f"{r['PARSIM-K']:.3g} s: x{r['PARSIM-K cpu'] / r['maglevid cpu']:.0f} (cpu)"
+            print(
+                f"{r['n']:>7.0e} {1e3 * r['maglevid']:>7.2f}ms {1e3 * r['ctrlsys']:>7.2f}ms "
+                f"{r['maglevid'] / r['ctrlsys']:>6.2f} "
+                f"{r['maglevid cpu'] / r['ctrlsys cpu']:>9.2f}  {pk}  load {r['load']:.1f}"
+            )
+        return 0
     print(f"{'N':>9} {'fit':<16} {'time [s]':>9} {'lstsq [s]':>10} {'x lstsq':>8}")
     for size in args.sizes:
         r = regression_speed(

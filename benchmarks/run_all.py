@@ -1361,11 +1361,14 @@ SUBSPACE_PLAN = (
     "At horizon 40 (window 80, 400 Hankel columns) a short record's fit is dominated by "
     "costs that do not grow with N: the 400 x 400 Gram and its pivoted Cholesky, the "
     "pivoted-QR bases of the projections (`identify/subspace.py` `_orth`), the order SVD "
-    "and the noise-model statistics (`_innovation_stats`). These were cut 3x in this "
-    "release (SVD bases replaced by pivoted QR, the instrument basis reused, the Gram "
-    "assembled without a Python loop per block). Next, if needed: the projections on the "
-    "triangular factor in the order [U_f; W_p; Y_f] (one LQ instead of several QRs), and "
-    "the noise model only on request. Profile of the fit at this N:"
+    "(U of a 120 x 200 matrix, ~2.5 ms) and the noise model. Cut in this release: the "
+    "continuous-time conversion by A's eigen-decomposition (0.11 instead of 0.86 ms, twice "
+    "per fit with the physical coordinates), the noise statistics with Gamma^+ applied "
+    "before the projection bases, the Kalman gain's solve and row indices without their "
+    "wrappers' checks. Next, if needed: the projections read off one LQ factor in the order "
+    "[U_f; W_p; Y_f] (changes the rank decisions on noise-free data: needs its own study), "
+    "the noise model computed on request; docs/performance.md, 'Subspace against SLICOT'. "
+    "Profile of the fit at this N:"
 )
 
 

@@ -133,3 +133,36 @@ def test_channel_names_survive_python_control():
     # python-control's own default labels are not taken for names.
     plain = StateSpace.from_control(StateSpace([[0.5]], [[1.0]], [[1.0]], dt=0.1).to_control())
     assert plain.output_names == () and plain.input_names == ()
+
+
+def test_undiscretize_eigen_route_equals_schur_route(rng):
+    # undiscretize takes ln([[A, B], [0, I]]) from A's eigen-decomposition when A is
+    # well diagonalisable (a fixed cost of every subspace fit); reference: scipy's
+    # Schur-Pade logm of the balanced block matrix, the route it falls back to.
+    from maglevid import lti
+
+    for _ in range(50):
+        nx, nu = int(rng.integers(1, 7)), int(rng.integers(1, 4))
+        Ac = rng.standard_normal((nx, nx))
+        rate = max(float(np.max(np.abs(np.linalg.eigvals(Ac)))), 1e-3)
+        dt = float(rng.uniform(0.01, 2.0)) / rate
+        d = discretize(StateSpace(Ac, rng.standard_normal((nx, nu)), np.ones((1, nx))), dt)
+        lam, V = np.linalg.eig(d.A)
+        L_eig = lti._log_zoh_eig(d.A, d.B, lam, V)
+        assert L_eig is not None
+        L_ref = lti._log_zoh_schur(d.A, d.B)
+        np.testing.assert_allclose(L_eig, L_ref, rtol=0, atol=1e-12 * np.abs(L_ref).max())
+
+
+def test_undiscretize_defective_matrix_takes_the_schur_route():
+    # x'' = u: A = [[1, dt], [0, 1]] is a Jordan block (no eigenvector basis); the
+    # eigen route declines and the Schur route gives the exact continuous model.
+    from maglevid import lti
+
+    dt = 0.1
+    d = discretize(StateSpace([[0.0, 1.0], [0.0, 0.0]], [[0.0], [1.0]], [[1.0, 0.0]]), dt)
+    lam, V = np.linalg.eig(d.A)
+    assert lti._log_zoh_eig(d.A, d.B, lam, V) is None
+    back = undiscretize(d)
+    np.testing.assert_allclose(back.A, [[0.0, 1.0], [0.0, 0.0]], atol=1e-12)
+    np.testing.assert_allclose(back.B, [[0.0], [1.0]], atol=1e-12)

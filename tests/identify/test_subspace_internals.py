@@ -209,3 +209,49 @@ def test_one_step_fit_percentages_are_those_of_the_residuals(offset):
     np.testing.assert_allclose(
         [res.fit["one_step_fit_percent_y1"], res.fit["one_step_fit_percent_y2"]], ref, rtol=1e-9
     )
+
+
+def test_factored_projection_applies_gamma_pinv_like_the_full_projection():
+    """``_Projected`` keeps ``Z = X Q Q^T`` as ``(X Q, Q)`` and applies ``Gamma^+`` first.
+    Reference: the full projection formed, then ``Gamma^+ (Z - H U)`` by numpy's lstsq
+    (the noise statistics' formula as written in Van Overschee & De Moor 1996, Ch. 4)."""
+    from maglevid.identify.subspace import _Projected
+
+    rng = np.random.default_rng(5)
+    Q = np.linalg.qr(rng.standard_normal((60, 25)))[0]  # orthonormal basis, 60-dim rows
+    X = rng.standard_normal((12, 60))
+    Gam = rng.standard_normal((12, 4))
+    H = rng.standard_normal((12, 8))
+    U = rng.standard_normal((8, 60))
+    Z = (X @ Q) @ Q.T
+    ref = np.linalg.lstsq(Gam, Z - H @ U, rcond=None)[0]
+    got = _Projected(X @ Q, Q).pinv_apply(Gam, H, U)
+    np.testing.assert_allclose(got, ref, rtol=0, atol=1e-13 * np.abs(ref).max())
+    ref0 = np.linalg.lstsq(Gam, Z, rcond=None)[0]
+    got0 = _Projected(X @ Q, Q).pinv_apply(Gam)
+    np.testing.assert_allclose(got0, ref0, rtol=0, atol=1e-13 * np.abs(ref0).max())
+
+
+def test_kalman_gain_solve_equals_scipy_positive_definite_solve():
+    """The gain's ``(A P C^T + S) Re^-1`` by LAPACK posv; reference: scipy.linalg.solve
+    with ``assume_a="pos"`` (what the fit called before), to rounding."""
+    import scipy.linalg as sla
+
+    from maglevid.identify.subspace import _dare_doubling, _kalman_gain
+
+    rng = np.random.default_rng(8)
+    n, ny = 4, 3
+    A = np.diag([0.9, 0.7, -0.5, 0.3]) + 0.05 * rng.standard_normal((n, n))
+    C = rng.standard_normal((ny, n))
+    W = rng.standard_normal((n + ny, 3 * (n + ny)))
+    cov = W @ W.T / W.shape[1]
+    K, Re, why = _kalman_gain(A, C, cov)
+    assert why == ""
+    Q, S, R = cov[:n, :n], cov[:n, n:], cov[n:, n:] + 1e-12 * np.eye(ny)
+    P = _dare_doubling(A, C, Q, R, S)
+    assert P is not None
+    Re_ref = C @ P @ C.T + R
+    K_ref = sla.solve(Re_ref.T, (A @ P @ C.T + S).T, assume_a="pos").T
+    np.testing.assert_allclose(K, K_ref, rtol=1e-12, atol=1e-14)
+    # (_kalman_gain first rebuilds cov from its eigen-decomposition: rounding-level change)
+    np.testing.assert_allclose(Re, Re_ref, rtol=1e-12, atol=1e-14)

@@ -32,6 +32,7 @@ Nothing here stabilises an estimate: an unstable plant gives an unstable model.
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import warnings
@@ -134,9 +135,16 @@ class _Stats:
         return self.F[idx]
 
 
+@functools.lru_cache(maxsize=256)
 def _channel_rows(m: int, c0: int, nc: int, t0: int, t1: int) -> np.ndarray:
-    """Rows ``t m + c0 + c`` for ``t0 <= t < t1``, ``c < nc`` (time-major), ascending."""
-    return (np.arange(t0, t1)[:, None] * m + np.arange(c0, c0 + nc)[None, :]).ravel()
+    """Rows ``t m + c0 + c`` for ``t0 <= t < t1``, ``c < nc`` (time-major), ascending.
+
+    Cached (read-only): a fit asks for the same dozen index sets, each a few numpy
+    calls, a fixed cost of every fit.
+    """
+    rows = (np.arange(t0, t1)[:, None] * m + np.arange(c0, c0 + nc)[None, :]).ravel()
+    rows.flags.writeable = False
+    return rows
 
 
 def _auto_max_horizon(n_samples: int, m: int, cap: int) -> int:
@@ -168,7 +176,8 @@ def _stats_from(acc: _LagGram | _HankelQR, nu: int, ny: int, i_rows: int) -> _St
     m = nu + ny
     w = 2 * i_rows
     j = N - w + 1
-    scale = acc.moments.rms()
+    moments = acc.moments  # (a property that assembles the sums: read once)
+    scale = moments.rms()
     zero = np.flatnonzero(scale == 0.0)
     if zero.size:
         c = int(zero[0])
@@ -197,7 +206,7 @@ def _stats_from(acc: _LagGram | _HankelQR, nu: int, ny: int, i_rows: int) -> _St
         j=j,
         n_samples=N,
         scale=scale,
-        mean=acc.moments.mean(),
+        mean=moments.mean(),
         rank=rank,
         factorization=fact,
     )
@@ -254,11 +263,6 @@ def _orth_extend(Q: np.ndarray, X: np.ndarray, rcond: float) -> np.ndarray:
 def _perp(X: np.ndarray, Q: np.ndarray) -> np.ndarray:
     """``X Pi_perp``: rows of ``X`` minus their projection on the row space with basis ``Q``."""
     return X - (X @ Q) @ Q.T
-
-
-def _proj(X: np.ndarray, Q: np.ndarray) -> np.ndarray:
-    """``X Pi``: projection of the rows of ``X`` on the row space with basis ``Q``."""
-    return (X @ Q) @ Q.T
 
 
 def _regress(Y: np.ndarray, X: np.ndarray, rcond: float) -> np.ndarray:
@@ -326,9 +330,12 @@ def _toeplitz(h: np.ndarray) -> np.ndarray:
     return H
 
 
-def _char_poly(A: np.ndarray) -> np.ndarray:
-    """``[a1, ..., an]`` of ``det(zI - A) = z^n + a1 z^{n-1} + ... + an``."""
-    return np.real(np.poly(A))[1:] if A.size else np.zeros(0)
+def _char_poly(A_or_poles: np.ndarray) -> np.ndarray:
+    """``[a1, ..., an]`` of ``det(zI - A) = z^n + a1 z^{n-1} + ... + an``.
+
+    Takes ``A`` or its eigenvalues (``np.poly`` of the matrix computes them first).
+    """
+    return np.real(np.poly(A_or_poles))[1:] if A_or_poles.size else np.zeros(0)
 
 
 # ------------------------------------------------------------ order and horizon
@@ -394,7 +401,7 @@ class _Core:
     gap: float
     order_auto: bool
     K_hat: np.ndarray | None = None  # robust N4SID: unconstrained coefficient on U_f
-    Z: tuple[np.ndarray, np.ndarray] | None = None  # (Z_i, Z_{i+1}) when already computed
+    Z: tuple[_Projected, _Projected] | None = None  # (Z_i, Z_{i+1}) when already computed
 
 
 def _order_and_gamma(
@@ -569,8 +576,8 @@ def _n4sid_core(
     # [U_f; W_p] = [U_f; U_p; Y_p]: its basis is Qu extended by W_p.
     Z_i, Z_n = _z_projections(st, i, rcond, _orth_extend(Qu, Wp, rcond))
     Y_i = st.rows(st.y_rows(i, i + 1))
-    lhs = np.concatenate([_pinv_apply(Gm, Z_n), Y_i])
-    rhs = np.concatenate([_pinv_apply(Gam, Z_i), Uf])
+    lhs = np.concatenate([Z_n.pinv_apply(Gm), Y_i])
+    rhs = np.concatenate([Z_i.pinv_apply(Gam), Uf])
     sol = _regress(lhs, rhs, rcond)
     A, C = sol[:n, :n], sol[n:, :n]
     return _Core(
@@ -587,10 +594,36 @@ def _n4sid_core(
     )
 
 
+@dataclass(frozen=True)
+class _Projected:
+    """A projection ``Z = X Q Q^T`` on the row space with orthonormal basis ``Q``, kept
+    as ``(X Q, Q)``: what uses ``Z`` applies a small matrix on the left first."""
+
+    XQ: np.ndarray  # (p, q)
+    Q: np.ndarray  # (r, q)
+
+    def pinv_apply(
+        self, Gam: np.ndarray, H: np.ndarray | None = None, U: np.ndarray | None = None
+    ) -> np.ndarray:
+        """``Gamma^+ Z``, or ``Gamma^+ (Z - H U)`` when ``H`` and ``U`` are given.
+
+        Computed as ``(Gamma^+ X Q) Q^T - (Gamma^+ H) U``: the products of
+        ``_innovation_stats`` associated the other way, ``Gamma^+`` (n rows) applied
+        first, so the products with the (r x q) basis and with ``U`` have ``n``
+        rows instead of ``p`` (at horizon 40, 4 instead of 120: the projections
+        were a tenth of a bearing fit at N = 1e4). Equal to rounding.
+        """
+        if H is None or U is None:
+            return _lstsq(Gam, self.XQ) @ self.Q.T
+        q = self.XQ.shape[1]
+        G = _lstsq(Gam, np.concatenate([self.XQ, H], axis=1))  # one factorisation
+        return G[:, :q] @ self.Q.T - G[:, q:] @ U
+
+
 def _z_projections(
     st: _Stats, i: int, rcond: float, Q1: np.ndarray | None = None
-) -> tuple[np.ndarray, np.ndarray]:
-    """``Z_i = Y_f / [W_p; U_f]`` and ``Z_{i+1} = Y_f^- / [W_p^+; U_f^-]``.
+) -> tuple[_Projected, _Projected]:
+    """``Z_i = Y_f / [W_p; U_f]`` and ``Z_{i+1} = Y_f^- / [W_p^+; U_f^-]`` (factored).
 
     ``Q1``, when given, is an orthonormal basis of the row space of
     ``[U_p; U_f; Y_p]`` already computed; the basis of the second projection is
@@ -600,8 +633,8 @@ def _z_projections(
         U_all = st.rows(st.u_rows(0, 2 * i))
         Q1 = _orth(np.concatenate([U_all, st.rows(st.y_rows(0, i))]), rcond)
     Q2 = _orth_extend(Q1, st.rows(st.y_rows(i, i + 1)), rcond)
-    Z_i = _proj(st.rows(st.y_rows(i, 2 * i)), Q1)
-    Z_n = _proj(st.rows(st.y_rows(i + 1, 2 * i)), Q2)
+    Z_i = _Projected(st.rows(st.y_rows(i, 2 * i)) @ Q1, Q1)
+    Z_n = _Projected(st.rows(st.y_rows(i + 1, 2 * i)) @ Q2, Q2)
     return Z_i, Z_n
 
 
@@ -664,7 +697,7 @@ def _innovation_stats(
     C: np.ndarray,
     D: np.ndarray,
     rcond: float,
-    Z: tuple[np.ndarray, np.ndarray] | None = None,
+    Z: tuple[_Projected, _Projected] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Residual covariance of the state equations (scaled units) and output residual rows.
 
@@ -679,8 +712,8 @@ def _innovation_stats(
     Ufm = st.rows(st.u_rows(i + 1, 2 * i))
     h = _markov(A, B, C, D, i)
     Gam = _observability(A, C, i)
-    X_i = _pinv_apply(Gam, Z_i - _toeplitz(h) @ Uf)
-    X_n = _pinv_apply(Gam[:-ny], Z_n - _toeplitz(h[: i - 1]) @ Ufm)
+    X_i = Z_i.pinv_apply(Gam, _toeplitz(h), Uf)
+    X_n = Z_n.pinv_apply(Gam[:-ny], _toeplitz(h[: i - 1]), Ufm)
     U_i = st.rows(st.u_rows(i, i + 1))
     Y_i = st.rows(st.y_rows(i, i + 1))
     rho_w = X_n - A @ X_i - B @ U_i
@@ -709,7 +742,12 @@ def _kalman_gain(
         except (ValueError, np.linalg.LinAlgError) as exc:
             return None, None, f"the Kalman-filter Riccati equation has no solution ({exc})"
     Re = C @ P @ C.T + R
-    K = sla.solve(Re.T, (A @ P @ C.T + S).T, assume_a="pos").T
+    # K = (A P C^T + S) Re^-1 by Cholesky (LAPACK posv: what scipy.linalg.solve with
+    # assume_a="pos" computes, without its checks, a fixed cost of every fit).
+    _, Kt, info = lapack.dposv(Re.T, (A @ P @ C.T + S).T)
+    if info != 0:
+        return None, None, "the innovation covariance is not positive definite"
+    K = Kt.T
     rho = float(np.max(np.abs(np.linalg.eigvals(A - K @ C)))) if n else 0.0
     if not np.isfinite(rho) or rho >= 1.0:
         return None, None, f"the Kalman predictor is not stable (spectral radius {rho:.6g})"
@@ -748,7 +786,10 @@ def _dare_doubling(
         Hk = Q - S @ Rinv_St
         eye = np.eye(n)
         for _ in range(60):
-            V = np.linalg.solve(eye + Gk @ Hk, np.concatenate([Ak, Gk], axis=1))
+            # LAPACK gesv directly (numpy's solve costs twice as much on a 4 x 4).
+            _, _, V, info = lapack.dgesv(eye + Gk @ Hk, np.concatenate([Ak, Gk], axis=1))
+            if info != 0:  # W singular
+                return None
             V1, V2 = V[:, :n], V[:, n:]  # W^-1 A_k, W^-1 G_k
             H_new = Hk + Ak.T @ Hk @ V1
             Gk = Gk + Ak @ V2 @ Ak.T
@@ -826,7 +867,10 @@ def _predictor_residuals(
         Ub = u[t0:t1].reshape(-1, b * nu)
         Yb = y[t0:t1].reshape(-1, b * ny)
         S, x = linear_recursion(Fp[b], Ub @ Eu + Yb @ Ey, x)  # block states s_k, and x(t1)
-        e[t0:t1] = (Ub @ Gu + Yb @ Gy + S @ Phi).reshape(-1, ny)
+        eb = e[t0:t1].reshape(-1, b * ny)  # a view: the sums land in e, no temporaries
+        np.matmul(Ub, Gu, out=eb)
+        eb += Yb @ Gy
+        eb += S @ Phi
     if n_full < N:  # the last, partial block: zero-padded inputs, its start state x
         Z = np.zeros((b, m))
         Z[: N - n_full, :nu] = u[n_full:]
@@ -996,7 +1040,8 @@ def _fit(
             "noise model not computed (noise_model=False): no noise covariances, Kalman "
             "gain, residuals or fit percentages"
         )
-    if not model.is_stable():
+    poles = np.linalg.eigvals(model.A)  # once: stability and the characteristic polynomial
+    if not np.all(np.abs(poles) < 1.0):
         notes.append(
             "the model is unstable (poles outside the unit circle); it is reported as found"
         )
@@ -1017,7 +1062,7 @@ def _fit(
     return IdentificationResult(
         method=opt.algorithm,
         model=model,
-        parameters={f"a{k + 1}": float(v) for k, v in enumerate(_char_poly(model.A))},
+        parameters={f"a{k + 1}": float(v) for k, v in enumerate(_char_poly(poles))},
         covariance=None,
         n_samples=st.n_samples,
         options=_used_options(opt, st, i, core, horizon_rule, rank_tol, i_rows),
