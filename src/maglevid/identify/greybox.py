@@ -599,8 +599,9 @@ def fit_greybox_levitator(
     opts["names"] = names
     gm = _GreyboxModel(data, segs, opts)
     y_ref = float(gm.y0s[0]) if y_ref is None else float(y_ref)
-    theta, cov_all, sol_notes = _solve_multistart(gm, start, bounds, max_nfev)
+    theta, cov_all, sol_notes, fisher = _solve_multistart(gm, start, bounds, max_nfev)
     params, ext, verdict = _physical_result(gm, theta, cov_all, bounds, start, y_ref)
+    verdict["pole_se_fisher"] = _pole_se(gm, theta, fisher, y_ref)
     fit, resid = _fit_metrics(
         gm, theta, segs, k_step, resolve_channel(data, gap).name,
         resolve_channel(data, current).name,
@@ -698,6 +699,7 @@ def _fit_extras(gm: _GreyboxModel, theta: np.ndarray, verdict: dict[str, Any]) -
         "parameter_names": list(gm.names),
         "pole_identified": verdict["identified"],
         "covariance": gm.o["covariance"],
+        "pole_se_fisher": verdict["pole_se_fisher"],
         "at_bound": verdict["at_bound"],
         "unidentifiable": verdict["unidentifiable"],
         "noise_parameters": dict(zip(_noise_names(gm.o["model"]), theta[gm.n_phys :].tolist())),
@@ -765,7 +767,7 @@ def _solve(
     start: np.ndarray,
     bounds: tuple[np.ndarray, np.ndarray],
     max_nfev: int | None,
-) -> tuple[np.ndarray, np.ndarray, list[str], float]:
+) -> tuple[np.ndarray, np.ndarray, list[str], float, np.ndarray]:
     """Minimise the weighted one-step prediction errors over every segment (bounds keep
     every step physical; a penalty would leave the trust region blind)."""
     segs, burn = gm.segs, gm.o["burn_in"]
@@ -797,8 +799,8 @@ def _solve(
         )  # fmt: skip
     notes = [] if sol.success else [f"optimiser stopped: {sol.message}"]
     J = sol.jac / scale[None, :]
+    fisher = cov = covariance_from_jacobian(J, sol.fun, start.size)
     if gm.o["covariance"] == "fisher":
-        cov = covariance_from_jacobian(J, sol.fun, start.size)
         notes.append("covariance: Fisher, s^2 (J'J)^-1 (white innovations assumed)")
     else:
         lengths = [(b - a - burn) * gm.ny for a, b in segs]
@@ -807,7 +809,7 @@ def _solve(
             f"covariance: sandwich H^-1 S H^-1 (Ljung 1999, sec. 9.3), Bartlett weights over "
             f"{lag} lags (from the residuals' autocorrelation): honest under coloured noise"
         )
-    return sol.x * scale, cov, notes, sol.cost
+    return sol.x * scale, cov, notes, sol.cost, fisher
 
 
 # Covariance under coloured or misspecified residuals (the PEM "sandwich"). With
@@ -824,14 +826,18 @@ def _solve(
 # Gamma_l add what the Fisher matrix leaves out. L: the last lag at which the residuals'
 # autocorrelation (any output) exceeds 2/sqrt(N), at least the Newey-West rule
 # 4 (N/100)^(2/9) and at most sqrt(N) (L/N -> 0, the condition for consistency).
-def sandwich_lag(E: np.ndarray) -> int:
-    """Lag count of :func:`sandwich_covariance` from the residuals ``E`` (N, ny)."""
-    N = E.shape[0]
+def sandwich_lag(segments: Sequence[np.ndarray]) -> int:
+    """Lag count of :func:`sandwich_covariance` from each segment's residuals (N_s, ny):
+    their autocovariances summed over segments (no lag crosses a boundary)."""
+    N = sum(e.shape[0] for e in segments)
     lo = int(np.floor(4.0 * (N / 100.0) ** (2.0 / 9.0)))
     hi = max(lo, int(np.floor(np.sqrt(N))))
-    X = E - E.mean(axis=0)
-    F = np.fft.rfft(X, n=2 * N, axis=0)
-    acf = np.fft.irfft(np.abs(F) ** 2, axis=0)[: hi + 1]
+    acf = 0.0
+    for e in segments:
+        X = e - e.mean(axis=0)
+        F = np.fft.rfft(X, n=2 * X.shape[0], axis=0)
+        c = np.fft.irfft(np.abs(F) ** 2, n=2 * X.shape[0], axis=0)[: hi + 1]
+        acf = acf + np.vstack([c, np.zeros((hi + 1 - c.shape[0], c.shape[1]))])
     acf = acf / np.where(acf[0] > 0, acf[0], 1.0)
     big = np.flatnonzero(np.any(np.abs(acf[1:]) > 2.0 / np.sqrt(N), axis=1))
     return int(min(max(lo, big[-1] + 1 if big.size else 0), hi))
@@ -854,7 +860,7 @@ def sandwich_covariance(
         e = residuals[a:b].reshape(-1, ny)
         G.append(np.einsum("tjp,tj->tp", J[a:b].reshape(-1, ny, n_par), e))  # g_t
         E.append(e)
-    lag = sandwich_lag(np.vstack(E))
+    lag = sandwich_lag(E)
     S = np.zeros((n_par, n_par))
     for g in G:
         S += g.T @ g
@@ -904,18 +910,18 @@ def _solve_multistart(
     start: np.ndarray,
     bounds: tuple[np.ndarray, np.ndarray],
     max_nfev: int | None,
-) -> tuple[np.ndarray, np.ndarray, list[str]]:
+) -> tuple[np.ndarray, np.ndarray, list[str], np.ndarray]:
     """:func:`_solve` from the given start and from :func:`_alternative_start`; the lower
     cost wins (reported in the notes)."""
     best = _solve(gm, start, bounds, max_nfev)
     alt = _alternative_start(gm, start)
     if alt is None:
-        return best[:3]
+        return best[0], best[1], best[2], best[4]
     alt = np.clip(alt, bounds[0], bounds[1])
     try:
         other = _solve(gm, alt, bounds, max_nfev)
     except IdentificationError:
-        return best[:3]
+        return best[0], best[1], best[2], best[4]
     cost = [best[3], other[3]]
     won = other if cost[1] < cost[0] else best
     note = (
@@ -923,7 +929,7 @@ def _solve_multistart(
         f"{1e3 * alt[gm.names.index('a')]:.3g} mm): costs {cost[0]:.4g} and {cost[1]:.4g}, "
         "the lower kept"
     )
-    return won[0], won[1], [*won[2], note]
+    return won[0], won[1], [*won[2], note], won[4]
 
 
 def _suspect_parameters(
@@ -982,6 +988,14 @@ def _derived(
     params = dict(zip([*gm.names, "pole_rad_s", "pole_z", "current_gain", "i0"],
                       [*th_phys.tolist(), *dvals.tolist()]))  # fmt: skip
     return params, ext
+
+
+def _pole_se(gm: _GreyboxModel, theta: np.ndarray, cov: np.ndarray, y_ref: float) -> float:
+    """Standard error of the pole under ``cov`` (delta method), for comparing covariances."""
+    n = gm.n_phys
+    _, ext = _derived(gm, theta[:n], cov[:n, :n], y_ref)
+    v = ext[n, n]
+    return float(np.sqrt(v)) if np.isfinite(v) and v >= 0 else float("nan")
 
 
 def _fit_metrics(
