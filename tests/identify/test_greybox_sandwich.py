@@ -71,7 +71,8 @@ def test_segments_do_not_leak_lags_across_boundaries(rng):
     J = rng.standard_normal((600, 2))
     e = rng.standard_normal(600)
     a, _ = sandwich_covariance(J, e, [200, 400], 1)
-    b, _ = sandwich_covariance(np.vstack([J[200:], J[:200]]), np.r_[e[200:], e[:200]], [400, 200], 1)
+    Js, es = np.vstack([J[200:], J[:200]]), np.r_[e[200:], e[:200]]
+    b, _ = sandwich_covariance(Js, es, [400, 200], 1)
     np.testing.assert_allclose(a, b, rtol=1e-10)
 
 

@@ -37,6 +37,7 @@ exceeds its value, makes the fit claim no pole (NaN, with a note).
 
 from __future__ import annotations
 
+import itertools
 import logging
 from collections.abc import Sequence
 from typing import Any
@@ -856,7 +857,7 @@ def sandwich_covariance(
     """
     n_par = J.shape[1]
     G, E, edges = [], [], np.cumsum([0, *lengths])
-    for a, b in zip(edges[:-1], edges[1:]):
+    for a, b in itertools.pairwise(edges):
         e = residuals[a:b].reshape(-1, ny)
         G.append(np.einsum("tjp,tj->tp", J[a:b].reshape(-1, ny, n_par), e))  # g_t
         E.append(e)
