@@ -522,9 +522,9 @@ def _consensus(
 ) -> IdentificationResult:
     """Refit every candidate on all segments; the best-validated one with a pole gives the
     point, the supported ones (within ``SUPPORT_MARGIN`` of it) the hull interval."""
-    fits = [_fit(data, segs, r["candidate"], common) for r in rows]
-    fulls = [None if isinstance(f, Exception) else _pole_ci(f) for f in fits]
     scores = np.array([r["validation"] for r in rows])
+    fits = _refit(data, segs, rows, scores, common)
+    fulls = [None if isinstance(f, (Exception, str)) else _pole_ci(f) for f in fits]
     ok = np.array([f is not None for f in fulls])
     if not ok.any():
         raise IdentificationError(
@@ -562,10 +562,39 @@ def _consensus(
     return _with_consensus(best, point, lo, hi, table, exclusions, n_sessions, k_step, data.dt)
 
 
+def _refit(
+    data: ClosedLoopData,
+    segs: list[tuple[int, int]],
+    rows: list[dict[str, Any]],
+    scores: np.ndarray,
+    common: dict[str, Any],
+) -> list[Any]:
+    """Every candidate that can still be supported, refitted on all segments, best
+    held-out score first. Once a candidate with an identifiable pole has set the best
+    score, one more than ``SUPPORT_MARGIN`` points below it can neither give the point
+    nor enter the interval: it is not refitted (a string says why). Without any
+    finite score every candidate is refitted (each identified one counts)."""
+    fits: list[Any] = [None] * len(rows)
+    order = sorted(range(len(rows)), key=lambda j: -np.nan_to_num(scores[j], nan=-np.inf))
+    best = None
+    for j in order:
+        if best is not None and not scores[j] >= best - SUPPORT_MARGIN:
+            fits[j] = (
+                f"not refitted on all segments: held-out fit more than {SUPPORT_MARGIN} "
+                "points below the best"
+            )
+            continue
+        fits[j] = _fit(data, segs, rows[j]["candidate"], common)
+        if best is None and np.isfinite(scores[j]) and not isinstance(fits[j], Exception):
+            if _pole_ci(fits[j]) is not None:
+                best = float(scores[j])
+    return fits
+
+
 def _why_not(res: Any) -> str:
     if res is None:
         return ""
-    if isinstance(res, Exception):
+    if isinstance(res, (Exception, str)):
         return str(res)
     return "; ".join(n for n in res.notes if n.startswith("no pole"))
 
