@@ -314,6 +314,7 @@ def fit_levitator(
     current: str = "y:1",
     command: str = "u:0",
     frame: str = "auto",
+    covariance: str = "sandwich",
 ) -> IdentificationResult:
     """The levitator's unstable pole: model chosen by held-out prediction, one consensus.
 
@@ -347,6 +348,10 @@ def fit_levitator(
         current is an output; ``"current"``: the measured current drives the
         mechanical force-law family ``i -> gap``. ``"auto"`` (default): the command
         when it is logged (see :data:`FRAME_NOTES` for why).
+    covariance : {"sandwich", "fisher"}
+        Covariance of every grey-box fit, and so of the intervals the consensus hull
+        is made of (:func:`~maglevid.identify.greybox.fit_greybox_levitator`): the
+        sandwich (default) holds under coloured residuals, Fisher assumes white ones.
 
     Returns
     -------
@@ -397,6 +402,7 @@ def _fit_sessions(
     current: str,
     command: str,
     frame: str,
+    covariance: str,
 ) -> IdentificationResult:
     if not sessions:
         raise DataError("no recordings given")
@@ -428,7 +434,7 @@ def _fit_sessions(
         if y_ref is None
         else y_ref
     )
-    common = {"y_ref": y_ref, "m": m, "gap": gap, "current": current}
+    common = {"y_ref": y_ref, "m": m, "gap": gap, "current": current, "covariance": covariance}
     rows = []
     frame = _frame(pooled, frame, current)
     cands = (
@@ -673,5 +679,7 @@ OPTIONS = {
         Option("command", "channel", "channel of the command [V]"),
         Option("frame", "str", "model input: the command, the measured current, or auto",
                choices=("auto", "command", "current")),
+        Option("covariance", "str", "per-fit covariance: sandwich (coloured residuals) or "
+               "fisher (white)", choices=("sandwich", "fisher")),
     )
 }  # fmt: skip
