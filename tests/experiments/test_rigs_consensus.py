@@ -39,16 +39,15 @@ def test_maggy_states_why_it_gives_no_plant_pole(shared_data, capsys):
     assert any("exact linear function of the outputs" in n for n in res["notes"])
 
 
-@pytest.mark.slow
 def test_sessions_one_by_one_and_together(shared_data, capsys):
-    # three of the five sessions; docs/real-rigs.md has all five. Without the
-    # command-delay candidates (`--option command_delay=false`): the pooled fit with
-    # them took over 12 min on one core, 66 s without (measured on this machine); the
-    # per-session test below keeps the default candidates.
+    # three of the five sessions; docs/real-rigs.md has all five. With the default
+    # candidates (the command delay included): the faster grey box (docs/real-rigs.md,
+    # 'Speed') pools five sessions in 43 s of CPU. Without the delay candidates
+    # senoidal's interval is -23 % wide (50.9 [39.3, 56.4]): the delay is part of its
+    # answer.
     paths = [next((shared_data / UAQ).glob(f"dataset_{n}_*.txt"))
              for n in ("escalon", "multiescalon", "senoidal")]  # fmt: skip
-    res = _identify(capsys, *paths, "--mapping", "uaq-levitador", "--option",
-                    "command_delay=false")  # fmt: skip
+    res = _identify(capsys, *paths, "--mapping", "uaq-levitador")
     assert len(res["sessions"]) == 3 and res["consensus"]["n_sessions"] == 3
     lo, hi = res["consensus"]["ci95"]
     assert 0 < lo <= res["parameters"]["pole_rad_s"] <= hi  # unstable, point inside
@@ -72,6 +71,12 @@ def _meets_the_interval_condition(sessions):
 
 
 @pytest.mark.slow
+@pytest.mark.xfail(
+    strict=True,
+    reason="constante (no excitation) gives 59.3 [54.2, 60.8] rad/s with the sandwich "
+    "intervals and excludes chirp's and escalon's; docs/real-rigs.md, 'Result with the "
+    "sandwich'",
+)
 def test_every_uaq_session_meets_the_interval_condition(shared_data, capsys):
     # the five sessions one by one, as `identify SESSION --mapping uaq-levitador` (the
     # table in docs/real-rigs.md); several minutes on one core

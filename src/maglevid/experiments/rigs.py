@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from scipy import signal
 
 from maglevid.control.cascade_pid import (
     CascadeGains,
@@ -202,6 +203,9 @@ def simulate_pd_dither_levitator(
     y_noise: float = 1e-5,
     i_noise: float = 1e-3,
     u_limits: tuple[float, float] = (-24.0, 24.0),
+    force_colour: float = 0.0,
+    chatter: float = 0.0,
+    quantum: tuple[float, float] | None = None,
     rng: np.random.Generator | None = None,
 ) -> ClosedLoopData:
     """A rig log with a dither and no ``r`` column: a one-coil levitator under a PD loop.
@@ -217,6 +221,14 @@ def simulate_pd_dither_levitator(
     is kept in ``metadata["truth_dither"]`` for tests. Default gains place the
     linear closed-loop mechanical poles near 60 rad/s, damping 0.7, for the UAQ
     published physics at 5 mm (``kp b = p^2 + 60^2``, ``kd b = 2 0.7 60``, ``b = 2 g/i0``).
+
+    What the grey box's noise model leaves out, as on the UAQ rig (docs/real-rigs.md),
+    can be added: ``force_colour`` (``0 <= c < 1``) makes the force disturbance AR(1),
+    ``w_k = c w_(k-1) + sqrt(1 - c^2) e_k`` (same variance, correlation time
+    ``-dt/ln c``); ``chatter`` [A] adds to the measured current a narrow-band AR(2)
+    noise of that rms at 48 Hz (pole radius 0.98: the 47-50 Hz loop chatter);
+    ``quantum = (q_y, q_i)`` rounds the logged gap and current to those steps. The
+    defaults (white, none, none) draw the same random numbers as before.
     """
     rng = np.random.default_rng(0) if rng is None else rng
     i0, _ = equilibrium(params, y0)
@@ -224,11 +236,19 @@ def simulate_pd_dither_levitator(
     w = rng.standard_normal(n) * force_noise
     ny_ = rng.standard_normal(n) * y_noise
     ni_ = rng.standard_normal(n) * i_noise
+    if force_colour:
+        w = signal.lfilter([np.sqrt(1.0 - force_colour**2)], [1.0, -force_colour], w)
+    if chatter:
+        rad, ang = 0.98, 2.0 * np.pi * 48.0 * dt
+        ch = signal.lfilter([1.0], [1.0, -2.0 * rad * np.cos(ang), rad**2], rng.standard_normal(n))
+        ni_ = ni_ + chatter * ch / np.std(ch)
     x = np.array([y0, 0.0, i0])
     Y, U = np.empty((n, 2)), np.empty(n)
     y_prev = y0
     for t in range(n):
         ym, im = x[0] + ny_[t], x[2] + ni_[t]
+        if quantum is not None:
+            ym, im = quantum[0] * np.round(ym / quantum[0]), quantum[1] * np.round(im / quantum[1])
         i_ref = i0 + kp * (ym - y0) + kd * (ym - y_prev) / dt + d[t]
         u = float(np.clip(kc * (i_ref - im) + params.R * i_ref, *u_limits))
         Y[t], U[t], y_prev = (ym, im), u, ym

@@ -37,6 +37,7 @@ exceeds its value, makes the fit claim no pole (NaN, with a note).
 
 from __future__ import annotations
 
+import itertools
 import logging
 from collections.abc import Sequence
 from typing import Any
@@ -67,6 +68,8 @@ __all__ = [
     "fit_greybox_levitator",
     "sample_foh",
     "sample_zoh",
+    "sandwich_covariance",
+    "solve_filter_riccati",
     "validate_greybox",
 ]
 
@@ -144,6 +147,42 @@ def sample_zoh_delayed(
         Pa[nx + j * nu : nx + (j + 1) * nu, nx + (j - 1) * nu : nx + j * nu] = np.eye(nu)
     Ca = np.hstack([C, np.zeros((C.shape[0], n_past * nu))])
     return Pa, Ga, Ca, np.zeros((C.shape[0], nu))
+
+
+def solve_filter_riccati(
+    Phi: np.ndarray, C: np.ndarray, Q: np.ndarray, R: np.ndarray, *, tol: float = 1e-13
+) -> np.ndarray:
+    """Stabilising solution of the filter Riccati equation
+    ``P = Phi P Phi' - Phi P C' (C P C' + R)^-1 C P Phi' + Q`` by structure-preserving
+    doubling (Chu, Fan & Lin 2005, "A structure-preserving doubling algorithm for
+    discrete-time algebraic Riccati equations", Linear Algebra Appl. 396, alg. SDA)::
+
+        W_k = I + G_k H_k,   A_(k+1) = A_k W_k^-1 A_k,   G_(k+1) = G_k + A_k W_k^-1 G_k A_k',
+        H_(k+1) = H_k + A_k' H_k W_k^-1 A_k,   A_0 = Phi', G_0 = C' R^-1 C, H_0 = Q,
+
+    ``H_k -> P`` quadratically. For the few states of a grey box it needs ~10 products
+    of small matrices, a quarter of the QZ solver's time
+    (:func:`scipy.linalg.solve_discrete_are`, the fallback when doubling does not
+    converge in 60 steps).
+    """
+    A = Phi.T
+    G = C.T @ np.linalg.solve(R, C)
+    H = Q
+    eye = np.eye(A.shape[0])
+    with np.errstate(all="ignore"):
+        for _ in range(60):
+            Wi = np.linalg.inv(eye + G @ H)  # a few states: inv is as accurate as solve
+            WA = Wi @ A
+            H_new = H + A.T @ H @ WA
+            G = G + A @ Wi @ G @ A.T
+            A = A @ WA
+            if not np.all(np.isfinite(H_new)):
+                break
+            done = np.max(np.abs(H_new - H)) <= tol * np.max(np.abs(H_new))
+            H = H_new
+            if done:
+                return 0.5 * (H + H.T)
+    return sla.solve_discrete_are(Phi.T, C.T, Q, R)
 
 
 #: Force laws of the mechanical model (``force_law``). ``F`` pulls the body toward
@@ -328,13 +367,19 @@ class _GreyboxModel:
         lq = th[self.n_phys :]
         a0, b0 = self.segs[s]
         A, B, C, Bw = self.continuous(d, s)
-        Phi, Gam, Cd, D = self.sample(A, B, C, d.get("delay", 0.0))
-        _, Gw, _, _ = sample_zoh(A, Bw, C, self.dt)
+        delay = d.get("delay", 0.0)
+        if self.o["model"] == "electromechanical" and delay == 0.0:  # one expm for u and w
+            Phi, Gall, Cd, _ = sample_zoh(A, np.hstack([B, Bw]), C, self.dt)
+            Gam, Gw = Gall[:, : B.shape[1]], Gall[:, B.shape[1] :]
+            D = np.zeros((C.shape[0], B.shape[1]))
+        else:
+            Phi, Gam, Cd, D = self.sample(A, B, C, delay)
+            _, Gw, _, _ = sample_zoh(A, Bw, C, self.dt)
         Gw = np.vstack([Gw, np.zeros((Phi.shape[0] - Gw.shape[0], Gw.shape[1]))])
         sw = np.exp(lq[: Bw.shape[1]])
         Rn = np.eye(1) if self.ny == 1 else np.diag([1.0, np.exp(2 * lq[2])])
         Q = (Gw * sw**2) @ Gw.T
-        P = sla.solve_discrete_are(Phi.T, Cd.T, Q, Rn)
+        P = solve_filter_riccati(Phi, Cd, Q, Rn)
         Kg = Phi @ P @ Cd.T @ np.linalg.inv(Cd @ P @ Cd.T + Rn)
         i0 = self.i0_of(d, s)
         if self.ny == 1:
@@ -367,17 +412,35 @@ class _GreyboxModel:
 
 def _one_step(inn: InnovationsModel, Y: np.ndarray, U: np.ndarray) -> np.ndarray:
     """``inn.predict(Y, U, k=1)`` as linear filters (the predictor from ``[y, u]`` to
-    ``yhat`` is LTI with zero initial state): the same numbers at C speed."""
+    ``yhat`` is LTI with zero initial state): the same numbers at C speed.
+
+    Every path of the predictor ``x+ = A_K x + B_z z``, ``yhat = C x + D_z z`` (``A_K =
+    A - K C``, ``z = [y, u]``) shares the denominator ``det(zI - A_K) = sum_j a_j
+    z^(n-j)``; the numerators follow from the Markov parameters ``h_0 = D_z``, ``h_k = C
+    A_K^(k-1) B_z``: ``b_k = sum_(j<=k) a_j h_(k-j)`` (Kailath 1980, sec. 2.2). So one
+    characteristic polynomial, ``n`` matrix products, one FIR per input and one IIR per
+    output - instead of a ``ss2tf`` (two eigenvalue problems) per input.
+    """
     AK = inn.A - inn.K @ inn.C
     Bz = np.hstack([inn.K, inn.B - inn.K @ inn.D])
     Dz = np.hstack([np.zeros((inn.C.shape[0], inn.K.shape[1])), inn.D])
-    Z = np.hstack([Y, U])
-    out = np.zeros_like(Y, dtype=float)
-    for m in range(Z.shape[1]):
-        num, den = signal.ss2tf(AK, Bz[:, m : m + 1], inn.C, Dz[:, m : m + 1])
-        for j in range(Y.shape[1]):
-            out[:, j] += signal.lfilter(num[j], den, Z[:, m])
-    return out
+    n = AK.shape[0]
+    den = np.poly(AK).real if n else np.ones(1)
+    h = [Dz]
+    CA = inn.C
+    for _ in range(n):
+        h.append(CA @ Bz)
+        CA = CA @ AK
+    H = np.stack(h)  # (n + 1, ny, nz): h_0 .. h_n
+    idx = np.arange(n + 1)
+    T = np.where(idx[:, None] >= idx[None, :], den[np.clip(idx[:, None] - idx, 0, n)], 0.0)
+    num = (T @ H.reshape(n + 1, -1)).reshape(H.shape)  # b_k = sum_(i<=k) a_(k-i) h_i
+    N = Y.shape[0]
+    Z = np.vstack([np.zeros((n, Y.shape[1] + U.shape[1])), np.hstack([Y, U])])
+    fir = np.zeros((N, Y.shape[1]))
+    for k in range(n + 1):  # sum_k b_k z_(t-k), zero before the start
+        fir += Z[n - k : n - k + N] @ num[k].T
+    return signal.lfilter([1.0], den, fir, axis=0)
 
 
 def _check_options(
@@ -420,6 +483,8 @@ OPTIONS_GREYBOX = (
            "command and the coil (electromechanical model only)"),
     Option("sensor_gain", "bool", "estimate a gap-sensor gain gs (electromechanical model "
            "only; the UAQ data cannot separate it)"),
+    Option("covariance", "str", "sandwich (honest under coloured residuals) or fisher "
+           "(white innovations)", choices=("sandwich", "fisher")),
 )  # fmt: skip
 
 
@@ -446,6 +511,7 @@ def fit_greybox_levitator(
     burn_in: int = 20,
     k_step: int = 3,
     max_nfev: int | None = None,
+    covariance: str = "sandwich",
 ) -> IdentificationResult:
     """Physical parameters of the levitator by one-step prediction error (grey box).
 
@@ -499,6 +565,11 @@ def fit_greybox_levitator(
         Horizon of the k-step prediction fit (short: an unstable model amplifies
         the state error by ``z^k``).
     max_nfev : int, optional
+    covariance : {"sandwich", "fisher"}
+        ``"sandwich"`` (default): ``H^-1 S H^-1`` with the lagged cross-covariances of
+        the gradient ``psi_t eps_t`` (:func:`sandwich_covariance`; honest when the
+        residuals are coloured or the noise model is wrong, Ljung 1999 sec. 9.3);
+        ``"fisher"``: ``s^2 (J'J)^-1``, right only for white innovations.
 
     Returns
     -------
@@ -506,7 +577,8 @@ def fit_greybox_levitator(
         ``parameters``: the law's (``a``, ``k`` | ``n``, ``Km`` | ``i_m``; ``k0``,
         ``R``, ``ku``; ``tau``; ``beta``), then ``pole_rad_s`` and ``pole_z`` at
         ``y_ref``, ``current_gain`` and ``i0`` at the first segment's gap. Covariance
-        from the Jacobian of the prediction errors (``s^2 (J'J)^-1``), extended to the
+        from the Jacobian of the prediction errors (``covariance``: the sandwich by
+        default, ``extras["covariance"]`` says which), extended to the
         derived quantities by the delta method. ``extras["pole_identified"]`` is
         ``False`` (and the pole NaN) when a parameter sits at a bound or is not
         identifiable: no pole is claimed from such a fit.
@@ -522,13 +594,15 @@ def fit_greybox_levitator(
         "command": command, "m": m, "g": g, "use_equilibrium": use_equilibrium,
         "flux_lag": flux_lag, "free_gain": free_gain, "current_hold": current_hold,
         "burn_in": burn_in, "command_delay": command_delay, "sensor_gain": sensor_gain,
+        "covariance": covariance,
     }  # fmt: skip
     names, start, bounds = _parameter_set(data, segs, opts, p0)
     opts["names"] = names
     gm = _GreyboxModel(data, segs, opts)
     y_ref = float(gm.y0s[0]) if y_ref is None else float(y_ref)
-    theta, cov_all, sol_notes = _solve_multistart(gm, start, bounds, max_nfev)
+    theta, cov_all, sol_notes, fisher = _solve_multistart(gm, start, bounds, max_nfev)
     params, ext, verdict = _physical_result(gm, theta, cov_all, bounds, start, y_ref)
+    verdict["pole_se_fisher"] = _pole_se(gm, theta, fisher, y_ref)
     fit, resid = _fit_metrics(
         gm, theta, segs, k_step, resolve_channel(data, gap).name,
         resolve_channel(data, current).name,
@@ -625,6 +699,8 @@ def _fit_extras(gm: _GreyboxModel, theta: np.ndarray, verdict: dict[str, Any]) -
         "theta": theta.tolist(),
         "parameter_names": list(gm.names),
         "pole_identified": verdict["identified"],
+        "covariance": gm.o["covariance"],
+        "pole_se_fisher": verdict["pole_se_fisher"],
         "at_bound": verdict["at_bound"],
         "unidentifiable": verdict["unidentifiable"],
         "noise_parameters": dict(zip(_noise_names(gm.o["model"]), theta[gm.n_phys :].tolist())),
@@ -692,7 +768,7 @@ def _solve(
     start: np.ndarray,
     bounds: tuple[np.ndarray, np.ndarray],
     max_nfev: int | None,
-) -> tuple[np.ndarray, np.ndarray, list[str], float]:
+) -> tuple[np.ndarray, np.ndarray, list[str], float, np.ndarray]:
     """Minimise the weighted one-step prediction errors over every segment (bounds keep
     every step physical; a penalty would leave the trust region blind)."""
     segs, burn = gm.segs, gm.o["burn_in"]
@@ -724,7 +800,83 @@ def _solve(
         )  # fmt: skip
     notes = [] if sol.success else [f"optimiser stopped: {sol.message}"]
     J = sol.jac / scale[None, :]
-    return sol.x * scale, covariance_from_jacobian(J, sol.fun, start.size), notes, sol.cost
+    fisher = cov = covariance_from_jacobian(J, sol.fun, start.size)
+    if gm.o["covariance"] == "fisher":
+        notes.append("covariance: Fisher, s^2 (J'J)^-1 (white innovations assumed)")
+    else:
+        lengths = [(b - a - burn) * gm.ny for a, b in segs]
+        cov, lag = sandwich_covariance(J, sol.fun, lengths, gm.ny)
+        notes.append(
+            f"covariance: sandwich H^-1 S H^-1 (Ljung 1999, sec. 9.3), Bartlett weights over "
+            f"{lag} lags (from the residuals' autocorrelation): honest under coloured noise"
+        )
+    return sol.x * scale, cov, notes, sol.cost, fisher
+
+
+# Covariance under coloured or misspecified residuals (the PEM "sandwich"). With
+# V(theta) = 1/2 sum_t eps_t' eps_t, psi_t = -d eps_t/d theta and g_t = psi_t eps_t, the
+# estimate's covariance is (Ljung 1999, eq. (9.29) and sec. 9.3; White 1982, thm. 3.2)
+#
+#     cov = H^-1 S H^-1,   H = sum_t psi_t psi_t' (= J'J),
+#     S = Gamma_0 + sum_(l=1..L) (1 - l/(L+1)) (Gamma_l + Gamma_l'),
+#     Gamma_l = sum_t g_t g_(t-l)'  (within each segment; Bartlett weights, Newey & West
+#     1987, keep S positive semi-definite).
+#
+# With white innovations of variance s^2 only Gamma_0 survives, S -> s^2 H and cov -> the
+# Fisher matrix's s^2 H^-1; with coloured residuals (quantisation, loop chatter) the lagged
+# Gamma_l add what the Fisher matrix leaves out. L: the last lag at which the residuals'
+# autocorrelation (any output) exceeds 2/sqrt(N), at least the Newey-West rule
+# 4 (N/100)^(2/9) and at most sqrt(N) (L/N -> 0, the condition for consistency).
+def sandwich_lag(segments: Sequence[np.ndarray]) -> int:
+    """Lag count of :func:`sandwich_covariance` from each segment's residuals (N_s, ny):
+    their autocovariances summed over segments (no lag crosses a boundary)."""
+    N = sum(e.shape[0] for e in segments)
+    lo = int(np.floor(4.0 * (N / 100.0) ** (2.0 / 9.0)))
+    hi = max(lo, int(np.floor(np.sqrt(N))))
+    acf = 0.0
+    for e in segments:
+        X = e - e.mean(axis=0)
+        F = np.fft.rfft(X, n=2 * X.shape[0], axis=0)
+        c = np.fft.irfft(np.abs(F) ** 2, n=2 * X.shape[0], axis=0)[: hi + 1]
+        acf = acf + np.vstack([c, np.zeros((hi + 1 - c.shape[0], c.shape[1]))])
+    acf = acf / np.where(acf[0] > 0, acf[0], 1.0)
+    big = np.flatnonzero(np.any(np.abs(acf[1:]) > 2.0 / np.sqrt(N), axis=1))
+    return int(min(max(lo, big[-1] + 1 if big.size else 0), hi))
+
+
+def sandwich_covariance(
+    J: np.ndarray, residuals: np.ndarray, lengths: Sequence[int], ny: int
+) -> tuple[np.ndarray, int]:
+    """``H^-1 S H^-1`` of a prediction-error fit (comment block above; Ljung 1999, sec. 9.3).
+
+    ``J`` (n_res, n_par): Jacobian of the stacked residuals; ``residuals`` stacked segment
+    by segment, ``ny`` outputs per sample; ``lengths``: each segment's share of the
+    stack. Directions of ``J`` with singular values below ``max(J.shape) eps s_max`` get
+    an infinite variance, as in :func:`~maglevid.identify.closedloop.covariance_from_jacobian`.
+    Returns the covariance and the lag count ``L``.
+    """
+    n_par = J.shape[1]
+    G, E, edges = [], [], np.cumsum([0, *lengths])
+    for a, b in itertools.pairwise(edges):
+        e = residuals[a:b].reshape(-1, ny)
+        G.append(np.einsum("tjp,tj->tp", J[a:b].reshape(-1, ny, n_par), e))  # g_t
+        E.append(e)
+    lag = sandwich_lag(E)
+    S = np.zeros((n_par, n_par))
+    for g in G:
+        S += g.T @ g
+        for ell in range(1, min(lag, g.shape[0] - 1) + 1):
+            Gl = g[ell:].T @ g[:-ell]
+            S += (1.0 - ell / (lag + 1.0)) * (Gl + Gl.T)
+    _, sv, Vt = np.linalg.svd(J, full_matrices=False)
+    tol = sv[0] * max(J.shape) * np.finfo(float).eps if sv.size else 0.0
+    good = sv > tol
+    Hi = (Vt[good].T / sv[good] ** 2) @ Vt[good]  # (J'J)^+
+    cov = Hi @ S @ Hi
+    if not good.all():
+        null = Vt[~good]
+        cov = np.where(np.abs(null.T @ null) > 1e-12, np.inf, cov)
+    return 0.5 * (cov + cov.T), lag
 
 
 def _alternative_start(gm: _GreyboxModel, start: np.ndarray) -> np.ndarray | None:
@@ -759,18 +911,18 @@ def _solve_multistart(
     start: np.ndarray,
     bounds: tuple[np.ndarray, np.ndarray],
     max_nfev: int | None,
-) -> tuple[np.ndarray, np.ndarray, list[str]]:
+) -> tuple[np.ndarray, np.ndarray, list[str], np.ndarray]:
     """:func:`_solve` from the given start and from :func:`_alternative_start`; the lower
     cost wins (reported in the notes)."""
     best = _solve(gm, start, bounds, max_nfev)
     alt = _alternative_start(gm, start)
     if alt is None:
-        return best[:3]
+        return best[0], best[1], best[2], best[4]
     alt = np.clip(alt, bounds[0], bounds[1])
     try:
         other = _solve(gm, alt, bounds, max_nfev)
     except IdentificationError:
-        return best[:3]
+        return best[0], best[1], best[2], best[4]
     cost = [best[3], other[3]]
     won = other if cost[1] < cost[0] else best
     note = (
@@ -778,7 +930,7 @@ def _solve_multistart(
         f"{1e3 * alt[gm.names.index('a')]:.3g} mm): costs {cost[0]:.4g} and {cost[1]:.4g}, "
         "the lower kept"
     )
-    return won[0], won[1], [*won[2], note]
+    return won[0], won[1], [*won[2], note], won[4]
 
 
 def _suspect_parameters(
@@ -837,6 +989,14 @@ def _derived(
     params = dict(zip([*gm.names, "pole_rad_s", "pole_z", "current_gain", "i0"],
                       [*th_phys.tolist(), *dvals.tolist()]))  # fmt: skip
     return params, ext
+
+
+def _pole_se(gm: _GreyboxModel, theta: np.ndarray, cov: np.ndarray, y_ref: float) -> float:
+    """Standard error of the pole under ``cov`` (delta method), for comparing covariances."""
+    n = gm.n_phys
+    _, ext = _derived(gm, theta[:n], cov[:n, :n], y_ref)
+    v = ext[n, n]
+    return float(np.sqrt(v)) if np.isfinite(v) and v >= 0 else float("nan")
 
 
 def _fit_metrics(

@@ -314,6 +314,7 @@ def fit_levitator(
     current: str = "y:1",
     command: str = "u:0",
     frame: str = "auto",
+    covariance: str = "sandwich",
 ) -> IdentificationResult:
     """The levitator's unstable pole: model chosen by held-out prediction, one consensus.
 
@@ -347,6 +348,10 @@ def fit_levitator(
         current is an output; ``"current"``: the measured current drives the
         mechanical force-law family ``i -> gap``. ``"auto"`` (default): the command
         when it is logged (see :data:`FRAME_NOTES` for why).
+    covariance : {"sandwich", "fisher"}
+        Covariance of every grey-box fit, and so of the intervals the consensus hull
+        is made of (:func:`~maglevid.identify.greybox.fit_greybox_levitator`): the
+        sandwich (default) holds under coloured residuals, Fisher assumes white ones.
 
     Returns
     -------
@@ -397,6 +402,7 @@ def _fit_sessions(
     current: str,
     command: str,
     frame: str,
+    covariance: str,
 ) -> IdentificationResult:
     if not sessions:
         raise DataError("no recordings given")
@@ -428,7 +434,7 @@ def _fit_sessions(
         if y_ref is None
         else y_ref
     )
-    common = {"y_ref": y_ref, "m": m, "gap": gap, "current": current}
+    common = {"y_ref": y_ref, "m": m, "gap": gap, "current": current, "covariance": covariance}
     rows = []
     frame = _frame(pooled, frame, current)
     cands = (
@@ -522,9 +528,9 @@ def _consensus(
 ) -> IdentificationResult:
     """Refit every candidate on all segments; the best-validated one with a pole gives the
     point, the supported ones (within ``SUPPORT_MARGIN`` of it) the hull interval."""
-    fits = [_fit(data, segs, r["candidate"], common) for r in rows]
-    fulls = [None if isinstance(f, Exception) else _pole_ci(f) for f in fits]
     scores = np.array([r["validation"] for r in rows])
+    fits = _refit(data, segs, rows, scores, common)
+    fulls = [None if isinstance(f, (Exception, str)) else _pole_ci(f) for f in fits]
     ok = np.array([f is not None for f in fulls])
     if not ok.any():
         raise IdentificationError(
@@ -562,10 +568,39 @@ def _consensus(
     return _with_consensus(best, point, lo, hi, table, exclusions, n_sessions, k_step, data.dt)
 
 
+def _refit(
+    data: ClosedLoopData,
+    segs: list[tuple[int, int]],
+    rows: list[dict[str, Any]],
+    scores: np.ndarray,
+    common: dict[str, Any],
+) -> list[Any]:
+    """Every candidate that can still be supported, refitted on all segments, best
+    held-out score first. Once a candidate with an identifiable pole has set the best
+    score, one more than ``SUPPORT_MARGIN`` points below it can neither give the point
+    nor enter the interval: it is not refitted (a string says why). Without any
+    finite score every candidate is refitted (each identified one counts)."""
+    fits: list[Any] = [None] * len(rows)
+    order = sorted(range(len(rows)), key=lambda j: -np.nan_to_num(scores[j], nan=-np.inf))
+    best = None
+    for j in order:
+        if best is not None and not scores[j] >= best - SUPPORT_MARGIN:
+            fits[j] = (
+                f"not refitted on all segments: held-out fit more than {SUPPORT_MARGIN} "
+                "points below the best"
+            )
+            continue
+        fits[j] = _fit(data, segs, rows[j]["candidate"], common)
+        if best is None and np.isfinite(scores[j]) and not isinstance(fits[j], Exception):
+            if _pole_ci(fits[j]) is not None:
+                best = float(scores[j])
+    return fits
+
+
 def _why_not(res: Any) -> str:
     if res is None:
         return ""
-    if isinstance(res, Exception):
+    if isinstance(res, (Exception, str)):
         return str(res)
     return "; ".join(n for n in res.notes if n.startswith("no pole"))
 
@@ -644,5 +679,7 @@ OPTIONS = {
         Option("command", "channel", "channel of the command [V]"),
         Option("frame", "str", "model input: the command, the measured current, or auto",
                choices=("auto", "command", "current")),
+        Option("covariance", "str", "per-fit covariance: sandwich (coloured residuals) or "
+               "fisher (white)", choices=("sandwich", "fisher")),
     )
 }  # fmt: skip
