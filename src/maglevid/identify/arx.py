@@ -159,10 +159,12 @@ class LinearFit:
             "intercept",
             "regressor_means",
         ):
-            if getattr(self, name) is None:
+            a = getattr(self, name)
+            if a is None:
                 continue
-            a = np.array(getattr(self, name), dtype=float)
-            a.setflags(write=False)
+            if not _frozen_owner(a):  # (the residuals of a fit: N x ny, not copied again)
+                a = np.array(a, dtype=float)
+                a.setflags(write=False)
             object.__setattr__(self, name, a)
 
     @property
@@ -176,6 +178,16 @@ class LinearFit:
     def condition_number(self) -> float:
         s = self.singular_values
         return float(s[0] / s[-1]) if s.size and s[-1] > 0 else float("inf")
+
+
+def _frozen_owner(a: Any) -> bool:
+    """A read-only float64 array that owns its data: immutable already, no copy needed."""
+    return (
+        isinstance(a, np.ndarray)
+        and a.dtype == np.float64
+        and a.flags.owndata
+        and not a.flags.writeable
+    )
 
 
 def _zero_columns(s: np.ndarray, name: str, labels: Sequence[str] | None) -> None:
@@ -669,6 +681,7 @@ class RegressionAccumulator:
         theta, W = p2["theta"], p2["W"]
         rows = phi[0].shape[0]
         out = np.empty((rows, self.ny))
+        self._made = out  # finish() keeps this array as it is (frozen), not a copy
 
         def product(parts: list[np.ndarray], M: np.ndarray, s0: int, s1: int) -> np.ndarray:
             acc, c = None, 0
@@ -704,6 +717,8 @@ class RegressionAccumulator:
                 "rows to update_residuals() before finish()"
             )
         notes = list(p2["notes"])
+        if residuals is not None and residuals is getattr(self, "_made", None):
+            residuals.setflags(write=False)  # made by update_residuals: LinearFit keeps it
         sigma_w = None
         if "scores" in p2:
             method = "hac"

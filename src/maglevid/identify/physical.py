@@ -405,6 +405,8 @@ def fit_physical(
         noise_ma=physical_noise_ma(ny) if covariance == "white-noise" else None,
         intercept=True,
     )
+    # (the record-sized temporaries are kept: the delta-method covariance of the result
+    # moves by ~1e-4 relative when these scales move by one rounding; docs/performance.md)
     yc, uc = y - y.mean(axis=0), u - u.mean(axis=0)
     y_scale, h_scale = realization_scales(
         np.einsum("ij,ij->j", yc, yc), np.einsum("ij,ij->j", uc, uc), N
