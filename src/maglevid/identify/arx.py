@@ -683,21 +683,29 @@ class RegressionAccumulator:
         out = np.empty((rows, self.ny))
         self._made = out  # finish() keeps this array as it is (frozen), not a copy
 
-        def product(parts: list[np.ndarray], M: np.ndarray, s0: int, s1: int) -> np.ndarray:
-            acc, c = None, 0
-            for a in parts:
-                term = a[s0:s1] @ M[c : c + a.shape[1]]
-                acc = term if acc is None else acc + term
-                c += a.shape[1]
-            assert acc is not None
-            return acc
-
+        # The column blocks of Phi (and of Z) are copied side by side into one cache-sized
+        # buffer and multiplied once by [Theta^T, 0; 0, W] (LS: [Theta^T, W]): one GEMM per
+        # block instead of two small products per column block (1960 calls at 10^6).
+        n, ny = self.n, self.ny
+        parts = phi if z is phi else phi + z
+        k = sum(a.shape[1] for a in parts)
+        M = np.zeros((k, ny + W.shape[1]))
+        M[:n, :ny] = theta
+        M[k - W.shape[0] :, ny:] = W
+        buf = np.empty((min(rows, _PASS_BLOCK), k))
         for s0 in range(0, rows, _PASS_BLOCK):
             s1 = min(rows, s0 + _PASS_BLOCK)
+            B, c = buf[: s1 - s0], 0
+            for a in parts:
+                B[:, c : c + a.shape[1]] = a[s0:s1]
+                c += a.shape[1]
+            prod = B @ M
             Yb = y[0][s0:s1] if len(y) == 1 else np.hstack([a[s0:s1] for a in y])
-            eps = Yb - product(phi, theta, s0, s1) - p2["eps0"]
-            psi = product(z, W, s0, s1) - p2["psi0"]
-            out[s0:s1] = eps
+            eps = out[s0:s1]
+            np.subtract(Yb, prod[:, :ny], out=eps)
+            eps -= p2["eps0"]
+            psi = prod[:, ny:]
+            psi -= p2["psi0"]
             p2["sum_e2"] += np.einsum("ij,ij->j", eps, eps)
             if "scores" in p2:
                 p2["scores"].update((eps[:, :, None] * psi[:, None, :]).reshape(s1 - s0, -1))

@@ -82,7 +82,7 @@ from maglevid.identify.arx import solve_regression_blocks
 from maglevid.identify.iv import simulate_loop_signals
 from maglevid.identify.options import AMB_OPTIONS, declared
 from maglevid.identify.result import IdentificationResult
-from maglevid.identify.uncertainty import DCLevels, amb_result, with_dc_levels
+from maglevid.identify.uncertainty import DCLevels, amb_result, centred_gram, with_dc_levels
 from maglevid.physics.amb import C_AMB
 
 __all__ = [
@@ -295,8 +295,8 @@ def _integrator_block_residual(
         return 0.0
     # z = P^-1 yu (eq. 46) sample by sample; its mean square is the diagonal of
     # P^-1 (yu^T yu / N) P^-T, so only the small second-moment matrix is needed.
-    y, u_f = (a - a.mean(axis=0) for a in yu)  # deviations from the operating point
-    G = np.block([[y.T @ y, y.T @ u_f], [u_f.T @ y, u_f.T @ u_f]]) / y.shape[0]
+    # deviations from the operating point, chunk by chunk (no record-sized temporaries)
+    G = centred_gram(*yu) / yu[0].shape[0]
     M = sla.solve(P, sla.solve(P, G).T)
     sz = np.sqrt(np.maximum(np.diag(M), 0.0))
     sz[sz == 0] = 1.0
