@@ -125,19 +125,26 @@ _CENTRE_CHUNK = 1 << 15
 
 
 def centred_sumsq(x: np.ndarray) -> np.ndarray:
-    """``sum_t (x(t) - mean)^2`` per column, chunk by chunk.
+    """``sum_t (x(t) - mean)^2`` per column, chunk by chunk, bit-identical to the whole-record
+    formula ``xc = x - x.mean(axis=0); einsum("ij,ij->j", xc, xc)``.
 
-    The same sums as ``((x - x.mean(0))**2).sum(0)`` to rounding, without the
-    record-sized temporary (at 10^6 x 3 its allocation and first touch cost more
-    than the arithmetic on this machine).
+    Without its record-sized temporary (at 10^6 x 3 the allocation and first touch
+    cost more than the arithmetic on this machine). Both that ``einsum`` and numpy's
+    axis-0 sum of a C-ordered array add the rows in order, one after the other; each
+    chunk's sum starts from the running total (added to its first row), so every
+    rounding is the one of the whole-record sum. The bit-identity matters: the
+    delta-method covariance moves by ~1e-4 when the realization scales move by one
+    rounding (docs/performance.md, section 6b).
     """
     x = np.asarray(x, dtype=float)
     N = x.shape[0]
-    mean = np.einsum("ij->j", x) / N  # (einsum: axis-0 reductions of (N, 3) are slow)
+    mean = x.mean(axis=0)
     out = np.zeros(x.shape[1])
     for t0 in range(0, N, _CENTRE_CHUNK):
         c = x[t0 : t0 + _CENTRE_CHUNK] - mean
-        out += np.einsum("ij,ij->j", c, c)
+        c *= c
+        c[0] += out
+        out = np.add.reduce(c, axis=0)  # sequential over the rows, as the whole-record sum
     return out
 
 
