@@ -192,7 +192,13 @@ def deadbeat_regression_blocks(
         raise DataError(f"`start` must be in 0..{N - 2}; got {start}")
     nxt = slice(start + 1, N)
     cur = slice(start, N - 1)
-    lhs = np.hstack([y[nxt], u_f[nxt] + y[nxt] @ (Fe @ E).T])  # eq. (47), b0 v(k+1) moved left
+    # eq. (47), b0 v(k+1) moved left: [y(k+1), u_f(k+1) + Fe E y(k+1)], written in place
+    # (the same numbers as an hstack of the sum, without two record-sized temporaries)
+    ny = y.shape[1]
+    lhs = np.empty((N - 1 - start, ny + u_f.shape[1]))
+    lhs[:, :ny] = y[nxt]
+    lhs[:, ny:] = y[nxt] @ (Fe @ E).T
+    lhs[:, ny:] += u_f[nxt]
     return lhs, [y[cur], u_f[cur], u[cur]]
 
 
