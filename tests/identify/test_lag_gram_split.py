@@ -72,6 +72,7 @@ def test_moesp_through_the_split_route_equals_the_interleaved_route(monkeypatch)
     # The fit from update_split against the same fit with update_split replaced by the
     # former interleaved route (update of z = [u, y]): the same model to rounding.
     from benchmarks.bench_subspace import make_data
+
     from maglevid.identify.subspace import fit_moesp
 
     y, u, _ = make_data(30_000, 0.1)
@@ -82,6 +83,4 @@ def test_moesp_through_the_split_route_equals_the_interleaved_route(monkeypatch)
     inter = fit_moesp(y, u, order=4, horizon=10)
     for a, b in ((split.model.A, inter.model.A), (split.model.C, inter.model.C)):
         np.testing.assert_allclose(a, b, rtol=0, atol=1e-11 * np.abs(b).max())
-    np.testing.assert_allclose(
-        split.model.markov(8), inter.model.markov(8), rtol=0, atol=1e-11
-    )
+    np.testing.assert_allclose(split.model.markov(8), inter.model.markov(8), rtol=0, atol=1e-11)
