@@ -111,10 +111,9 @@ def stage_profile(y, u, order, horizon, repeat=3):
 
     m = y.shape[1] + u.shape[1]
 
-    def data_pass():
+    def data_pass():  # what fit_moesp runs over the record (subspace._feed)
         acc = _LagGram(m, 2 * horizon - 1)
-        for t0 in range(0, y.shape[0], ss._CHUNK):
-            acc.update(np.concatenate([u[t0 : t0 + ss._CHUNK], y[t0 : t0 + ss._CHUNK]], axis=1))
+        ss._feed(acc, u, y)
         return acc
 
     acc = data_pass()

@@ -106,3 +106,26 @@ def test_kernel_name_is_checked(setup):
     plant, obs, ctrl = setup
     with pytest.raises(DataError, match="kernel"):
         simulate_linear_loop(plant, obs, ctrl, r=np.zeros((100, 2)), kernel="fast")
+
+
+@pytest.mark.parametrize("kernel", ["loop", "block"])
+def test_noise_free_loop_equals_literal_equations(setup, rng, kernel):
+    # noise=None drives the loop by r alone (no input of zeros since the large-N work of
+    # issue 15); the reference is the loop's literal equations with v = 0.
+    plant, obs, ctrl = setup
+    N = 3000
+    r = rng.standard_normal((N, 2))
+    xh0, e0 = rng.standard_normal(4) * 1e-4, np.array([2e-4])
+    sig = simulate_linear_loop(plant, obs, ctrl, r=r, x_hat0=xh0, e0=e0, kernel=kernel)
+    Y, UF = literal_loop(plant, obs, ctrl, r, np.zeros((N, 3)), xh0, e0)
+    for j in range(3):
+        np.testing.assert_allclose(
+            sig.y[:, j], Y[:, j], rtol=0, atol=1e-12 * np.abs(Y[:, j]).max()
+        )
+    np.testing.assert_allclose(sig.u_f, UF, rtol=0, atol=1e-12 * np.abs(UF).max())
+    zero = simulate_linear_loop(
+        plant, obs, ctrl, r=r, noise=np.zeros((N, 3)), x_hat0=xh0, e0=e0, kernel=kernel
+    )
+    # the same sums without the zero terms: equal to rounding (GEMM may group differently)
+    np.testing.assert_allclose(sig.y, zero.y, rtol=0, atol=1e-14 * np.abs(zero.y).max())
+    np.testing.assert_allclose(sig.u_f, zero.u_f, rtol=0, atol=1e-14 * np.abs(zero.u_f).max())

@@ -159,10 +159,12 @@ class LinearFit:
             "intercept",
             "regressor_means",
         ):
-            if getattr(self, name) is None:
+            a = getattr(self, name)
+            if a is None:
                 continue
-            a = np.array(getattr(self, name), dtype=float)
-            a.setflags(write=False)
+            if not _frozen_owner(a):  # (the residuals of a fit: N x ny, not copied again)
+                a = np.array(a, dtype=float)
+                a.setflags(write=False)
             object.__setattr__(self, name, a)
 
     @property
@@ -176,6 +178,16 @@ class LinearFit:
     def condition_number(self) -> float:
         s = self.singular_values
         return float(s[0] / s[-1]) if s.size and s[-1] > 0 else float("inf")
+
+
+def _frozen_owner(a: Any) -> bool:
+    """A read-only float64 array that owns its data: immutable already, no copy needed."""
+    return (
+        isinstance(a, np.ndarray)
+        and a.dtype == np.float64
+        and a.flags.owndata
+        and not a.flags.writeable
+    )
 
 
 def _zero_columns(s: np.ndarray, name: str, labels: Sequence[str] | None) -> None:
@@ -669,22 +681,31 @@ class RegressionAccumulator:
         theta, W = p2["theta"], p2["W"]
         rows = phi[0].shape[0]
         out = np.empty((rows, self.ny))
+        self._made = out  # finish() keeps this array as it is (frozen), not a copy
 
-        def product(parts: list[np.ndarray], M: np.ndarray, s0: int, s1: int) -> np.ndarray:
-            acc, c = None, 0
-            for a in parts:
-                term = a[s0:s1] @ M[c : c + a.shape[1]]
-                acc = term if acc is None else acc + term
-                c += a.shape[1]
-            assert acc is not None
-            return acc
-
+        # The column blocks of Phi (and of Z) are copied side by side into one cache-sized
+        # buffer and multiplied once by [Theta^T, 0; 0, W] (LS: [Theta^T, W]): one GEMM per
+        # block instead of two small products per column block (1960 calls at 10^6).
+        n, ny = self.n, self.ny
+        parts = phi if z is phi else phi + z
+        k = sum(a.shape[1] for a in parts)
+        M = np.zeros((k, ny + W.shape[1]))
+        M[:n, :ny] = theta
+        M[k - W.shape[0] :, ny:] = W
+        buf = np.empty((min(rows, _PASS_BLOCK), k))
         for s0 in range(0, rows, _PASS_BLOCK):
             s1 = min(rows, s0 + _PASS_BLOCK)
+            B, c = buf[: s1 - s0], 0
+            for a in parts:
+                B[:, c : c + a.shape[1]] = a[s0:s1]
+                c += a.shape[1]
+            prod = B @ M
             Yb = y[0][s0:s1] if len(y) == 1 else np.hstack([a[s0:s1] for a in y])
-            eps = Yb - product(phi, theta, s0, s1) - p2["eps0"]
-            psi = product(z, W, s0, s1) - p2["psi0"]
-            out[s0:s1] = eps
+            eps = out[s0:s1]
+            np.subtract(Yb, prod[:, :ny], out=eps)
+            eps -= p2["eps0"]
+            psi = prod[:, ny:]
+            psi -= p2["psi0"]
             p2["sum_e2"] += np.einsum("ij,ij->j", eps, eps)
             if "scores" in p2:
                 p2["scores"].update((eps[:, :, None] * psi[:, None, :]).reshape(s1 - s0, -1))
@@ -704,6 +725,8 @@ class RegressionAccumulator:
                 "rows to update_residuals() before finish()"
             )
         notes = list(p2["notes"])
+        if residuals is not None and residuals is getattr(self, "_made", None):
+            residuals.setflags(write=False)  # made by update_residuals: LinearFit keeps it
         sigma_w = None
         if "scores" in p2:
             method = "hac"

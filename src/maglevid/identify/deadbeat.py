@@ -82,7 +82,7 @@ from maglevid.identify.arx import solve_regression_blocks
 from maglevid.identify.iv import simulate_loop_signals
 from maglevid.identify.options import AMB_OPTIONS, declared
 from maglevid.identify.result import IdentificationResult
-from maglevid.identify.uncertainty import DCLevels, amb_result, with_dc_levels
+from maglevid.identify.uncertainty import DCLevels, amb_result, centred_gram, with_dc_levels
 from maglevid.physics.amb import C_AMB
 
 __all__ = [
@@ -192,7 +192,13 @@ def deadbeat_regression_blocks(
         raise DataError(f"`start` must be in 0..{N - 2}; got {start}")
     nxt = slice(start + 1, N)
     cur = slice(start, N - 1)
-    lhs = np.hstack([y[nxt], u_f[nxt] + y[nxt] @ (Fe @ E).T])  # eq. (47), b0 v(k+1) moved left
+    # eq. (47), b0 v(k+1) moved left: [y(k+1), u_f(k+1) + Fe E y(k+1)], written in place
+    # (the same numbers as an hstack of the sum, without two record-sized temporaries)
+    ny = y.shape[1]
+    lhs = np.empty((N - 1 - start, ny + u_f.shape[1]))
+    lhs[:, :ny] = y[nxt]
+    lhs[:, ny:] = y[nxt] @ (Fe @ E).T
+    lhs[:, ny:] += u_f[nxt]
     return lhs, [y[cur], u_f[cur], u[cur]]
 
 
@@ -295,8 +301,8 @@ def _integrator_block_residual(
         return 0.0
     # z = P^-1 yu (eq. 46) sample by sample; its mean square is the diagonal of
     # P^-1 (yu^T yu / N) P^-T, so only the small second-moment matrix is needed.
-    y, u_f = (a - a.mean(axis=0) for a in yu)  # deviations from the operating point
-    G = np.block([[y.T @ y, y.T @ u_f], [u_f.T @ y, u_f.T @ u_f]]) / y.shape[0]
+    # deviations from the operating point, chunk by chunk (no record-sized temporaries)
+    G = centred_gram(*yu) / yu[0].shape[0]
     M = sla.solve(P, sla.solve(P, G).T)
     sz = np.sqrt(np.maximum(np.diag(M), 0.0))
     sz[sz == 0] = 1.0

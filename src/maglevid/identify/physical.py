@@ -110,7 +110,7 @@ from maglevid.identify.arx import LinearFit, solve_regression_blocks
 from maglevid.identify.iv import simulate_loop_signals
 from maglevid.identify.options import AMB_OPTIONS, declared
 from maglevid.identify.result import IdentificationResult
-from maglevid.identify.uncertainty import DCLevels, amb_result, with_dc_levels
+from maglevid.identify.uncertainty import DCLevels, amb_result, centred_sumsq, with_dc_levels
 from maglevid.lti import StateSpace, undiscretize
 from maglevid.physics.amb import C_AMB, INPUT_NAMES, OUTPUT_NAMES, STATE_NAMES
 
@@ -405,10 +405,9 @@ def fit_physical(
         noise_ma=physical_noise_ma(ny) if covariance == "white-noise" else None,
         intercept=True,
     )
-    yc, uc = y - y.mean(axis=0), u - u.mean(axis=0)
-    y_scale, h_scale = realization_scales(
-        np.einsum("ij,ij->j", yc, yc), np.einsum("ij,ij->j", uc, uc), N
-    )
+    # bit-identical to the centred copies' sums (the covariance is sensitive to one
+    # rounding of these scales: docs/performance.md, section 6b), without the copies
+    y_scale, h_scale = realization_scales(centred_sumsq(y), centred_sumsq(u), N)
     dc = DCLevels(data.dt, ny, u.shape[1])
     dc.update(y, u)
     res = physical_result(

@@ -1343,6 +1343,9 @@ def _feed(acc: _LagGram | _HankelQR, u: np.ndarray, y: np.ndarray) -> None:
     The accumulators keep no view of a chunk (they copy what they keep), so one
     cache-sized buffer serves every chunk: no allocation per chunk.
     """
+    if isinstance(acc, _LagGram):
+        acc.update_split(u, y)  # no interleaved copy of the record
+        return
     N, nu = u.shape
     buf = np.empty((min(N, _CHUNK), nu + y.shape[1]))
     for t0 in range(0, N, _CHUNK):
@@ -1670,7 +1673,10 @@ class SubspaceAccumulator:
         """Add the next chunk: ``y`` (c, ny) and ``u`` (c, nu), time first. Returns self."""
         y = as_signal(y, "y", n_channels=self.ny, copy=False)  # copied into z below
         u = as_signal(u, "u", n_samples=y.shape[0], n_channels=self.nu, copy=False)
-        self._acc.update(np.concatenate([u, y], axis=1))
+        if isinstance(self._acc, _LagGram):
+            self._acc.update_split(u, y)
+        else:
+            self._acc.update(np.concatenate([u, y], axis=1))
         return self
 
     def fit(

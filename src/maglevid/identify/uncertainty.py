@@ -120,11 +120,49 @@ def one_step_fit_percent(sum_sq_residuals: Any, sum_sq_centered: Any) -> np.ndar
         return np.where(den > 0, 100.0 * (1.0 - num / den), np.nan)
 
 
+#: Rows per chunk of :func:`centred_sumsq` (a cache-sized temporary, not a record-sized one).
+_CENTRE_CHUNK = 1 << 15
+
+
+def centred_sumsq(x: np.ndarray) -> np.ndarray:
+    """``sum_t (x(t) - mean)^2`` per column, chunk by chunk, bit-identical to the whole-record
+    formula ``xc = x - x.mean(axis=0); einsum("ij,ij->j", xc, xc)``.
+
+    Without its record-sized temporary (at 10^6 x 3 the allocation and first touch
+    cost more than the arithmetic on this machine). Both that ``einsum`` and numpy's
+    axis-0 sum of a C-ordered array add the rows in order, one after the other; each
+    chunk's sum starts from the running total (added to its first row), so every
+    rounding is the one of the whole-record sum. The bit-identity matters: the
+    delta-method covariance moves by ~1e-4 when the realization scales move by one
+    rounding (docs/performance.md, section 6b).
+    """
+    x = np.asarray(x, dtype=float)
+    N = x.shape[0]
+    mean = x.mean(axis=0)
+    out = np.zeros(x.shape[1])
+    for t0 in range(0, N, _CENTRE_CHUNK):
+        c = x[t0 : t0 + _CENTRE_CHUNK] - mean
+        c *= c
+        c[0] += out
+        out = np.add.reduce(c, axis=0)  # sequential over the rows, as the whole-record sum
+    return out
+
+
+def centred_gram(*parts: np.ndarray) -> np.ndarray:
+    """``sum_t d(t) d(t)^T`` of ``d = [parts] - mean``, chunk by chunk (see ``centred_sumsq``)."""
+    xs = [np.asarray(x, dtype=float) for x in parts]
+    N = xs[0].shape[0]
+    means = [np.einsum("ij->j", x) / N for x in xs]
+    k = sum(x.shape[1] for x in xs)
+    out = np.zeros((k, k))
+    for t0 in range(0, N, _CENTRE_CHUNK):
+        d = np.concatenate([x[t0 : t0 + _CENTRE_CHUNK] - m for x, m in zip(xs, means)], axis=1)
+        out += d.T @ d
+    return out
+
+
 def _one_step_fit(Y: np.ndarray, residuals: np.ndarray) -> np.ndarray:
-    Yc = Y - Y.mean(axis=0)
-    return one_step_fit_percent(
-        np.einsum("ij,ij->j", residuals, residuals), np.einsum("ij,ij->j", Yc, Yc)
-    )
+    return one_step_fit_percent(np.einsum("ij,ij->j", residuals, residuals), centred_sumsq(Y))
 
 
 def _augmented(A: np.ndarray, B: np.ndarray) -> np.ndarray:
@@ -438,13 +476,17 @@ class DCLevels:
         self._fill = 0
 
     def update(self, y: np.ndarray, u: np.ndarray) -> None:
-        z = np.hstack([np.asarray(y, float), np.asarray(u, float)])
-        self.n += z.shape[0]
-        self.total += z.sum(axis=0)
+        y, u = np.asarray(y, float), np.asarray(u, float)
+        ny, n = self.ny, y.shape[0]
+        self.n += n
+        # y and u apart (no (N, ny + nu) copy); einsum: axis-0 sums of (N, 3) are slow
+        self.total[:ny] += np.einsum("ij->j", y)
+        self.total[ny:] += np.einsum("ij->j", u)
         i = 0
-        while i < z.shape[0]:
-            take = min(self.B - self._fill, z.shape[0] - i)
-            self._acc += z[i : i + take].sum(axis=0)
+        while i < n:
+            take = min(self.B - self._fill, n - i)
+            self._acc[:ny] += np.einsum("ij->j", y[i : i + take])
+            self._acc[ny:] += np.einsum("ij->j", u[i : i + take])
             self._fill += take
             i += take
             if self._fill == self.B:

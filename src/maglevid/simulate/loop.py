@@ -185,7 +185,11 @@ def simulate_linear_loop(
     )
     e = np.zeros(ne) if e0 is None else np.asarray(e0, float).reshape(ne)
     z0 = np.concatenate([x, xh, e + controller.E @ v[0]])  # e'(0) = e(0) + E v(0)
-    out, _ = _simulate_checked(sys, np.hstack([r, v]), z0, kernel)
+    if noise is None:  # v = 0: the loop driven by r alone (no (N, nu + ny) input of zeros)
+        sys_r = StateSpace(sys.A, sys.B[:, :nu], sys.C, sys.D[:, :nu], dt=sys.dt)
+        out, _ = _simulate_checked(sys_r, r, z0, kernel)
+    else:
+        out, _ = _simulate_checked(sys, np.hstack([r, v]), z0, kernel)
     y, u_f = out[:, :ny], out[:, ny:]
     return LoopSignals(_frozen(y), _frozen(u_f + r), r, _frozen(u_f), readonly(xh), readonly(e))
 
