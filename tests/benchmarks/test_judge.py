@@ -308,3 +308,22 @@ def test_a_failed_section_is_not_measured_and_reported(tmp_path):
     judge = run_all.write_report(results, meta, out, run_all.SECTIONS)
     assert [v.status for v in judge.verdicts] == [NOT_MEASURED]
     assert "worker crashed" in out.read_text()
+
+
+def test_seed_median_of_the_crb_normalised_error():
+    """_other_seeds: the verdict's error is the median over the seeds; a seed
+    without a bound leaves the whole row without one (not measured, not judged
+    on the seeds that have it)."""
+    first = {"pole_error": 1e-3, "found": True, "v_error_max": 0.1, "v_error_crb": 9.0}
+    extra = iter(
+        [
+            {"pole_error": 1e-3, "found": True, "v_error_max": 0.1, "v_error_crb": z}
+            for z in (1.0, 2.0)
+        ]
+    )
+    run_all._other_seeds({"seeds": [1, 2, 3]}, first, lambda seed: next(extra))
+    assert first["v_error_crb"] == 2.0 and first["n_seeds"] == 3
+    first = {"pole_error": 1e-3, "found": True, "v_error_max": 0.1, "v_error_crb": 1.0}
+    extra = iter([{"pole_error": 1e-3, "found": True, "v_error_crb": None}])
+    run_all._other_seeds({"seeds": [1, 2]}, first, lambda seed: next(extra))
+    assert first["v_error_crb"] is None
