@@ -102,15 +102,23 @@ def test_antithetic_bias_is_the_mean_of_the_pair_means():
     assert st["bias_kind"].startswith("antithetic")
 
 
-def test_points_not_run_are_not_measured_and_measured_ones_are_judged():
+def _records(n, seed):
+    """``n`` records with standard normal errors and exactly antithetic twins."""
     truth = {k: 2.0 for k in bench.REPORTED}
-    a = np.random.default_rng(1).standard_normal(100)
-    recs = [_record(truth, ai, -ai) for ai in a]
+    return [_record(truth, ai, -ai) for ai in np.random.default_rng(seed).standard_normal(n)]
+
+
+def _judged(label, recs):
+    """The verdicts of a run whose only point is ``label`` (unit bound)."""
     crb = {k: 1.0 for k in bench.REPORTED}
-    label = bench.point_label("linear", "default", 10_000)
     res = {"points": {label: {"summary": bench.summarise(recs, crb), "planned": 100}}}
     j = Judge()
     bench.targets(res, j)
+    return j
+
+
+def test_points_not_run_are_not_measured_and_measured_ones_are_judged():
+    j = _judged(bench.point_label("linear", "default", 10_000), _records(100, seed=1))
     by = {v.target: v for v in j.verdicts}
     assert by["ML |bias| < 0.2 std, every parameter (points measured)"].status == MET
     assert by["ML std/CRB <= 1.3, every parameter (points measured)"].status == MET
@@ -131,21 +139,14 @@ def test_a_point_with_fewer_than_100_records_is_shown_but_not_judged():
     """MIN_RECORDS: 13 records cannot support a verdict (module notes) -- listed as
     not measured with its count; but a record where ML from IV missed ML from
     the truth fails that target at any count."""
-    truth = {k: 2.0 for k in bench.REPORTED}
-    a = np.random.default_rng(2).standard_normal(13)
-    recs = [_record(truth, ai, -ai) for ai in a]
-    crb = {k: 1.0 for k in bench.REPORTED}
     label = bench.point_label("linear", "default", 1_000_000)
-    res = {"points": {label: {"summary": bench.summarise(recs, crb), "planned": 100}}}
-    j = Judge()
-    bench.targets(res, j)
+    recs = _records(13, seed=2)
+    j = _judged(label, recs)
     assert not any("(points measured)" in v.target for v in j.verdicts)
     cov = next(v for v in j.verdicts if v.target.startswith("ML coverage"))
     assert cov.status == NOT_MEASURED and "linear default 1e+06 (13 rec < 100)" in cov.measured
     recs[0]["ML"]["same_optimum"] = False
-    res["points"][label]["summary"] = bench.summarise(recs, crb)
-    j = Judge()
-    bench.targets(res, j)
+    j = _judged(label, recs)
     by = {v.target: v.status for v in j.verdicts}
     assert by["ML from IV = ML from the truth on every record (points measured)"] == NOT_MET
 
