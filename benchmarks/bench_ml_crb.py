@@ -69,13 +69,20 @@ from maglevid.identify.physical import fit_physical, to_physical_coordinates
 from maglevid.identify.planning import design_information
 from maglevid.identify.registry import get_method
 from maglevid.physics.amb import V_NAMES, AMBParameters, v_from_matrices
-from maglevid.simulate.amb import DEFAULT_NOISE_STD, simulate_amb_loop
+from maglevid.simulate.amb import DEFAULT_NOISE_STD, DEFAULT_SUBSTEPS, simulate_amb_loop
 
 #: Parameters reported (v1..v9 and the physical parameters a diagnosis names).
 REPORTED = (*V_NAMES, "R1", "R2", "L1", "L2", "ki1", "ki2", "kw1", "kw2", "x0")
 
 #: Method labels, in table order.
 METHODS = ("LS", "IV", "ML", "DB", "MOESP")
+
+#: RK4 steps per sample of the nonlinear plant here (the simulator's default is
+#: 4): the same record to 3e-6 of the sensor noise (measured: 2e4 samples, max
+#: |y(1) - y(4)| / noise std <= 2.7e-6 per channel; ML's v_i differ by <= 2e-5
+#: standard errors) at a quarter of the RK4 work -- the simulation was ~55 % of
+#: a nonlinear record at N = 1e5 (docs/gosiewski.md). Tested.
+SUBSTEPS = 1
 
 #: LS is fitted up to this N only: it refuses every noisy record (errors in
 #: variables; 100 of 100 at every N = 1e4 point of the last runs), and each
@@ -89,14 +96,16 @@ SIZES = (10_000, 100_000, 1_000_000)
 #: The make-bench plan: (plant, noise level, N, records at most, time budget [s]).
 #: Every N = 1e4 point and every linear N = 1e5 point, and the nonlinear default
 #: at 1e5, each to 100 records. Per record on one worker at load 2 (the
-#: section's own two workers; ``stages`` in the output): linear 1e4 ~0.7 s,
-#: nonlinear 1e4 ~1.1 s, linear 1e5 ~2.6 s, nonlinear 1e5 ~7.5 s (two nonlinear
-#: simulations, record and twin, ~2.5 s each: a Python RK4 loop). Expected wall
-#: on 2 workers: 3 x 35 + 3 x 55 + 3 x 130 + 375 s = ~1035 s (~17 min) plus
-#: the bounds and the 1e5 timing (~30 s). Left out (not measured): the
-#: nonlinear 0.3x/3x points at 1e5 (~375 s each) and every N = 1e6 point (linear
-#: ~37 s per record, nonlinear ~100 s: 100 records are 30-80 min a point on 2
-#: cores). The budgets are caps for a loaded machine, not the estimate.
+#: section's own two workers; ``stages`` in the output), from the stage times
+#: measured at loads 3-14 scaled to the previous run's 1e4/1e5 wall times: linear
+#: 1e4 ~0.7 s, nonlinear 1e4 ~1.0 s, linear 1e5 ~2.6 s (three ML fits are ~85 %),
+#: nonlinear 1e5 ~3.6 s (plus two simulations at :data:`SUBSTEPS`). Expected
+#: wall on 2 workers: 3 x 35 + 3 x 50 + 3 x 130 + 180 s = ~825 s, plus the
+#: bounds and the 1e5 timing (~30 s): **~14 min**. Left out (not measured,
+#: ``--large``): the nonlinear 0.3x/3x points at 1e5 (~180 s each: 20 min in
+#: all with them) and every N = 1e6 point (~35-50 s per record: 100 records
+#: are 30-40 min a point on 2 cores). The budgets are caps for a loaded
+#: machine, not the estimate.
 PLAN: tuple[tuple[str, str, int, int, float], ...] = (
     ("linear", "default", 10_000, 100, 100.0),
     ("linear", "0.3x", 10_000, 100, 100.0),
@@ -204,6 +213,7 @@ def _simulate(spec: dict[str, Any], rng: Any, noise: Any = None) -> Any:
         # No force disturbance: the bound here is the sensor-noise model's; the
         # realistic bearing with its 0.1 N force is bench_ml_realistic.py.
         force_std=0.0,
+        substeps=SUBSTEPS if spec["plant"] == "nonlinear" else DEFAULT_SUBSTEPS,
         rng=rng,
     )
 
