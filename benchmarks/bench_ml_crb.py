@@ -3,7 +3,8 @@
 Run from the repository root::
 
     python -m benchmarks.bench_ml_crb --quick          # 20 records at N = 1e4, ~1 min
-    python -m benchmarks.bench_ml_crb --json ml.json   # the make-bench plan, <= ~15 min (budgets)
+    python -m benchmarks.bench_ml_crb --json ml.json   # the make-bench plan, ~17 min (PLAN)
+    python -m benchmarks.bench_ml_crb --large          # the points it leaves out (hours)
 
 ``make bench`` runs the same plan as a section (``SECTION``; each point in its
 own worker process with its own time budget, so a slow point loses records,
@@ -32,15 +33,19 @@ coverage of the stated 95 % intervals and the ratio of the standard
 deviation to the Cramér-Rao bound (:func:`design_information`: the linear
 model at the truth with the sensor noise levels unknown, the model ML fits).
 
-ML's bias, antithetic (linear plant): the linear closed loop is linear in
-(excitation, noise), so the record with the noise negated is ``2 d(r, 0) -
-d(r, n)``; ML is fitted on that twin too and the bias is the mean of the pair
-means ``(e(+n) + e(-n)) / 2``, in which the error's part odd in the noise (its
-first-order, zero-mean part) cancels. Its standard error is ~0.02 std with 100
-pairs, against 0.1 std for the plain mean of 100 records -- which cannot tell
-a bias of 0.2 std from none (docs/gosiewski.md, section 10). The nonlinear
-plant has no such twin: its bias is the plain mean, with standard error
-``1/sqrt(records)`` std.
+ML's bias, antithetic: ML is fitted also on the record's twin with the sensor
+noise negated (same seed, same excitation; :func:`_mirror`), and the bias is
+the mean of the pair means ``(e(+n) + e(-n)) / 2``, in which the error's part
+odd in the noise (its first-order, zero-mean part) cancels. ``-n`` has the law
+of ``n``, so the pair mean is unbiased on either plant; on the linear one the
+twin is exactly ``2 d(r, 0) - d(r, n)`` (tested). Its standard error is ~0.02
+std with 100 pairs, against 0.1 std for the plain mean of 100 records -- which
+cannot tell a bias of 0.2 std from none (docs/gosiewski.md, section 10: the
+nonlinear 1e4 point's plain-mean "bias" of 0.30 +- 0.10 std was that).
+
+Record counts: a point is judged only with at least :data:`MIN_RECORDS`
+records (the notes there); fewer are reported and listed as not measured.
+Where a record's time goes is recorded per record (``stages``) and printed.
 """
 
 from __future__ import annotations
@@ -64,7 +69,7 @@ from maglevid.identify.physical import fit_physical, to_physical_coordinates
 from maglevid.identify.planning import design_information
 from maglevid.identify.registry import get_method
 from maglevid.physics.amb import V_NAMES, AMBParameters, v_from_matrices
-from maglevid.simulate.amb import DEFAULT_NOISE_STD, simulate_amb_loop
+from maglevid.simulate.amb import DEFAULT_NOISE_STD, DEFAULT_SUBSTEPS, simulate_amb_loop
 
 #: Parameters reported (v1..v9 and the physical parameters a diagnosis names).
 REPORTED = (*V_NAMES, "R1", "R2", "L1", "L2", "ki1", "ki2", "kw1", "kw2", "x0")
@@ -72,20 +77,52 @@ REPORTED = (*V_NAMES, "R1", "R2", "L1", "L2", "ki1", "ki2", "kw1", "kw2", "x0")
 #: Method labels, in table order.
 METHODS = ("LS", "IV", "ML", "DB", "MOESP")
 
+#: RK4 steps per sample of the nonlinear plant here (the simulator's default is
+#: 4): the same record to 3e-6 of the sensor noise (measured: 2e4 samples, max
+#: |y(1) - y(4)| / noise std <= 2.7e-6 per channel; ML's v_i differ by <= 2e-5
+#: standard errors) at a quarter of the RK4 work: ~1.8x less simulation time
+#: (the observer/controller part of the per-sample loop stays). Tested.
+SUBSTEPS = 1
+
+#: LS is fitted up to this N only: it refuses every noisy record (errors in
+#: variables; 100 of 100 at every N = 1e4 point of the last runs), and each
+#: refusal costs an IV-sized fit. Its column is "-" beyond.
+LS_MAX_N = 10_000
+
 NOISE_LEVELS = {"default": 1.0, "0.3x": 0.3, "3x": 3.0}
 PLANTS = {"linear": {"R1": 1.2}, "nonlinear": {}}  # plant model -> fault
 SIZES = (10_000, 100_000, 1_000_000)
 
 #: The make-bench plan: (plant, noise level, N, records at most, time budget [s]).
-#: At most ~15 min (the budgets, 1040 s, plus the CRBs and the 1e5 timing); the
-#: grid points not in it are "not measured".
+#: Every N = 1e4 point and every linear N = 1e5 point, and the nonlinear default
+#: at 1e5, each to 100 records. Per record on one worker at load 2 (the
+#: section's own two workers; ``stages`` in the output), from the stage times
+#: measured at loads 3-14 scaled to the previous run's 1e4/1e5 wall times: linear
+#: 1e4 ~0.7 s, nonlinear 1e4 ~1.0 s, linear 1e5 ~2.6 s (three ML fits are ~85 %),
+#: nonlinear 1e5 ~3.6 s (plus two simulations at :data:`SUBSTEPS`). Expected
+#: wall on 2 workers: 3 x 35 + 3 x 50 + 3 x 130 + 180 s = ~825 s, plus the
+#: bounds and the 1e5 timing (~30 s): **~14 min**. Left out (not measured,
+#: ``--large``): the nonlinear 0.3x/3x points at 1e5 (~180 s each: 20 min in
+#: all with them) and every N = 1e6 point (~35-50 s per record: 100 records
+#: are 30-40 min a point on 2 cores). The budgets are caps for a loaded
+#: machine, not the estimate.
 PLAN: tuple[tuple[str, str, int, int, float], ...] = (
     ("linear", "default", 10_000, 100, 100.0),
     ("linear", "0.3x", 10_000, 100, 100.0),
     ("linear", "3x", 10_000, 100, 100.0),
-    ("nonlinear", "default", 10_000, 100, 100.0),
-    ("linear", "default", 100_000, 100, 400.0),
-    ("linear", "default", 1_000_000, 100, 240.0),
+    ("nonlinear", "default", 10_000, 100, 150.0),
+    ("nonlinear", "0.3x", 10_000, 100, 150.0),
+    ("nonlinear", "3x", 10_000, 100, 150.0),
+    ("linear", "default", 100_000, 100, 300.0),
+    ("linear", "0.3x", 100_000, 100, 300.0),
+    ("linear", "3x", 100_000, 100, 300.0),
+    ("nonlinear", "default", 100_000, 100, 600.0),
+)
+#: The points the plan leaves out, for a separate run (``--large``; hours on 2 cores).
+LARGE_PLAN: tuple[tuple[str, str, int, int, float], ...] = (
+    ("nonlinear", "0.3x", 100_000, 100, 900.0),
+    ("nonlinear", "3x", 100_000, 100, 900.0),
+    *((p, lv, 1_000_000, 100, 3600.0) for p in PLANTS for lv in NOISE_LEVELS),
 )
 QUICK_PLAN = (("linear", "default", 10_000, 20, 60.0),)
 
@@ -119,33 +156,53 @@ def _moesp_physical(data: Any) -> tuple[dict[str, float], None]:
     return _with_derived(np.asarray(v, dtype=float), data), None
 
 
-def _fit(name: str, data: Any) -> tuple[dict[str, float], dict[str, float] | None, Any]:
-    """(estimates, standard errors or None, result) of one method."""
+def _fit(
+    name: str, data: Any, iv: Any = None
+) -> tuple[dict[str, float], dict[str, float] | None, Any]:
+    """(estimates, standard errors or None, result) of one method; ML starts from
+    ``iv``, this record's IV result (the start ``fit_ml`` would compute again)."""
     if name == "MOESP":
         est, se = _moesp_physical(data)
         return est, se, None
     fit = {
         "LS": lambda d: fit_physical(d, estimator="ls"),
         "IV": fit_physical,
-        "ML": fit_ml,
+        "ML": lambda d: fit_ml(d, start="physical" if iv is None else iv),
         "DB": get_method("deadbeat-iv"),
     }[name]
     res = fit(data)
     return dict(res.parameters), res.std_errors(), res
 
 
+def methods_at(n: int) -> tuple[str, ...]:
+    """The methods fitted at record length ``n``: LS only up to :data:`LS_MAX_N`."""
+    return tuple(m for m in METHODS if m != "LS" or n <= LS_MAX_N)
+
+
+class _NegatedNoise(np.random.Generator):
+    """A generator whose ``(n, 3)`` standard-normal draw (the sensor noise of
+    :func:`simulate_amb_loop`, drawn after the excitation) comes out negated:
+    the same record with the noise ``-n`` (same excitation, same force draw)."""
+
+    def standard_normal(self, size: Any = None, dtype: Any = np.float64, out: Any = None) -> Any:
+        x = super().standard_normal(size, dtype, out)
+        return -x if isinstance(size, tuple) and len(size) == 2 and size[1] == 3 else x
+
+
 def _mirror(data: Any, spec: dict[str, Any], rng: int) -> Any:
-    """The record with its noise negated: ``2 d(r, 0) - d(r, n)`` (linear plant only)."""
-    d0 = _simulate(spec, rng, noise=(0.0, 0.0, 0.0))
-    ch = {
-        k: 2.0 * np.asarray(getattr(d0, k)) - np.asarray(getattr(data, k))
-        for k in ("y", "u", "u_f")
-        if getattr(data, k) is not None
-    }
-    return data.replace(**ch)
+    """The record with its sensor noise negated, d(r, -n), simulated again.
+
+    On the linear plant this is ``2 d(r, 0) - d(r, n)`` (tested); on the
+    nonlinear one it is the only way to it, and ``-n`` has the law of ``n``, so
+    the pair mean is an unbiased estimate of the error's mean whatever the
+    plant (the variance reduction is that of the error's part odd in ``n``)."""
+    twin = _simulate(spec, _NegatedNoise(np.random.default_rng(rng).bit_generator))
+    if not np.array_equal(np.asarray(twin.r), np.asarray(data.r)):
+        raise RuntimeError("the twin's excitation differs: the simulator's draw order changed")
+    return twin
 
 
-def _simulate(spec: dict[str, Any], rng: int, noise: Any = None) -> Any:
+def _simulate(spec: dict[str, Any], rng: Any, noise: Any = None) -> Any:
     nominal = AMBParameters.nominal()
     return simulate_amb_loop(
         nominal.with_fault(**PLANTS[spec["plant"]]),
@@ -156,36 +213,56 @@ def _simulate(spec: dict[str, Any], rng: int, noise: Any = None) -> Any:
         # No force disturbance: the bound here is the sensor-noise model's; the
         # realistic bearing with its 0.1 N force is bench_ml_realistic.py.
         force_std=0.0,
+        substeps=SUBSTEPS if spec["plant"] == "nonlinear" else DEFAULT_SUBSTEPS,
         rng=rng,
     )
 
 
 def one_record(spec: dict[str, Any]) -> dict[str, Any]:
-    """Simulate one record and fit it by every method (module-level: pickled)."""
+    """Simulate one record and fit it by every method (module-level: pickled).
+
+    ``out["stages"]`` holds where the record's time went [s]: the simulation,
+    each method, ML from the truth and the antithetic twin (simulation + ML)."""
     label = zlib.crc32(spec["label"].encode())
     rng = int(np.random.SeedSequence([spec["seed"], label, spec["run"]]).generate_state(1)[0])
+    t0 = time.perf_counter()
     d = _simulate(spec, rng)
+    stages = {"simulate": time.perf_counter() - t0}
     truth = _truth(d)
-    out: dict[str, Any] = {"truth": truth}
-    for name in METHODS:
+    out: dict[str, Any] = {"truth": truth, "stages": stages}
+    iv = None
+    for name in methods_at(spec["n"]):
         t0 = time.perf_counter()
         try:
-            est, se, res = _fit(name, d)
+            est, se, res = _fit(name, d, iv)
         except Exception as exc:  # a failure is a result of the benchmark, recorded
             out[name] = {"error": str(exc)[:200]}
+            stages[name] = time.perf_counter() - t0
             continue
+        dt_fit = time.perf_counter() - t0
+        if name == "IV":
+            iv = res
+        elif name == "ML" and iv is not None:
+            dt_fit += out["IV"]["time"]  # ML's time includes its start, as a user's call
         out[name] = {
             "est": {k: est[k] for k in REPORTED if k in est},
             "se": None if se is None else {k: se[k] for k in REPORTED if k in se},
-            "time": time.perf_counter() - t0,
+            "time": dt_fit,
         }
+        stages[name] = time.perf_counter() - t0
         if name == "ML":
-            out[name].update(_ml_extras(d, res, out[name], truth, spec, rng))
+            out[name].update(_ml_extras(d, res, out[name], truth, spec, rng, stages))
     return out
 
 
 def _ml_extras(
-    d: Any, res: Any, row: dict[str, Any], truth: dict[str, float], spec: dict[str, Any], rng: int
+    d: Any,
+    res: Any,
+    row: dict[str, Any],
+    truth: dict[str, float],
+    spec: dict[str, Any],
+    rng: int,
+    stages: dict[str, float],
 ) -> dict[str, Any]:
     """ML from the truth (same optimum?), restarts, and the antithetic twin's estimate."""
     x: dict[str, Any] = {
@@ -195,6 +272,7 @@ def _ml_extras(
     }
     vi = np.array([row["est"][k] for k in V_NAMES])
     se = np.array([row["se"][k] for k in V_NAMES])
+    t0 = time.perf_counter()
     try:
         rt = fit_ml(d, start=np.array([truth[k] for k in V_NAMES]))
         vt = np.array([rt.parameters[k] for k in V_NAMES])
@@ -204,15 +282,19 @@ def _ml_extras(
     except Exception as exc:  # recorded as a convergence failure
         x["same_optimum"] = False
         x["truth_start_error"] = str(exc)[:200]
-    if spec["plant"] == "linear":
-        try:
-            tw = fit_ml(_mirror(d, spec, rng))
-            if tw.extras["converged"]:
-                x["twin_est"] = {k: tw.parameters[k] for k in REPORTED}
-            else:  # a twin that did not converge is left out of the bias, counted
-                x["twin_error"] = "did not converge"
-        except Exception as exc:  # the pair is left out of the antithetic bias
-            x["twin_error"] = str(exc)[:200]
+    stages["ML from the truth"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    try:
+        twin = _mirror(d, spec, rng)
+        stages["twin simulate"] = time.perf_counter() - t0
+        tw = fit_ml(twin)
+        if tw.extras["converged"]:
+            x["twin_est"] = {k: tw.parameters[k] for k in REPORTED}
+        else:  # a twin that did not converge is left out of the bias, counted
+            x["twin_error"] = "did not converge"
+    except Exception as exc:  # the pair is left out of the antithetic bias
+        x["twin_error"] = str(exc)[:200]
+    stages["twin ML"] = time.perf_counter() - t0 - stages.get("twin simulate", 0.0)
     return x
 
 
@@ -319,7 +401,16 @@ def _param_stats(ok: list[dict[str, Any]], name: str, k: str, crb: float | None)
 def summarise(records: list[dict[str, Any]], crb: dict[str, float]) -> dict[str, Any]:
     """Per method: failures, per-parameter statistics, median time; ML's convergence."""
     summ: dict[str, Any] = {"records": len(records)}
+    stages = [r["stages"] for r in records if "stages" in r]
+    if stages:
+        names = dict.fromkeys(k for st in stages for k in st)
+        summ["stages_median_s"] = {
+            k: float(np.median([st.get(k, 0.0) for st in stages])) for k in names
+        }
     for name in METHODS:
+        if records and not any(name in r for r in records):
+            summ[name] = {"not_run": True, "failures": 0}
+            continue
         ok = [r for r in records if "est" in r.get(name, {})]
         ok = [r for r in ok if all(k in r[name]["est"] for k in REPORTED)]
         row: dict[str, Any] = {"failures": len(records) - len(ok)}
@@ -433,9 +524,10 @@ def markdown_section(results: dict[str, Any]) -> list[str]:
         "their record counts below (a point that ran out of its time budget used fewer "
         "records than planned: the count is the one it used). Each cell: bias % / std % "
         "(relative to the true value) / coverage of the stated 95 % intervals / std over "
-        "the Cramér-Rao bound. ML's |bias|/std: antithetic on the linear plant (mean of "
-        "the pair means of each record and its noise-negated twin), plain mean on the "
-        "nonlinear one; ± its standard error. LS refuses noisy records (errors in "
+        "the Cramér-Rao bound. ML's |bias|/std: antithetic (mean of the pair means of "
+        "each record and its noise-negated twin, on both plants); ± its "
+        "standard error. A point with fewer than "
+        f"{MIN_RECORDS} records is shown but not judged. LS refuses noisy records (errors in "
         "variables); MOESP has no covariance (coverage n/a).",
         "",
     ]
@@ -464,9 +556,21 @@ def markdown_section(results: dict[str, Any]) -> list[str]:
             f"ML from IV != ML from the truth: {ml.get('not_same_optimum', 'n/a')} records "
             f"(largest gap {ml.get('gap_max_se', float('nan')):.1e} se; started or restarted "
             f"from the nominal bearing on {ml.get('restarted_from_nominal', 'n/a')}); "
-            "failures " + ", ".join(f"{m} {s[m]['failures']}" for m in METHODS) + "; "
+            "failures "
+            + ", ".join(
+                f"{m} not run" if s[m].get("not_run") else f"{m} {s[m]['failures']}"
+                for m in METHODS
+            )
+            + "; "
             f"antithetic twins left out (failed or not converged): {ml.get('twin_failures', 0)}."
         )
+        if "stages_median_s" in s:
+            L += [
+                "",
+                "Where a record's time goes (median per record, one worker): "
+                + ", ".join(f"{k} {v:.2g} s" for k, v in s["stages_median_s"].items())
+                + ".",
+            ]
         L += ["", "| parameter | " + " | ".join(METHODS) + " | ML \\|bias\\|/std |"]
         L.append("|---" * (len(METHODS) + 2) + "|")
         for k in REPORTED:
@@ -498,7 +602,8 @@ def targets(results: dict[str, Any], judge: Any) -> None:
                 pt = pts.get(point_label(plant, level, n))
                 for kind, text, ok in _point_checks(plant, level, pt):
                     if ok is None:
-                        missing.setdefault(kind, []).append(_short(plant, level, n))
+                        why = f" ({text})" if text else ""
+                        missing.setdefault(kind, []).append(_short(plant, level, n) + why)
                     else:
                         checks.setdefault(kind, []).append(
                             (f"{_short(plant, level, n)}: {text}", ok)
@@ -512,7 +617,8 @@ def targets(results: dict[str, Any], judge: Any) -> None:
             )
         if kind in missing:
             judge.not_measured(
-                f"{kind} (points not measured: not in the plan or failed)",
+                f"{kind} (points not measured: not in the plan, failed, or fewer than "
+                f"{MIN_RECORDS} records)",
                 ", ".join(missing[kind]),
             )
     tm = results.get("timing")
@@ -527,6 +633,16 @@ def targets(results: dict[str, Any], judge: Any) -> None:
             tm["ratio"] <= 20.0,
         )
 
+
+#: Records a point needs before its figures are judged (the issue's ">= 100
+#: recordings per point"). Below it a point is reported with its count and
+#: listed as not measured: at 13 records the pooled v1..v9 coverage has a
+#: binomial sd of 0.020 (the 0.93-0.97 band is +-1 sd), std/CRB a sampling sd
+#: of ~20 % (1.15 cannot be told from 1.3) and the bias a standard error of
+#: ~0.28 std without the twin (0.2 std cannot be told from 0). At 100: 0.007,
+#: 7 % and 0.02-0.1 std. One exception: a record where ML from IV and ML from
+#: the truth differ fails that target at any count.
+MIN_RECORDS = 100
 
 _KINDS = (
     "ML std/CRB <= 1.3, every parameter",
@@ -545,6 +661,14 @@ def _point_checks(plant: str, level: str, pt: dict[str, Any] | None) -> list[tup
     s = pt["summary"]
     ml, par = s["ML"], s["ML"]["parameters"]
     rec = f"{s['records']} rec"
+    if s["records"] < MIN_RECORDS:
+        # Too few records to support a verdict (MIN_RECORDS); a record on which
+        # ML from IV missed ML from the truth is a failure at any count.
+        few = f"{rec} < {MIN_RECORDS}"
+        out_few: list[tuple[str, str, Any]] = [(k, few, None) for k in kinds]
+        if ml.get("not_same_optimum", 0) > 0:
+            out_few[3] = (kinds[3], f"{ml['not_same_optimum']} differ, {rec}", False)
+        return out_few
     worst = max(REPORTED, key=lambda k: par[k]["std_over_crb"])
     out = [
         (
@@ -623,12 +747,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--workers", type=int, default=None)
     ap.add_argument("--seed", type=int, default=2026)
     ap.add_argument("--quick", action="store_true", help="20 records at N = 1e4 only")
+    ap.add_argument("--large", action="store_true", help="the points make bench leaves out")
     ap.add_argument("--no-timing", action="store_true", help="leave out the 1e5 time ratio")
     ap.add_argument("--json", default=None, help="write the results here")
     ap.add_argument("--markdown", default=None, help="write the markdown section here")
     a = ap.parse_args(argv)
     res = run(
-        QUICK_PLAN if a.quick else PLAN,
+        QUICK_PLAN if a.quick else LARGE_PLAN if a.large else PLAN,
         workers=a.workers,
         seed=a.seed,
         timing=not (a.quick or a.no_timing),

@@ -22,6 +22,18 @@ The helpers below are the only ways run_all makes a verdict:
   (:func:`accuracy_bar`): twice the Cramér-Rao bound where the estimation code
   provides one, else a stated relative bound; a missing or non-finite error is
   "not measured", a bar that is not met is "not met".
+* the bar on physical parameters of one record (:func:`crb_sigmas_bar`,
+  :func:`crb_normalised_error`): every ``|v_i error|`` within ``k`` Cramér-Rao
+  standard deviations of *that* record's bound, ``sigma_CRB,i``; judged as
+  ``max_i |e_i| / sigma_CRB,i <= k``. No bound (or no estimate) is "not
+  measured", never a fallback to a looser bar.
+
+The CRB bar, ``k = 4`` (:data:`CRB_SIGMAS`): an efficient, unbiased estimator
+(errors Gaussian with the bound as standard deviation) fails it on one record
+with probability at most ``9 x 2 Phi(-4) = 5.7e-4`` (union bound over v1..v9,
+:func:`crb_false_alarm`); one at 1.3x the bound (issue 13's efficiency target)
+at most ``9 x 2 Phi(-4/1.3) = 0.019``. IV at ~5x the bound fails it nearly
+always -- the bar tells an efficient estimator from a consistent one.
 
 Example
 -------
@@ -42,6 +54,7 @@ from dataclasses import dataclass
 from typing import Any
 
 __all__ = [
+    "CRB_SIGMAS",
     "MET",
     "NOT_MEASURED",
     "NOT_MET",
@@ -49,6 +62,9 @@ __all__ = [
     "Judge",
     "Verdict",
     "accuracy_bar",
+    "crb_false_alarm",
+    "crb_normalised_error",
+    "crb_sigmas_bar",
     "measured",
     "why_not_measured",
 ]
@@ -90,6 +106,43 @@ def accuracy_bar(*, stated: float, crb: float | None = None, factor: float = 2.0
     if crb is not None and math.isfinite(crb) and crb > 0:
         return AccuracyBar(factor * crb, f"{factor:g} x the Cramér-Rao bound {crb:.1e}")
     return AccuracyBar(stated, f"stated bound {stated:.0%}")
+
+
+#: The CRB bar's width in Cramér-Rao standard deviations (module notes).
+CRB_SIGMAS = 4.0
+
+
+def crb_false_alarm(k: float = CRB_SIGMAS, *, n: int = 9, inflation: float = 1.0) -> float:
+    """Upper bound on the probability that a correct estimator fails the CRB bar.
+
+    Union bound over ``n`` Gaussian errors with standard deviation ``inflation``
+    times the bound: ``min(1, n 2 Phi(-k / inflation))`` (correlated errors
+    fail it less often, never more)."""
+    return min(1.0, n * math.erfc(k / inflation / math.sqrt(2.0)))
+
+
+def crb_sigmas_bar(k: float = CRB_SIGMAS) -> AccuracyBar:
+    """The bar ``max_i |e_i| / sigma_CRB,i <= k`` (pair with :func:`crb_normalised_error`)."""
+    return AccuracyBar(
+        k,
+        f"every |v_i error| within {k:g} sigma_CRB,i of this record; a correct efficient "
+        f"estimator fails it with p <= {crb_false_alarm(k):.1e}, one at 1.3x the bound "
+        f"with p <= {crb_false_alarm(k, inflation=1.3):.2f}",
+    )
+
+
+def crb_normalised_error(errors: Any, sigma: Any) -> float | None:
+    """``max_i |errors_i| / sigma_i``; None when either is missing, not finite or
+    ``sigma`` is not positive (then the target is "not measured")."""
+    if errors is None or sigma is None:
+        return None
+    e = [float(x) for x in errors]
+    s = [float(x) for x in sigma]
+    if len(e) != len(s) or not e:
+        return None
+    if not all(math.isfinite(x) for x in e) or not all(math.isfinite(x) and x > 0 for x in s):
+        return None
+    return max(abs(a) / b for a, b in zip(e, s))
 
 
 def measured(row: Mapping[str, Any] | None, key: str = "time_s") -> bool:

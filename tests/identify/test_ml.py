@@ -178,6 +178,20 @@ def test_bad_input_gives_one_clear_error(noisy):
         )
 
 
+def test_start_from_the_records_physical_result_is_the_default_start(noisy):
+    """``start=<physical result>`` reuses that IV fit: the same estimate as
+    ``start="physical"`` (which fits it again), and a result of another method
+    is refused."""
+    from maglevid.identify.physical import fit_physical
+
+    iv = fit_physical(noisy)
+    a, b = fit_ml(noisy), fit_ml(noisy, start=iv)
+    np.testing.assert_array_equal(_v(a), _v(b))
+    assert b.options["start"] == "physical"
+    with pytest.raises(DataError, match="physical"):
+        fit_ml(noisy, start=a)
+
+
 @pytest.mark.slow
 def test_monte_carlo_coverage_efficiency_and_bias_against_the_bound():
     """40 records of 1e4 samples, ML from IV (the full table with 100 records per

@@ -107,8 +107,10 @@ def fit_ml(
     data : ClosedLoopData
         ``y = [x, i1, i2]`` at the control rate and the logged ``u`` (or
         ``u_f`` and ``r``).
-    start : "physical" or (9,) array_like
-        Starting point: the ``physical`` IV estimate (default) or given v1..v9.
+    start : "physical", IdentificationResult or (9,) array_like
+        Starting point: the ``physical`` IV estimate (default; or that fit of
+        this record already made, passed as its result: the same start without
+        fitting IV a second time) or given v1..v9.
     noise_std : "estimate", "metadata" or (3,) sequence
         Sensor noise standard deviations of ``[x, i1, i2]``: estimated with the
         parameters (default), taken from ``metadata["noise_std"]`` of a
@@ -302,10 +304,18 @@ def _start(
     data: ClosedLoopData, start: Any, *, m: float | None, i0: float | None
 ) -> tuple[np.ndarray, np.ndarray | None, str, list[str]]:
     """v1..v9 to start from, sensor noise levels if known, and how they were obtained."""
-    if isinstance(start, str):
+    if isinstance(start, IdentificationResult):
+        if start.method != "physical" or not all(k in start.parameters for k in V_NAMES):
+            raise DataError(
+                "`start` as a result must be the `physical` fit of this record; got "
+                f"method {start.method!r}"
+            )
+        iv = start
+    elif isinstance(start, str):
         if start != "physical":
             raise DataError(f"`start` must be 'physical' or 9 numbers; got {start!r}")
         iv = fit_physical(data, m=m, i0=i0)
+    if isinstance(start, (str, IdentificationResult)):
         v0 = np.array([iv.parameters[k] for k in V_NAMES])
         cov_w = iv.extras.get("noise_covariance")
         s0 = None if cov_w is None else np.sqrt(np.clip(np.diag(np.asarray(cov_w)), 0, None))
