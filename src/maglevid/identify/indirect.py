@@ -353,8 +353,7 @@ def fit_indirect(
     model = StateSpace(model.A, model.B, model.C, model.D, data.dt, (),
                        (ch.plant_input.name,), tuple(p.name for p in ch.outputs))  # fmt: skip
     cont = continuous_or_note(model, notes)
-    resid = np.full(Z.shape, np.nan)
-    resid[~np.isnan(zhat)] = (Z - zhat)[~np.isnan(zhat)]
+    resid = Z - zhat  # NaN where there is no prediction (burn-in, outside the segments)
     return IdentificationResult(
         method="indirect",
         model=model,

@@ -160,8 +160,7 @@ def fit_two_stage(
         "nk": nk, "n_fir": n_fir, "n_noncausal": n_noncausal,
         "segments": [list(sg) for sg in segs], "intercept": intercept, "hac_lags": hl,
     }  # fmt: skip
-    resid = np.full(y.size, np.nan)
-    resid[~np.isnan(yhat)] = (y - yhat)[~np.isnan(yhat)]
+    resid = y - yhat  # NaN where there is no prediction (outside the segments)
     return IdentificationResult(
         method="two-stage",
         model=model,
