@@ -43,7 +43,7 @@ import scipy.linalg as sla
 from maglevid.identify.cramer_rao import NoiseModel, amb_linear_gaussian_model
 from maglevid.physics.amb import C_AMB, amb_matrices
 
-__all__ = ["START_SAMPLES", "StructuredFit", "fit_bearing_structure"]
+__all__ = ["START_SAMPLES", "StructuredFit", "fit_bearing_pem", "fit_bearing_structure"]
 
 #: Samples at the start of the window the predictor's initial state is
 #: reconstructed from (P14); 0 leaves it at zero (the truncated predictor).
@@ -268,3 +268,138 @@ def _gauss_newton(residual, theta: np.ndarray, j: int, max_iter: int):  # type: 
         if gain < _GAIN_TOL:
             break
     return theta, R, it
+
+
+# ------------------------------------------------ prediction-error steps (P18)-(P20)
+#: Gauss-Newton steps of the prediction-error criterion at most (P19): from a
+#: sqrt(N)-consistent start one step is asymptotically efficient; the transform's
+#: start is 10-50 standard errors off at N = 1e4, the further steps remove that.
+PEM_STEPS = 4
+#: Samples the Gauss-Newton Hessian (P20) is summed over at most (the first
+#: ones after the transient, scaled to the record): its cost grows with these
+#: 21 filtered sensitivities, the gradient's does not (adjoint, (P19)).
+PEM_HESSIAN_SAMPLES = 50_000
+#: Stop when a step lowers ``-2 log L`` by less than this (a small fraction of
+#: a standard error's worth).
+_PEM_GAIN_TOL = 0.1
+
+
+def _adjugate(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(a, B)``: ``det(qI - A) = q^n + a_1 q^{n-1} + ...``, ``adj(qI - A) = sum_k B_k q^{n-1-k}``."""
+    n = A.shape[0]
+    a = np.real(np.poly(A))
+    B = np.empty((n, n, n))
+    B[0] = np.eye(n)
+    for k in range(1, n):
+        B[k] = A @ B[k - 1] + a[k] * np.eye(n)
+    return a, B
+
+
+def _filter_states(a: np.ndarray, M: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """``x(t) = sum_{l<t} A^{t-1-l} Bin s(l)`` for all t, (N, n): one lfilter, (P18).
+
+    ``M[k] = B_k Bin`` (the adjugate's coefficients times the input matrix):
+    ``(qI - A)^{-1} Bin = sum_k M_k q^{-1-k} / a(q^{-1})``.
+    """
+    import scipy.signal
+
+    w = scipy.signal.lfilter([1.0], a, s, axis=0)
+    N, n = s.shape[0], M.shape[1]
+    x = np.zeros((N, n))
+    for k in range(M.shape[0]):
+        if N > k + 1:
+            x[k + 1 :] += w[: N - k - 1] @ M[k].T
+    return x
+
+
+def _pem_pass(theta, v0, dt, sy, su, z, t0):  # type: ignore[no-untyped-def]
+    """Innovations, their covariance and the gradient of the criterion (P18), one pass.
+
+    ``z`` (N, 5) the scaled, centred ``[u, y]``; sums from ``t0`` on (the
+    predictor's start transient left out). Returns ``(Re, grad, model)`` with
+    ``grad`` that of ``1/2 sum_t e' W e`` at ``W = Re^{-1}``, by the adjoint:
+    ``lambda(t) = sum_{s>t} Abar'^{s-t-1} C' W e(s)`` backwards, then
+    ``d/dtheta_i = -sum_t lambda' (dAbar_i x + dBtil_i z)``.
+    """
+    model = _model(theta, v0, dt, sy, su)
+    Abar, Btil, dAbar, dBtil, Cs = model[:5]
+    a, B = _adjugate(Abar)
+    x = _filter_states(a, B @ Btil, z)
+    e = z[:, 2:] - x @ Cs.T
+    e[:t0] = 0.0
+    n_eff = z.shape[0] - t0
+    Re = e.T @ e / n_eff + _RE_FLOOR * np.eye(3)
+    W = np.linalg.inv(Re)
+    c = e @ (W @ Cs)  # rows C' W e(t)
+    lam = _filter_states(a, np.transpose(B, (0, 2, 1)), c[::-1])[::-1]
+    Gx, Gz = lam.T @ x, lam.T @ z
+    grad = -(np.einsum("iab,ab->i", dAbar, Gx) + np.einsum("iab,ab->i", dBtil, Gz))
+    cost = n_eff * float(np.linalg.slogdet(Re)[1])  # -2 log-likelihood + const
+    return Re, W, grad, cost, n_eff, model, (a, B, x)
+
+
+def _time_hessian(model, W, z, t0, a, B, x, n_max):  # type: ignore[no-untyped-def]
+    """Gauss-Newton Hessian ``sum_t psi' W psi`` over ``t0 .. t0 + n_max``, scaled to all, (P20).
+
+    ``psi_i = C dx_i``, ``dx_i = (qI - Abar)^{-1} (dAbar_i x + dBtil_i z)``: the
+    sensitivities of the 21 parameters filtered in one lfilter (channels in rows).
+    """
+    import scipy.signal
+
+    dAbar, dBtil, Cs = model[2], model[3], model[4]
+    n_th, N = dAbar.shape[0], z.shape[0]
+    t1 = min(N, t0 + n_max)
+    f = dAbar.reshape(-1, 4) @ x[:t1].T + dBtil.reshape(-1, 5) @ z[:t1].T  # (n_th 4, t1)
+    w = scipy.signal.lfilter([1.0], a, f, axis=1).reshape(n_th, 4, t1)
+    S = np.linalg.cholesky(W).T @ Cs  # whitened C
+    J = np.zeros((n_th, 3, t1 - t0))
+    for k in range(B.shape[0]):  # psi(t) = sum_k S B_k w(t - 1 - k)
+        lo = max(t0, k + 1)
+        J[:, :, lo - t0 :] += (S @ B[k]) @ w[:, :, lo - k - 1 : t1 - k - 1]
+    J = J.reshape(n_th, -1)
+    return (J @ J.T) * ((N - t0) / (t1 - t0))
+
+
+def fit_bearing_pem(
+    z: np.ndarray,
+    *,
+    v0: np.ndarray,
+    K0: np.ndarray,
+    dt: float,
+    scale: np.ndarray,
+    t0: int,
+    steps: int = PEM_STEPS,
+) -> StructuredFit:
+    """v1..v9 and ``K`` by Gauss-Newton steps of the prediction-error criterion (P18)-(P20).
+
+    ``z`` (N, 5): the record, centred and scaled as the data stage's channels
+    (``scale``); ``v0``, ``K0`` the consistent start (the transform),
+    physical units; ``t0`` the samples of the predictor's start transient.
+    """
+    su, sy = scale[:2], scale[2:]
+    theta = np.concatenate([np.zeros(9), (K0 * sy[None, :]).ravel()])
+    Re, W, grad, cost, n_eff, model, aux = _pem_pass(theta, v0, dt, sy, su, z, t0)
+    it = 0
+    for it in range(1, steps + 1):  # noqa: B007 - the count is returned
+        H = _time_hessian(model, W, z, t0, *aux, PEM_HESSIAN_SAMPLES)
+        d = np.sqrt(np.maximum(np.diag(H), 1e-300))
+        step = -np.linalg.solve(H / np.outer(d, d), grad / d) / d
+        gain = float(-step @ grad)  # predicted decrease of 2 x (1/2 sum e'We)
+        for _ in range(8):  # halve until -2 log L falls (an unstable trial overflows: refused)
+            with np.errstate(all="ignore"):
+                new = _pem_pass(theta + step, v0, dt, sy, su, z, t0)
+            if np.isfinite(new[3]) and new[3] <= cost:
+                break
+            step = step / 2.0
+        else:
+            break
+        theta = theta + step
+        Re, W, grad, cost, n_eff, model, aux = new
+        if gain < _PEM_GAIN_TOL:
+            break
+    H = _time_hessian(model, W, z, t0, *aux, PEM_HESSIAN_SAMPLES)
+    d = np.sqrt(np.maximum(np.diag(H), 1e-300))
+    cov = (np.linalg.inv(H / np.outer(d, d)) / np.outer(d, d))[:9, :9] * np.outer(v0, v0)
+    _, _, _, _, _, v, Ad, Bd, Ks = model
+    Re_p = Re * np.outer(sy, sy)
+    return StructuredFit(v, Ks / sy[None, :], Ad, Bd, 0.5 * (Re_p + Re_p.T), it, 0, cov)
