@@ -378,3 +378,92 @@ def test_structured_covariance_matches_the_scatter():
         se = res.std_errors()
         z += [(res.parameters[f"v{i}"] - truth[i - 1]) / se[f"v{i}"] for i in range(1, 10)]
     assert 0.4 < float(np.mean(np.square(z))) < 2.5
+
+
+# ------------------------------------------- prediction-error steps (P18)-(P20)
+def _pem_setup(n: int, seed: int):  # type: ignore[no-untyped-def]
+    from maglevid.identify import _structured as S
+
+    d = simulate_amb_loop(AMBParameters.nominal(), n_samples=n, rng=seed)
+    start = fit_pbsid(d.y, d.u, order=4, dt=d.dt, coordinates="physical", physical_fit="transform")
+    v0 = np.array([start.parameters[f"v{i}"] for i in range(1, 10)])
+    scale = start.extras["channel_scale"]
+    z = np.concatenate([d.u, d.y], axis=1)
+    z = (z - z.mean(axis=0)) / scale
+    theta = np.concatenate([np.zeros(9), (start.extras["kalman_gain"] * scale[2:]).ravel()])
+    return S, d, z, v0, scale, theta
+
+
+def test_pem_gradient_and_hessian_equal_finite_differences():
+    # Reference: the innovations of the steady-state predictor computed sample by
+    # sample (a plain loop, independent of the lfilter / adjugate form (P18)) and
+    # their finite differences: the adjoint gradient (P19) and the filtered
+    # sensitivities' Hessian (P20) must equal them (measured 3e-6 / 3e-6 relative
+    # at 1e4 samples; asserted 1e-4: the differences' own truncation error).
+    S, d, z, v0, scale, theta = _pem_setup(3000, 7)
+    su, sy, t0 = scale[:2], scale[2:], 200
+    _, W, grad, _, _, model, aux = S._pem_pass(theta, v0, d.dt, sy, su, z, t0)
+
+    def innovations(th):  # type: ignore[no-untyped-def]
+        Abar, Btil, *_, Cs = S._model(th, v0, d.dt, sy, su)[:5]
+        x, E = np.zeros(4), np.zeros((z.shape[0], 3))
+        for k in range(z.shape[0]):
+            E[k] = z[k, 2:] - Cs @ x
+            x = Abar @ x + Btil @ z[k]
+        E[:t0] = 0.0
+        return E
+
+    L = np.linalg.cholesky(W)
+    E0 = innovations(theta)
+    J = []
+    for i in range(theta.size):
+        h = 1e-6 * max(abs(theta[i]), 1e-3) if i < 9 else 1e-6 * abs(theta[i])
+        t2 = theta.copy()
+        t2[i] += h
+        J.append(((innovations(t2) - E0) / h @ L).ravel())
+    J = np.array(J).T
+    g_fd = (E0 @ L).ravel() @ J
+    assert np.max(np.abs(grad - g_fd)) < 1e-4 * np.max(np.abs(g_fd))
+    H = S._time_hessian(model, W, z, t0, *aux, 10**9)
+    assert np.max(np.abs(H - J.T @ J)) < 1e-4 * np.max(np.abs(J.T @ J))
+
+
+def test_pem_steps_reach_maximum_likelihood_accuracy(bearing):
+    # Issue 16's accuracy target on this record (20 000 samples, default noise):
+    # the largest v error within 2x that of maximum likelihood (maglevid's `ml`,
+    # the best consistent method) from the transform's start, which is ~10x
+    # further off. Measured: transform 2.7 % / 1.6 %, pem 0.53 % / 0.53 %, ML 0.52 %.
+    truth = np.asarray(bearing.metadata["truth_v"])
+    ml = _v_error(get_method("ml")(bearing), truth)
+    kw = dict(order=4, dt=bearing.dt, coordinates="physical")
+    for fit in (fit_pbsid, fit_ssarx):
+        ref = fit(bearing.y, bearing.u, physical_fit="transform", **kw)
+        res = fit(bearing.y, bearing.u, physical_fit="pem", **kw)
+        assert _v_error(res, truth) < min(2.0 * ml, _v_error(ref, truth))
+        assert res.options["physical_fit"] == "pem"
+        assert any("prediction-error" in n for n in res.notes)
+        assert res.covariance is not None and res.covariance.shape == (13, 13)
+
+
+def test_pem_needs_the_record_in_memory(bearing):
+    acc = PredictorAccumulator(ny=3, nu=2, past=20)
+    acc.update(bearing.y, bearing.u)
+    with pytest.raises(DataError, match="in memory"):
+        acc.fit(order=4, dt=bearing.dt, coordinates="physical", physical_fit="pem")
+    with pytest.raises(DataError, match="coordinates='physical'"):
+        fit_pbsid(bearing.y, bearing.u, order=4, physical_fit="pem")
+
+
+def test_pem_covariance_matches_the_scatter():
+    # (P20)'s covariance H^{-1} against the truth, as the structured fit's test:
+    # 4 records x 9 normalised errors have mean square 1 when it is right.
+    z = []
+    for seed in range(4):
+        d = simulate_amb_loop(AMBParameters.nominal(), n_samples=6000, rng=100 + seed)
+        truth = np.asarray(d.metadata["truth_v"])
+        res = fit_pbsid(
+            d.y, d.u, order=4, dt=d.dt, coordinates="physical", physical_fit="pem"
+        )
+        se = res.std_errors()
+        z += [(res.parameters[f"v{i}"] - truth[i - 1]) / se[f"v{i}"] for i in range(1, 10)]
+    assert 0.4 < float(np.mean(np.square(z))) < 2.5

@@ -341,22 +341,24 @@ def _pem_pass(theta, v0, dt, sy, su, z, t0):  # type: ignore[no-untyped-def]
 def _time_hessian(model, W, z, t0, a, B, x, n_max):  # type: ignore[no-untyped-def]
     """Gauss-Newton Hessian ``sum_t psi' W psi`` over ``t0 .. t0 + n_max``, scaled to all, (P20).
 
-    ``psi_i = C dx_i``, ``dx_i = (qI - Abar)^{-1} (dAbar_i x + dBtil_i z)``: the
-    sensitivities of the 21 parameters filtered in one lfilter (channels in rows).
+    ``psi_i = C dx_i``, ``dx_i = (qI - Abar)^{-1} (dAbar_i x + dBtil_i z)``: with
+    ``(qI - Abar)^{-1} = sum_k B_k q^{-1-k} / a(q^{-1})`` the numerator is applied
+    first, to the 9 rows of ``[x, z]`` (one GEMM per lag), then the 63 whitened
+    sensitivities go through ``1 / a`` in one lfilter.
     """
     import scipy.signal
 
     dAbar, dBtil, Cs = model[2], model[3], model[4]
-    n_th, N = dAbar.shape[0], z.shape[0]
+    n_th, N, n = dAbar.shape[0], z.shape[0], B.shape[0]
     t1 = min(N, t0 + n_max)
-    f = dAbar.reshape(-1, 4) @ x[:t1].T + dBtil.reshape(-1, 5) @ z[:t1].T  # (n_th 4, t1)
-    w = scipy.signal.lfilter([1.0], a, f, axis=1).reshape(n_th, 4, t1)
     S = np.linalg.cholesky(W).T @ Cs  # whitened C
-    J = np.zeros((n_th, 3, t1 - t0))
-    for k in range(B.shape[0]):  # psi(t) = sum_k S B_k w(t - 1 - k)
-        lo = max(t0, k + 1)
-        J[:, :, lo - t0 :] += (S @ B[k]) @ w[:, :, lo - k - 1 : t1 - k - 1]
-    J = J.reshape(n_th, -1)
+    D = np.concatenate([dAbar, dBtil], axis=2)  # (n_th, 4, 9): f_i = D_i [x; z]
+    XZ = np.pad(np.concatenate([x[:t1], z[:t1]], axis=1).T, ((0, 0), (n, 0)))
+    g = np.zeros((n_th * 3, t1))
+    for k in range(n):  # sum_k S B_k D_i [x; z](t - 1 - k)
+        Mk = np.einsum("ca,iab->icb", S @ B[k], D).reshape(-1, D.shape[2])
+        g += Mk @ XZ[:, n - 1 - k : n - 1 - k + t1]
+    J = scipy.signal.lfilter([1.0], a, g, axis=1)[:, t0:t1].reshape(n_th, -1)
     return (J @ J.T) * ((N - t0) / (t1 - t0))
 
 
