@@ -461,9 +461,7 @@ def test_pem_covariance_matches_the_scatter():
     for seed in range(4):
         d = simulate_amb_loop(AMBParameters.nominal(), n_samples=6000, rng=100 + seed)
         truth = np.asarray(d.metadata["truth_v"])
-        res = fit_pbsid(
-            d.y, d.u, order=4, dt=d.dt, coordinates="physical", physical_fit="pem"
-        )
+        res = fit_pbsid(d.y, d.u, order=4, dt=d.dt, coordinates="physical", physical_fit="pem")
         se = res.std_errors()
         z += [(res.parameters[f"v{i}"] - truth[i - 1]) / se[f"v{i}"] for i in range(1, 10)]
     assert 0.4 < float(np.mean(np.square(z))) < 2.5

@@ -35,6 +35,7 @@ estimate. Memory and time do not depend on ``N``.
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -274,11 +275,15 @@ def _gauss_newton(residual, theta: np.ndarray, j: int, max_iter: int):  # type: 
 #: Gauss-Newton steps of the prediction-error criterion at most (P19): from a
 #: sqrt(N)-consistent start one step is asymptotically efficient; the transform's
 #: start is 10-50 standard errors off at N = 1e4, the further steps remove that.
-PEM_STEPS = 4
+PEM_STEPS = 10
 #: Samples the Gauss-Newton Hessian (P20) is summed over at most (the first
 #: ones after the transient, scaled to the record): its cost grows with these
-#: 21 filtered sensitivities, the gradient's does not (adjoint, (P19)).
+#: 21 filtered sensitivities, the gradient's does not (adjoint, (P19)). The
+#: steps' Hessian only sets the step (the gradient is exact): fewer samples;
+#: the covariance's more (its relative sampling error ~ sqrt(tau / n), tau the
+#: sensitivities' correlation time, ~60 samples on the bearing: ~3 %).
 PEM_HESSIAN_SAMPLES = 50_000
+_PEM_STEP_HESSIAN_SAMPLES = 50_000
 #: Stop when a step lowers ``-2 log L`` by less than this (a small fraction of
 #: a standard error's worth).
 _PEM_GAIN_TOL = 0.1
@@ -299,17 +304,17 @@ def _filter_states(a: np.ndarray, M: np.ndarray, s: np.ndarray) -> np.ndarray:
     """``x(t) = sum_{l<t} A^{t-1-l} Bin s(l)`` for all t, (N, n): one lfilter, (P18).
 
     ``M[k] = B_k Bin`` (the adjugate's coefficients times the input matrix):
-    ``(qI - A)^{-1} Bin = sum_k M_k q^{-1-k} / a(q^{-1})``.
+    ``(qI - A)^{-1} Bin = sum_k M_k q^{-1-k} / a(q^{-1})``; the numerator is
+    applied first (on the inputs' rows, time along the last axis), then ``1 / a``.
     """
     import scipy.signal
 
-    w = scipy.signal.lfilter([1.0], a, s, axis=0)
-    N, n = s.shape[0], M.shape[1]
-    x = np.zeros((N, n))
-    for k in range(M.shape[0]):
-        if N > k + 1:
-            x[k + 1 :] += w[: N - k - 1] @ M[k].T
-    return x
+    n, N = M.shape[0], s.shape[0]
+    sp = np.pad(np.ascontiguousarray(s.T), ((0, 0), (n, 0)))
+    g = np.zeros((M.shape[1], N))
+    for k in range(n):
+        g += M[k] @ sp[:, n - 1 - k : n - 1 - k + N]
+    return scipy.signal.lfilter([1.0], a, g, axis=1).T
 
 
 def _pem_pass(theta, v0, dt, sy, su, z, t0):  # type: ignore[no-untyped-def]
@@ -323,11 +328,28 @@ def _pem_pass(theta, v0, dt, sy, su, z, t0):  # type: ignore[no-untyped-def]
     """
     model = _model(theta, v0, dt, sy, su)
     Abar, Btil, dAbar, dBtil, Cs = model[:5]
+    lam_a, V = np.linalg.eig(Abar)
+    rho = float(np.max(np.abs(lam_a)))
+    if not rho < 1.0:  # an unstable predictor: refused
+        return None, None, None, np.inf, 0, model, None
     a, B = _adjugate(Abar)
     x = _filter_states(a, B @ Btil, z)
     e = z[:, 2:] - x @ Cs.T
+    if np.all(np.isfinite(e)):  # the start state x(0), least squares over its transient
+        T = min(z.shape[0], max(100, math.ceil(-30.0 / math.log(max(rho, 1e-300)))))
+        Pt = np.real(
+            np.einsum(
+                "ak,tk,kb->tab", V, lam_a[None, :] ** np.arange(T)[:, None], np.linalg.inv(V)
+            )
+        )  # Abar^t, (T, 4, 4)
+        O = Cs @ Pt  # (T, 3, 4)
+        x0 = np.linalg.lstsq(O.reshape(-1, 4), e[:T].ravel(), rcond=None)[0]
+        x[:T] += Pt @ x0
+        e[:T] -= O @ x0
     e[:t0] = 0.0
     n_eff = z.shape[0] - t0
+    if not np.all(np.isfinite(e)):
+        return None, None, None, np.inf, n_eff, model, None
     Re = e.T @ e / n_eff + _RE_FLOOR * np.eye(3)
     W = np.linalg.inv(Re)
     c = e @ (W @ Cs)  # rows C' W e(t)
@@ -383,14 +405,14 @@ def fit_bearing_pem(
     Re, W, grad, cost, n_eff, model, aux = _pem_pass(theta, v0, dt, sy, su, z, t0)
     it = 0
     for it in range(1, steps + 1):  # noqa: B007 - the count is returned
-        H = _time_hessian(model, W, z, t0, *aux, PEM_HESSIAN_SAMPLES)
+        H = _time_hessian(model, W, z, t0, *aux, _PEM_STEP_HESSIAN_SAMPLES)
         d = np.sqrt(np.maximum(np.diag(H), 1e-300))
         step = -np.linalg.solve(H / np.outer(d, d), grad / d) / d
         gain = float(-step @ grad)  # predicted decrease of 2 x (1/2 sum e'We)
         for _ in range(8):  # halve until -2 log L falls (an unstable trial overflows: refused)
             with np.errstate(all="ignore"):
                 new = _pem_pass(theta + step, v0, dt, sy, su, z, t0)
-            if np.isfinite(new[3]) and new[3] <= cost:
+            if new[3] <= cost:
                 break
             step = step / 2.0
         else:

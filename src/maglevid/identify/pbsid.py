@@ -779,9 +779,7 @@ def _fit(
     st = replace(st_all, F=st_all.F[: _window(opt, p, f) * st_all.m])  # rows of z(0..w-1)
     system, s, n, gap = _identify_states(st, opt, p, f, notes)
     model, K, Re = _unscale(system, st.scale, nu, opt.dt)
-    model, continuous, K, Re, params = _coordinates(
-        model, K, Re, st_all, opt, notes, extras, data
-    )
+    model, continuous, K, Re, params = _coordinates(model, K, Re, st_all, opt, notes, extras, data)
     rho = _stability_notes(model, K, notes)
     Re_s = Re / np.outer(st.scale[nu:], st.scale[nu:])
     fit, residuals = _fit_metrics(st, model, K, Re_s, p, opt.remove_mean, data, rho)
