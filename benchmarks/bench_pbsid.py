@@ -79,11 +79,6 @@ TRANSFORM = {
     "pbsid": "maglevid pbsid, transform path",
     "ssarx": "maglevid ssarx, transform path",
 }
-#: The prediction-error steps from the transform (``physical_fit="pem"``,
-#: docs/subspace.md (P18)-(P20)): an informative row (not the default; not judged).
-PEM = "maglevid pbsid, pem path (informative)"
-#: Above this N the pem row is timed once (seconds a call), not in the rounds.
-PEM_ROUNDS_MAX_N = 100_000
 #: PARSIM-K takes ~6 s at 1e4 and ~45 s at 1e5 (BENCHMARKS.md): not run above this.
 PEER_MAX_N = 100_000
 
@@ -155,7 +150,6 @@ def _bearing_tools() -> dict[str, Callable[[Any], tuple[Any, Any] | str]]:
         # (docs/subspace.md (P11)-(P16)), window from the data: no pass over the data, no ML.
         STRUCTURED["pbsid"]: predictor(fit_pbsid),
         STRUCTURED["ssarx"]: predictor(fit_ssarx),
-        PEM: predictor(fit_pbsid, physical_fit="pem"),
         "maglevid moesp + physical coordinates": subspace(fit_moesp),
         "maglevid n4sid + physical coordinates": subspace(fit_n4sid),
         "maglevid physical (IV)": physical_iv,
@@ -172,12 +166,7 @@ def bench_bearing(sizes: tuple[int, ...], cases: tuple[str, ...]) -> list[dict[s
             for tool, fn in _bearing_tools().items():
                 row: dict[str, Any] = {"case": case, "N": n, "tool": tool}
                 try:
-                    if _retimed(tool, n):  # one call here: the rounds below time it
-                        t0 = time.perf_counter()
-                        out = fn(data)
-                        t = time.perf_counter() - t0
-                    else:
-                        t, out = _median_time(fn, data)
+                    t, out = _median_time(fn, data)
                 except Exception as exc:  # a failure is a result here
                     rows.append({**row, "error": f"{type(exc).__name__}: {exc}"[:160]})
                     continue
@@ -199,13 +188,6 @@ def bench_bearing(sizes: tuple[int, ...], cases: tuple[str, ...]) -> list[dict[s
 MOESP_TOOL = "maglevid moesp + physical coordinates"
 
 
-def _retimed(tool: str, n: int) -> bool:
-    """Whether :func:`_interleaved_times` times ``tool`` again at ``n``."""
-    if not tool.startswith("maglevid") or tool in STRUCTURED.values():
-        return False
-    return tool != PEM or n <= PEM_ROUNDS_MAX_N
-
-
 def _interleaved_times(rows: list[dict[str, Any]], data: Any) -> None:
     """Re-time the maglevid fits interleaved: rounds of one call each (module notes).
 
@@ -218,7 +200,13 @@ def _interleaved_times(rows: list[dict[str, Any]], data: Any) -> None:
     # The structured fits (1-70 s) are timed by _median_time alone (five more rounds of
     # them would not fit make bench's section limit); their time targets divide by
     # MOESP's median time of the same record (targets below).
-    timed = [r for r in rows if "error" not in r and _retimed(r["tool"], r["N"])]
+    timed = [
+        r
+        for r in rows
+        if "error" not in r
+        and r["tool"].startswith("maglevid")
+        and r["tool"] not in STRUCTURED.values()
+    ]
     if not any(r["tool"] == MOESP_TOOL for r in timed):
         return
     rounds = 5 if data.n_samples <= 100_000 else 3
@@ -241,14 +229,9 @@ COVERAGE_RECORDS = 30
 
 
 def bench_coverage(
-    n: int = 10_000,
-    records: int = COVERAGE_RECORDS,
-    case: str = "issue",
-    physical_fit: str = "structured",
+    n: int = 10_000, records: int = COVERAGE_RECORDS, case: str = "issue"
 ) -> dict[str, Any]:
-    """Monte Carlo of the structured fit's covariance (P15), or the ``"pem"`` steps' (P20).
-
-    ``records`` seeds, default window.
+    """Monte Carlo of the structured fit's covariance (P15): ``records`` seeds, default window.
 
     Per parameter: the RMS of ``(v - truth) / se`` (1 when the covariance is
     right) and how often the 95 % interval holds the truth; the same pooled.
@@ -257,7 +240,7 @@ def bench_coverage(
     for seed in range(1000, 1000 + records):
         d, truth = bearing_case(n, seed=seed, case=case)
         res = fit_pbsid(
-            d.y, d.u, order=4, dt=d.dt, coordinates="physical", physical_fit=physical_fit
+            d.y, d.u, order=4, dt=d.dt, coordinates="physical", physical_fit="structured"
         )
         se = res.std_errors()
         z.append(
@@ -266,7 +249,6 @@ def bench_coverage(
     Z = np.asarray(z)
     out = {
         "case": case,
-        "physical_fit": physical_fit,
         "N": n,
         "records": records,
         "rms_z": np.sqrt(np.mean(Z**2, axis=0)).tolist(),
@@ -276,7 +258,7 @@ def bench_coverage(
         "time_s": time.perf_counter() - t0,
     }
     print(
-        f"coverage {physical_fit} {case} {n:.0e}: {out['cover95_all']:.3f}, rms z {out['rms_z_all']:.2f}",
+        f"coverage {case} {n:.0e}: {out['cover95_all']:.3f}, rms z {out['rms_z_all']:.2f}",
         file=sys.stderr,
         flush=True,
     )
@@ -399,10 +381,8 @@ def markdown_section(results: dict[str, Any]) -> list[str]:
         f"`python -m benchmarks.bench_pbsid`; one BLAS thread; load average at the end "
         f"{results['load'][0]:.1f} (2 shared cores). Errors relative. Bearing: maglevid "
         "fits timed interleaved (3-5 rounds, one call of each per round; time / MOESP's "
-        "is the median of the per-round ratios; the structured rows, and the pem row "
-        "above 1e5, timed alone, over MOESP's median time), peers median of 3 (1 above "
-        '2 s); other tables median of 3. The pem row (`physical_fit="pem"`, '
-        "docs/subspace.md (P18)-(P20)) is informative: not the default, not judged.",
+        "is the median of the per-round ratios), peers median of 3 (1 above 2 s); "
+        "other tables median of 3.",
         "",
         "| record | N | tool | time [s] | time / MOESP's | unstable pole error | max v error |",
         "|---|---|---|---|---|---|---|",
@@ -411,7 +391,7 @@ def markdown_section(results: dict[str, Any]) -> list[str]:
         if "error" in r:
             out.append(f"| {r['case']} | {r['N']:.0e} | {r['tool']} | - | - | - | {r['error']} |")
         else:
-            ratio = _moesp_ratio(r, results["bearing"])
+            ratio = r.get("moesp_ratio")
             out.append(
                 f"| {r['case']} | {r['N']:.0e} | {r['tool']} | {r['time_s']:.3g} | "
                 f"{'-' if ratio is None else f'{ratio:.2f}'} | "
@@ -459,21 +439,6 @@ def markdown_section(results: dict[str, Any]) -> list[str]:
             + f" | {cov['cover95_all']:.3f} |",
         ]
     return out
-
-
-def _moesp_ratio(r: dict[str, Any], rows: list[dict[str, Any]]) -> float | None:
-    """The interleaved ratio, else (rows timed alone) the time over MOESP's median."""
-    if "moesp_ratio" in r or not r["tool"].startswith("maglevid"):
-        return r.get("moesp_ratio")
-    mo = next(
-        (
-            m
-            for m in rows
-            if (m["case"], m["N"], m["tool"]) == (r["case"], r["N"], MOESP_TOOL) and "time_s" in m
-        ),
-        None,
-    )
-    return None if mo is None else r["time_s"] / mo["time_s"]
 
 
 def targets(results: dict[str, Any], judge: Any) -> None:

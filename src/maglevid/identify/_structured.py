@@ -35,7 +35,6 @@ estimate. Memory and time do not depend on ``N``.
 from __future__ import annotations
 
 import functools
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -44,7 +43,7 @@ import scipy.linalg as sla
 from maglevid.identify.cramer_rao import NoiseModel, amb_linear_gaussian_model
 from maglevid.physics.amb import C_AMB, amb_matrices
 
-__all__ = ["START_SAMPLES", "StructuredFit", "fit_bearing_pem", "fit_bearing_structure"]
+__all__ = ["START_SAMPLES", "StructuredFit", "fit_bearing_structure"]
 
 #: Samples at the start of the window the predictor's initial state is
 #: reconstructed from (P14); 0 leaves it at zero (the truncated predictor).
@@ -269,161 +268,3 @@ def _gauss_newton(residual, theta: np.ndarray, j: int, max_iter: int):  # type: 
         if gain < _GAIN_TOL:
             break
     return theta, R, it
-
-
-# ------------------------------------------------ prediction-error steps (P18)-(P20)
-#: Gauss-Newton steps of the prediction-error criterion at most (P19): from a
-#: sqrt(N)-consistent start one step is asymptotically efficient; the transform's
-#: start is 10-50 standard errors off at N = 1e4, the further steps remove that.
-PEM_STEPS = 10
-#: Samples the Gauss-Newton Hessian (P20) is summed over at most (the first
-#: ones after the transient, scaled to the record): its cost grows with these
-#: 21 filtered sensitivities, the gradient's does not (adjoint, (P19)). The
-#: steps' Hessian only sets the step (the gradient is exact): fewer samples;
-#: the covariance's more (its relative sampling error ~ sqrt(tau / n), tau the
-#: sensitivities' correlation time, ~60 samples on the bearing: ~3 %).
-PEM_HESSIAN_SAMPLES = 50_000
-_PEM_STEP_HESSIAN_SAMPLES = 50_000
-#: Stop when a step lowers ``-2 log L`` by less than this (a small fraction of
-#: a standard error's worth).
-_PEM_GAIN_TOL = 0.1
-
-
-def _adjugate(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``(a, B)``: ``det(qI - A) = q^n + a_1 q^{n-1} + ...``, ``adj(qI - A) = sum_k B_k q^{n-1-k}``."""
-    n = A.shape[0]
-    a = np.real(np.poly(A))
-    B = np.empty((n, n, n))
-    B[0] = np.eye(n)
-    for k in range(1, n):
-        B[k] = A @ B[k - 1] + a[k] * np.eye(n)
-    return a, B
-
-
-def _filter_states(a: np.ndarray, M: np.ndarray, s: np.ndarray) -> np.ndarray:
-    """``x(t) = sum_{l<t} A^{t-1-l} Bin s(l)`` for all t, (N, n): one lfilter, (P18).
-
-    ``M[k] = B_k Bin`` (the adjugate's coefficients times the input matrix):
-    ``(qI - A)^{-1} Bin = sum_k M_k q^{-1-k} / a(q^{-1})``; the numerator is
-    applied first (on the inputs' rows, time along the last axis), then ``1 / a``.
-    """
-    import scipy.signal
-
-    n, N = M.shape[0], s.shape[0]
-    sp = np.pad(np.ascontiguousarray(s.T), ((0, 0), (n, 0)))
-    g = np.zeros((M.shape[1], N))
-    for k in range(n):
-        g += M[k] @ sp[:, n - 1 - k : n - 1 - k + N]
-    return scipy.signal.lfilter([1.0], a, g, axis=1).T
-
-
-def _pem_pass(theta, v0, dt, sy, su, z, t0):  # type: ignore[no-untyped-def]
-    """Innovations, their covariance and the gradient of the criterion (P18), one pass.
-
-    ``z`` (N, 5) the scaled, centred ``[u, y]``; sums from ``t0`` on (the
-    predictor's start transient left out). Returns ``(Re, grad, model)`` with
-    ``grad`` that of ``1/2 sum_t e' W e`` at ``W = Re^{-1}``, by the adjoint:
-    ``lambda(t) = sum_{s>t} Abar'^{s-t-1} C' W e(s)`` backwards, then
-    ``d/dtheta_i = -sum_t lambda' (dAbar_i x + dBtil_i z)``.
-    """
-    model = _model(theta, v0, dt, sy, su)
-    Abar, Btil, dAbar, dBtil, Cs = model[:5]
-    lam_a, V = np.linalg.eig(Abar)
-    rho = float(np.max(np.abs(lam_a)))
-    if not rho < 1.0:  # an unstable predictor: refused
-        return None, None, None, np.inf, 0, model, None
-    a, B = _adjugate(Abar)
-    x = _filter_states(a, B @ Btil, z)
-    e = z[:, 2:] - x @ Cs.T
-    if np.all(np.isfinite(e)):  # the start state x(0), least squares over its transient
-        T = min(z.shape[0], max(100, math.ceil(-30.0 / math.log(max(rho, 1e-300)))))
-        Pt = np.real(
-            np.einsum(
-                "ak,tk,kb->tab", V, lam_a[None, :] ** np.arange(T)[:, None], np.linalg.inv(V)
-            )
-        )  # Abar^t, (T, 4, 4)
-        O = Cs @ Pt  # (T, 3, 4)
-        x0 = np.linalg.lstsq(O.reshape(-1, 4), e[:T].ravel(), rcond=None)[0]
-        x[:T] += Pt @ x0
-        e[:T] -= O @ x0
-    e[:t0] = 0.0
-    n_eff = z.shape[0] - t0
-    if not np.all(np.isfinite(e)):
-        return None, None, None, np.inf, n_eff, model, None
-    Re = e.T @ e / n_eff + _RE_FLOOR * np.eye(3)
-    W = np.linalg.inv(Re)
-    c = e @ (W @ Cs)  # rows C' W e(t)
-    lam = _filter_states(a, np.transpose(B, (0, 2, 1)), c[::-1])[::-1]
-    Gx, Gz = lam.T @ x, lam.T @ z
-    grad = -(np.einsum("iab,ab->i", dAbar, Gx) + np.einsum("iab,ab->i", dBtil, Gz))
-    cost = n_eff * float(np.linalg.slogdet(Re)[1])  # -2 log-likelihood + const
-    return Re, W, grad, cost, n_eff, model, (a, B, x)
-
-
-def _time_hessian(model, W, z, t0, a, B, x, n_max):  # type: ignore[no-untyped-def]
-    """Gauss-Newton Hessian ``sum_t psi' W psi`` over ``t0 .. t0 + n_max``, scaled to all, (P20).
-
-    ``psi_i = C dx_i``, ``dx_i = (qI - Abar)^{-1} (dAbar_i x + dBtil_i z)``: with
-    ``(qI - Abar)^{-1} = sum_k B_k q^{-1-k} / a(q^{-1})`` the numerator is applied
-    first, to the 9 rows of ``[x, z]`` (one GEMM per lag), then the 63 whitened
-    sensitivities go through ``1 / a`` in one lfilter.
-    """
-    import scipy.signal
-
-    dAbar, dBtil, Cs = model[2], model[3], model[4]
-    n_th, N, n = dAbar.shape[0], z.shape[0], B.shape[0]
-    t1 = min(N, t0 + n_max)
-    S = np.linalg.cholesky(W).T @ Cs  # whitened C
-    D = np.concatenate([dAbar, dBtil], axis=2)  # (n_th, 4, 9): f_i = D_i [x; z]
-    XZ = np.pad(np.concatenate([x[:t1], z[:t1]], axis=1).T, ((0, 0), (n, 0)))
-    g = np.zeros((n_th * 3, t1))
-    for k in range(n):  # sum_k S B_k D_i [x; z](t - 1 - k)
-        Mk = np.einsum("ca,iab->icb", S @ B[k], D).reshape(-1, D.shape[2])
-        g += Mk @ XZ[:, n - 1 - k : n - 1 - k + t1]
-    J = scipy.signal.lfilter([1.0], a, g, axis=1)[:, t0:t1].reshape(n_th, -1)
-    return (J @ J.T) * ((N - t0) / (t1 - t0))
-
-
-def fit_bearing_pem(
-    z: np.ndarray,
-    *,
-    v0: np.ndarray,
-    K0: np.ndarray,
-    dt: float,
-    scale: np.ndarray,
-    t0: int,
-    steps: int = PEM_STEPS,
-) -> StructuredFit:
-    """v1..v9 and ``K`` by Gauss-Newton steps of the prediction-error criterion (P18)-(P20).
-
-    ``z`` (N, 5): the record, centred and scaled as the data stage's channels
-    (``scale``); ``v0``, ``K0`` the consistent start (the transform),
-    physical units; ``t0`` the samples of the predictor's start transient.
-    """
-    su, sy = scale[:2], scale[2:]
-    theta = np.concatenate([np.zeros(9), (K0 * sy[None, :]).ravel()])
-    Re, W, grad, cost, n_eff, model, aux = _pem_pass(theta, v0, dt, sy, su, z, t0)
-    it = 0
-    for it in range(1, steps + 1):  # noqa: B007 - the count is returned
-        H = _time_hessian(model, W, z, t0, *aux, _PEM_STEP_HESSIAN_SAMPLES)
-        d = np.sqrt(np.maximum(np.diag(H), 1e-300))
-        step = -np.linalg.solve(H / np.outer(d, d), grad / d) / d
-        gain = float(-step @ grad)  # predicted decrease of 2 x (1/2 sum e'We)
-        for _ in range(8):  # halve until -2 log L falls (an unstable trial overflows: refused)
-            with np.errstate(all="ignore"):
-                new = _pem_pass(theta + step, v0, dt, sy, su, z, t0)
-            if new[3] <= cost:
-                break
-            step = step / 2.0
-        else:
-            break
-        theta = theta + step
-        Re, W, grad, cost, n_eff, model, aux = new
-        if gain < _PEM_GAIN_TOL:
-            break
-    H = _time_hessian(model, W, z, t0, *aux, PEM_HESSIAN_SAMPLES)
-    d = np.sqrt(np.maximum(np.diag(H), 1e-300))
-    cov = (np.linalg.inv(H / np.outer(d, d)) / np.outer(d, d))[:9, :9] * np.outer(v0, v0)
-    _, _, _, _, _, v, Ad, Bd, Ks = model
-    Re_p = Re * np.outer(sy, sy)
-    return StructuredFit(v, Ks / sy[None, :], Ad, Bd, 0.5 * (Re_p + Re_p.T), it, 0, cov)

@@ -57,12 +57,7 @@ import scipy.linalg as sla
 from maglevid._validation import as_signal, check_positive
 from maglevid.exceptions import DataError, IdentificationError, ModelError
 from maglevid.identify._hankel import _LagGram, factor_gram, lower_factor
-from maglevid.identify._structured import (
-    START_SAMPLES,
-    _plant,
-    fit_bearing_pem,
-    fit_bearing_structure,
-)
+from maglevid.identify._structured import START_SAMPLES, _plant, fit_bearing_structure
 from maglevid.identify.options import Option, bind_defaults
 from maglevid.identify.physical import to_physical_coordinates
 from maglevid.identify.result import IdentificationResult, propagate_covariance
@@ -97,7 +92,7 @@ _SSARX_FUTURE = 40
 _ALGORITHMS = ("pbsid", "ssarx")
 _WEIGHTINGS = ("cca", "none")
 _COORDINATES = ("identified", "physical")
-_PHYSICAL_FITS = ("transform", "structured", "pem")
+_PHYSICAL_FITS = ("transform", "structured")
 #: Lags a stream keeps for the structured fit when not told (the in-memory cap
 #: ``_structure_cap`` at N = 1e6): the window itself is chosen from the data,
 #: (P16), up to the lags kept. docs/subspace.md, "Structured fit".
@@ -395,10 +390,9 @@ def _resolve_structure(opt: _Options, N: int, m: int, lags: int | None = None) -
     window, :func:`_check_window`): the 21 parameters need no more rows per
     column. ``lags`` caps it at what a stream's accumulator kept.
     """
-    if opt.physical_fit in ("structured", "pem") and opt.coordinates != "physical":
+    if opt.physical_fit == "structured" and opt.coordinates != "physical":
         raise DataError(
-            f"physical_fit='{opt.physical_fit}' fits the bearing's v1..v9: it needs "
-            "coordinates='physical'"
+            "physical_fit='structured' fits the bearing's v1..v9: it needs coordinates='physical'"
         )
     if opt.physical_fit != "structured":
         return replace(opt, structure_past=None)
@@ -568,7 +562,6 @@ def _coordinates(
     opt: _Options,
     notes: list[str],
     extras: dict[str, Any],
-    data: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[StateSpace, StateSpace | None, np.ndarray, np.ndarray, dict[str, float]]:
     """``(model, continuous, K, Re, parameters)`` in the coordinates asked for."""
     params: dict[str, float] = {}
@@ -577,8 +570,6 @@ def _coordinates(
         model, continuous, K, v = _bearing_coordinates(model, K)
         if opt.physical_fit == "structured":
             model, continuous, K, Re, v = _structured(model, K, Re, v, st_all, opt, notes, extras)
-        elif opt.physical_fit == "pem":
-            model, continuous, K, Re, v = _pem(model, K, Re, v, st_all, opt, notes, extras, data)
         params.update(zip(V_NAMES, v.tolist()))
     else:
         try:
@@ -633,52 +624,6 @@ def _structured(
         structure_start_samples=sf.start_samples,
         structure_covariance=sf.covariance,
         structure_predictor_radius=rho,
-    )
-    disc = StateSpace(sf.Ad, sf.Bd, C_AMB.copy(), np.zeros((3, 2)), opt.dt)
-    Ac, Bc = amb_matrices(sf.v)
-    cont = StateSpace(Ac, Bc, C_AMB.copy(), np.zeros((3, 2)))
-    return disc, cont, sf.K, sf.Re, sf.v
-
-
-def _pem(
-    model: StateSpace,
-    K: np.ndarray,
-    Re: np.ndarray,
-    v: np.ndarray,
-    st: _Stats,
-    opt: _Options,
-    notes: list[str],
-    extras: dict[str, Any],
-    data: tuple[np.ndarray, np.ndarray] | None,
-) -> tuple[StateSpace, StateSpace, np.ndarray, np.ndarray, np.ndarray]:
-    """v1..v9, ``K`` and cov(v) by Gauss-Newton steps of the prediction error (P18)-(P20)."""
-    if data is None:
-        raise DataError(
-            "physical_fit='pem' passes over the record again: it needs the record in memory "
-            "(fit_pbsid / fit_ssarx), not a stream; a stream takes 'structured' or 'transform'"
-        )
-    y, u = data
-    z = np.concatenate([u, y], axis=1) - (st.mean if opt.remove_mean else 0.0)
-    z = z / st.scale
-    rho = float(np.max(np.abs(np.linalg.eigvals(model.A - K @ model.C))))
-    snr = float(np.max(st.scale[st.nu :] / np.sqrt(np.maximum(np.diag(Re), 1e-300))))
-    N = z.shape[0]
-    # (P18): the predictor starts at x = 0; its transient rho^t (x output rms) is left
-    # out until it is below the innovations' N^{-1/2}
-    t0 = N // 4
-    if 0.0 < rho < 1.0:
-        t0 = min(t0, math.ceil(math.log(math.sqrt(N) * max(snr, 1.0)) / -math.log(rho)))
-    sf = fit_bearing_pem(z, v0=v, K0=K, dt=opt.dt, scale=st.scale, t0=t0)
-    notes.append(
-        f"v1..v9 by {sf.iterations} Gauss-Newton steps of the prediction-error criterion "
-        f"from the transform to physical coordinates (docs/subspace.md (P18)-(P20); "
-        f"predictor transient of {t0} samples left out)"
-    )
-    extras.update(
-        structure_iterations=sf.iterations,
-        structure_covariance=sf.covariance,
-        structure_predictor_radius=rho,
-        pem_transient=t0,
     )
     disc = StateSpace(sf.Ad, sf.Bd, C_AMB.copy(), np.zeros((3, 2)), opt.dt)
     Ac, Bc = amb_matrices(sf.v)
@@ -779,7 +724,7 @@ def _fit(
     st = replace(st_all, F=st_all.F[: _window(opt, p, f) * st_all.m])  # rows of z(0..w-1)
     system, s, n, gap = _identify_states(st, opt, p, f, notes)
     model, K, Re = _unscale(system, st.scale, nu, opt.dt)
-    model, continuous, K, Re, params = _coordinates(model, K, Re, st_all, opt, notes, extras, data)
+    model, continuous, K, Re, params = _coordinates(model, K, Re, st_all, opt, notes, extras)
     rho = _stability_notes(model, K, notes)
     Re_s = Re / np.outer(st.scale[nu:], st.scale[nu:])
     fit, residuals = _fit_metrics(st, model, K, Re_s, p, opt.remove_mean, data, rho)
@@ -1062,7 +1007,7 @@ def fit_pbsid(
         (4 states, outputs ``[x, i1, i2]``), with ``v1..v9`` in ``parameters``.
     max_past : int, optional
         Upper limit of the automatic past (default 80, ``DEFAULT_MAX_PAST``).
-    physical_fit : {"structured", "transform", "pem"}, optional
+    physical_fit : {"structured", "transform"}, optional
         With ``coordinates="physical"``: ``"structured"`` (the default there):
         v1..v9 and the Kalman gain fitted to the window's Gram matrix by
         weighted least squares in the bearing's structure, started from the
@@ -1070,11 +1015,7 @@ def fit_pbsid(
         the bearing, 1-10 s on 1e4-1e6 samples; no pass over the data; with
         intervals, (P15)); or ``"transform"``: v1..v9 read off the black-box
         model transformed to physical coordinates (0.03-0.5 s, no covariance,
-        4-50x ML's v error on the closed-loop bearing); or ``"pem"``: up to
-        four Gauss-Newton steps of the prediction-error criterion from the
-        transform, over the record in memory (docs/subspace.md (P18)-(P20);
-        within 2x ML's v error, 0.06-2 s on 1e4-1e6 samples, with intervals;
-        not for a stream).
+        4-50x ML's v error on the closed-loop bearing).
     structure_past : int, optional
         Lags of the structured fit's window (default: chosen from the data,
         ``ceil(ln N / (-2 ln rho))`` with ``rho`` the transform's predictor
@@ -1279,10 +1220,8 @@ def _declaration(algorithm: str) -> tuple[Option, ...]:
         Option("rng", "object", "random generator of the randomised checks"),
         Option("physical_fit", "str", "how v1..v9 come from the model with "
                "coordinates='physical': 'structured' (default; weighted fit of the "
-               "bearing's structure to the VARX, docs/subspace.md (P11)-(P16)), "
-               "'transform' to physical coordinates, or 'pem' (Gauss-Newton steps of "
-               "the prediction error from the transform, in memory, (P18)-(P20))",
-               choices=_PHYSICAL_FITS),
+               "bearing's structure to the VARX, docs/subspace.md (P11)-(P16)) or "
+               "'transform' to physical coordinates", choices=_PHYSICAL_FITS),
         Option(
             "structure_past",
             "int",
