@@ -378,3 +378,28 @@ def test_structured_covariance_matches_the_scatter():
         se = res.std_errors()
         z += [(res.parameters[f"v{i}"] - truth[i - 1]) / se[f"v{i}"] for i in range(1, 10)]
     assert 0.4 < float(np.mean(np.square(z))) < 2.5
+
+
+def test_unpivoted_factor_equals_the_pivoted_one(bearing, monkeypatch):
+    # Reference: the pivoted-Cholesky data stage of 72d103a (factor_gram, all columns
+    # kept). The plain Cholesky factor (_factor, on this noisy record) and the leading
+    # columns of its rows (_leading) differ from it by an orthogonal F -> F Q and
+    # zero columns: every estimate equal to rounding (measured 1e-10 relative on
+    # the bench records; asserted 1e-8).
+    from maglevid.identify import pbsid as P
+    from maglevid.identify._hankel import factor_gram
+
+    st = P._window_stats  # the new path is taken here: the factor is triangular
+    acc = P._LagGram(5, 40)
+    acc.update(np.concatenate([bearing.u, bearing.y], axis=1)[:5000])
+    F = st(acc, 2, 3, 41, np.zeros(5), True).F
+    assert F.shape[0] == F.shape[1] and not np.any(np.triu(F, 1))
+    kw = dict(order=4, dt=bearing.dt, coordinates="physical", physical_fit="transform")
+    new = [fit(bearing.y, bearing.u, **kw) for fit in (fit_pbsid, fit_ssarx)]
+    monkeypatch.setattr(P, "_factor", factor_gram)
+    monkeypatch.setattr(P, "_leading", lambda F, rows: F[:rows])
+    old = [fit(bearing.y, bearing.u, **kw) for fit in (fit_pbsid, fit_ssarx)]
+    for a, b in zip(new, old, strict=True):
+        for name in [f"v{i}" for i in range(1, 10)]:
+            assert a.parameters[name] == pytest.approx(b.parameters[name], rel=1e-8)
+        np.testing.assert_allclose(a.extras["kalman_gain"], b.extras["kalman_gain"], rtol=1e-6)

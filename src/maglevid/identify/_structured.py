@@ -137,15 +137,17 @@ def _state_map(Ad: np.ndarray, Bs: np.ndarray, Cs: np.ndarray, k: int) -> np.nda
     ``y(t+i) = Cs Ad^i x(t) + sum_{l<i} Cs Ad^{i-1-l} Bs u(t+l)`` (noise left out):
     ``x = Gamma_k^+ (Y_k - T_k U_k)``, scaled units, ``z = [u, y]``.
     """
-    Gam = np.concatenate([Cs @ np.linalg.matrix_power(Ad, i) for i in range(k)])
+    CA = np.empty((k, *Cs.shape))  # Cs Ad^i, i = 0..k-1, by one product each
+    CA[0] = Cs
+    for i in range(1, k):
+        CA[i] = CA[i - 1] @ Ad
+    CAB = CA @ Bs  # Cs Ad^i Bs
     S = np.zeros((3 * k, 5 * k))
     for i in range(k):
         S[3 * i : 3 * i + 3, 5 * i + 2 : 5 * i + 5] = np.eye(3)
         for l in range(i):
-            S[3 * i : 3 * i + 3, 5 * l : 5 * l + 2] -= (
-                Cs @ np.linalg.matrix_power(Ad, i - 1 - l) @ Bs
-            )
-    return np.linalg.pinv(Gam) @ S
+            S[3 * i : 3 * i + 3, 5 * l : 5 * l + 2] -= CAB[i - 1 - l]
+    return np.linalg.pinv(CA.reshape(-1, Ad.shape[0])) @ S
 
 
 def fit_bearing_structure(
@@ -180,13 +182,19 @@ def fit_bearing_structure(
         return Cs @ np.linalg.matrix_power(Abar, P) @ _state_map(Ad, Bd * su[None, :], Cs, k0)
 
     def residual(th: np.ndarray, jac: bool, W12: np.ndarray):  # type: ignore[no-untyped-def]
-        Abar, Btil, dAbar, dBtil, Cs, *_ = _model(th, v0, dt, sy, su)
-        V, dV = _predictor_blocks(Abar, Btil, dAbar, dBtil, Cs, P)
+        if not jac:  # the trial steps: no derivatives (9 Frechet derivatives, P Markov steps)
+            Ad, Bd = _plant(v0 * (1.0 + th[:9]), dt)
+            Ks = th[9:].reshape(4, 3)
+            M = _markov(Ad - Ks @ Cs, np.concatenate([Bd * su[None, :], Ks], axis=1), P)
+            V = np.einsum("ij,kjm->ikm", Cs, M[::-1]).reshape(Cs.shape[0], -1)
+            if k0:
+                V[:, : 5 * k0] += start_term(th)
+            return W12 @ (Fy - V @ Fz), None
+        Abar, Btil, dAbar, dBtil, Cs_, *_ = _model(th, v0, dt, sy, su)
+        V, dV = _predictor_blocks(Abar, Btil, dAbar, dBtil, Cs_, P)
         if k0:
             V[:, : 5 * k0] += start_term(th)
         R = W12 @ (Fy - V @ Fz)
-        if not jac:
-            return R, None
         if k0:  # the start term's derivative by forward differences (a 3 x 5 k0 block)
             base = start_term(th)
             for i in range(th.size):

@@ -53,6 +53,7 @@ from typing import Any
 
 import numpy as np
 import scipy.linalg as sla
+from scipy.linalg import lapack
 
 from maglevid._validation import as_signal, check_positive
 from maglevid.exceptions import DataError, IdentificationError, ModelError
@@ -152,7 +153,7 @@ def _window_stats(
         s = np.concatenate([total - head[a] - tcum[w - 1 - a] for a in range(w)])
         G = G - np.outer(s, s) / j
     d = np.tile(1.0 / scale, w)
-    F, rank = factor_gram(G * (d[:, None] * d[None, :]) / j)
+    F, rank = _factor(G * (d[:, None] * d[None, :]) / j)
     return _Stats(
         F=F,
         nu=nu,
@@ -165,6 +166,53 @@ def _window_stats(
         rank=rank,
         factorization="gram",
     )
+
+
+def _factor(G: np.ndarray) -> tuple[np.ndarray, int]:
+    """``(F, rank)``, ``F F^T = G``: plain Cholesky (LAPACK ``dpotrf``) when ``G`` is
+    well conditioned, else :func:`~maglevid.identify._hankel.factor_gram`'s pivoted one.
+
+    On a noisy record the Gram of the channel-scaled window is positive definite
+    with a condition far below ``1 / eps``: the unpivoted factor is exact to
+    rounding and 2-10x faster than ``dpstrf`` (405-2300 rows; docs/subspace.md,
+    "Speed"). Every later step uses only products ``F_a F_b^T`` or orthogonal
+    factorisations of rows of ``F``, unchanged by ``F -> F Q``. A noise-free
+    (rank-deficient) or nearly so record -- the Cholesky diagonal spanning more
+    than ``_CHOL_SPAN`` (condition above ~1e12) -- takes the pivoted factor and its rank.
+    """
+    c, info = lapack.dpotrf(G, lower=1, clean=1, overwrite_a=0)
+    if info == 0:
+        dg = np.abs(np.diag(c))
+        if dg.size and dg.min() > dg.max() / _CHOL_SPAN:
+            return c, G.shape[0]
+    return factor_gram(G)
+
+
+def _leading(F: np.ndarray, rows: int) -> np.ndarray:
+    """``F[:rows]``, only its first ``rows`` columns when the rest are zero.
+
+    The factor of :func:`_factor`'s Cholesky path is lower triangular: the rows of
+    ``z(0..w-1)`` live in its first ``w m`` columns, and every product and
+    factorisation of them (the VARX, SSARX's regression (P7), the AIC, the SVD)
+    is the same on those columns alone -- on the 600-column factor of SSARX's
+    default window, 120-405 rows cost a fraction of the width.
+    """
+    X = F[:rows]
+    if X.shape[1] > rows and not np.any(X[:, rows:]):
+        return X[:, :rows]
+    return X
+
+
+def _lower(Y: np.ndarray) -> np.ndarray:
+    """``L`` with ``L L^T = Y Y^T``: Cholesky of the product when well conditioned (the
+    diagonal spanning less than ``_CHOL_SPAN``; ~10x faster than a QR of ``Y^T``),
+    else :func:`~maglevid.identify._hankel.lower_factor`'s QR."""
+    if Y.shape[1] >= Y.shape[0]:
+        c, info = lapack.dpotrf(Y @ Y.T, lower=1, clean=1)
+        dg = np.abs(np.diag(c))
+        if info == 0 and dg.size and dg.min() > dg.max() / _CHOL_SPAN:
+            return c
+    return lower_factor(Y)
 
 
 def _z_rows(st: _Stats, t0: int, t1: int) -> np.ndarray:
@@ -245,7 +293,8 @@ def _cholesky_solver(Zp: np.ndarray):  # type: ignore[no-untyped-def]
     d = np.abs(np.diag(c[0]))
     if not d.size or d.min() <= d.max() / _CHOL_SPAN:
         return None
-    return lambda Y: sla.cho_solve(c, Zp @ Y.T, check_finite=False).T
+    k = Zp.shape[1]  # Y's columns past Zp's are multiplied by Zp's zeros (_leading)
+    return lambda Y: sla.cho_solve(c, Zp @ Y[:, :k].T, check_finite=False).T
 
 
 def _qr_solver(Zp: np.ndarray):  # type: ignore[no-untyped-def]
@@ -256,7 +305,7 @@ def _qr_solver(Zp: np.ndarray):  # type: ignore[no-untyped-def]
 
     def solve(Y: np.ndarray) -> np.ndarray:
         M = np.zeros((Y.shape[0], Zp.shape[0]))
-        M[:, piv[:q]] = sla.solve_triangular(R[:q, :q], Q[:, :q].T @ Y.T).T
+        M[:, piv[:q]] = sla.solve_triangular(R[:q, :q], Q[:, :q].T @ Y[:, : Q.shape[0]].T).T
         return M
 
     return solve
@@ -274,7 +323,8 @@ def _ssarx_regression(
     else by pivoted QR (``Z_p^T P = Q R``, the basic solution of a rank-deficient,
     noise-free record).
     """
-    solve = _cholesky_solver(st.F[_z_rows(st, 0, p)]) or _qr_solver(st.F[_z_rows(st, 0, p)])
+    Zp = _leading(st.F, p * st.m)  # rows of z(0..p-1)
+    solve = _cholesky_solver(Zp) or _qr_solver(Zp)
     if feedthrough:
         V, D = _varx(st, p, True)
     else:
@@ -290,7 +340,7 @@ def _state_map_ssarx(
     _, _, beta, Yt = _ssarx_regression(st, p, f, feedthrough)  # ytil_f = Gamma_f K_p Z_p + e
     W1beta = beta
     if weighting == "cca":
-        T = lower_factor(Yt)  # T T^T = ytil_f ytil_f^T / j
+        T = _lower(Yt)  # T T^T = ytil_f ytil_f^T / j
         dT = np.abs(np.diag(T)) if T.shape[1] == T.shape[0] else np.zeros(1)
         if dT.min() > _CCA_FLOOR * dT.max():
             W1beta = sla.solve_triangular(T, beta, lower=True)
@@ -299,7 +349,7 @@ def _state_map_ssarx(
                 "weighting='cca' needs the corrected future outputs to have a full-rank "
                 "covariance, which noise-free data lack; the SVD was not weighted"
             )
-    U, s = _left_svd(W1beta @ st.F[_z_rows(st, 0, p)])
+    U, s = _left_svd(W1beta @ _leading(st.F, p * st.m))
     return U, s, W1beta
 
 
@@ -498,7 +548,8 @@ def _choose_past(
     if opt.past is not None:
         p, rule = opt.past, "given"
     else:
-        p_hat, aic = _arx_horizon(st_all, p_top, opt.feedthrough)
+        lead = replace(st_all, F=_leading(st_all.F, (p_top + 1) * st_all.m))
+        p_hat, aic = _arx_horizon(lead, p_top, opt.feedthrough)
         p, rule = max(p_hat, _min_past(opt.order, st_all.ny)), "auto"
         extras["varx_aic"] = aic
         notes.append(f"past {p} chosen automatically: VARX order by AIC over 1..{p_top}")
@@ -651,7 +702,8 @@ def _fit_metrics(
         if center:
             y, u = y - mean_y, u - mean_u
         residuals = _predictor_residuals(model, K, y, u)
-        yc = y - y.mean(axis=0)
+        # centred already by the record's own mean: no second copy (~7 % of a fit at 1e6)
+        yc = y if center else y - y.mean(axis=0)
         pct = one_step_fit_percent(
             np.einsum("ij,ij->j", residuals, residuals), np.einsum("ij,ij->j", yc, yc)
         )
@@ -721,7 +773,7 @@ def _fit(
     W = _check_window(acc.n, nu + ny, opt, p_top)
     st_all = _window_stats(acc, nu, ny, W, shift, opt.remove_mean)
     p, f, past_rule = _choose_past(st_all, opt, p_top, notes, extras)
-    st = replace(st_all, F=st_all.F[: _window(opt, p, f) * st_all.m])  # rows of z(0..w-1)
+    st = replace(st_all, F=_leading(st_all.F, _window(opt, p, f) * st_all.m))  # z(0..w-1)
     system, s, n, gap = _identify_states(st, opt, p, f, notes)
     model, K, Re = _unscale(system, st.scale, nu, opt.dt)
     model, continuous, K, Re, params = _coordinates(model, K, Re, st_all, opt, notes, extras)
