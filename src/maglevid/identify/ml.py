@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import logging
 import warnings
+import weakref
 from collections.abc import Mapping
 from typing import Any
 
@@ -194,7 +195,7 @@ def _fit_ml(
     # natural start. The one with the higher likelihood goes first; the other
     # is tried when the first does not converge, and the better end is kept.
     starts = [(v0, start_kind)]
-    sp = _spectra(y, u, _predictor_radius(lay, v0, data.dt, m))
+    sp = _spectra(y, u, _predictor_radius(lay, v0, data.dt, m), key=data)
     v_nom = _nominal_v(data)
     if start_kind == "physical" and v_nom is not None:
         nom_first = _start_likelihood(sp, v_nom, lay, data.dt, m) < (
@@ -537,16 +538,23 @@ _LAG_MIN_RATIO = 1.5
 _LAG_TOL = 1e-7
 
 
-def _spectra(y: np.ndarray, u: np.ndarray, rho: float | None) -> _Spectra:
+#: The lag path's entries of recent records (ClosedLoopData is immutable), so a
+#: second fit of the same record (another start) does not recompute them.
+_LAG_CACHE: weakref.WeakKeyDictionary[Any, dict[int, _Spectra]] = weakref.WeakKeyDictionary()
+
+
+def _spectra(y: np.ndarray, u: np.ndarray, rho: float | None, key: Any = None) -> _Spectra:
     """The exact DFT entries, or the lag path's when they are much fewer (N large)."""
-    sp = _Spectra(y, u)
     if rho is None or not 0.0 < rho < 1.0:
-        return sp
+        return _Spectra(y, u)
     lags = int(np.ceil(np.log(_LAG_TOL) / np.log(rho)))
     grid = 1 << int(np.ceil(np.log2(2 * lags + 2)))
-    if 6 * (grid // 2 + 1) * _LAG_MIN_RATIO > sp.z.size:
-        return sp
-    return _lag_spectra(sp, y, u, grid)
+    if 6 * (grid // 2 + 1) * _LAG_MIN_RATIO > y.shape[0] // 2 + 1:
+        return _Spectra(y, u)
+    cache = _LAG_CACHE.setdefault(key, {}) if key is not None else {}
+    if grid not in cache:
+        cache[grid] = _lag_spectra(_Spectra(y, u), y, u, grid)
+    return cache[grid]
 
 
 def _lag_spectra(sp: _Spectra, y: np.ndarray, u: np.ndarray, grid: int) -> _Spectra:
@@ -574,23 +582,24 @@ def _lag_spectra(sp: _Spectra, y: np.ndarray, u: np.ndarray, grid: int) -> _Spec
     """
     N = sp.N
     lags = grid // 2 - 1
-    Z = np.concatenate([sp.Y, sp.U], axis=1)
-    Z[0] = 0.0  # the mean removed
-    zc = np.concatenate([y - y.mean(axis=0), u - u.mean(axis=0)], axis=1)
-    c = Z.shape[1]
+    Zt = np.concatenate([sp.Y.T, sp.U.T])  # (5, M), rows contiguous
+    Zt[:, 0] = 0.0  # the mean removed
+    Zc = Zt.conj()
+    c = Zt.shape[0]
     R = np.zeros((grid, c, c))  # N R_k at k (and -k at grid - k)
     for i in range(c):
+        r = np.fft.irfft(Zt[i] * Zc[i:], n=N, axis=1)  # (c - i, N): pairs (i, j >= i)
         for j in range(i, c):
-            r = np.fft.irfft(Z[:, i] * Z[:, j].conj(), n=N)
-            R[: lags + 1, i, j] = r[: lags + 1]
-            R[grid - lags :, i, j] = r[N - lags :]
-            if j != i:
-                R[: lags + 1, j, i] = np.r_[r[0], r[N - 1 : N - lags - 1 : -1]]
-                R[grid - lags :, j, i] = r[lags:0:-1]
+            rij = r[j - i]
+            R[: lags + 1, i, j] = rij[: lags + 1]
+            R[grid - lags :, i, j] = rij[N - lags :]
+            R[: lags + 1, j, i] = np.r_[rij[0], rij[N - 1 : N - lags - 1 : -1]]
+            R[grid - lags :, j, i] = rij[lags:0:-1]
     P = np.fft.fft(R, axis=0)[: grid // 2 + 1]
-    ez = np.zeros((grid, c))
-    ez[: lags + 1] = zc[: lags + 1]
-    ez[grid - lags :] = zc[N - lags :]
+    mean = np.concatenate([y.mean(axis=0), u.mean(axis=0)])
+    ez = np.zeros((grid, c))  # the record's first and last samples (t = -L..L)
+    ez[: lags + 1] = np.concatenate([y[: lags + 1], u[: lags + 1]], axis=1) - mean
+    ez[grid - lags :] = np.concatenate([y[N - lags :], u[N - lags :]], axis=1) - mean
     E = np.fft.fft(ez, axis=0)[: grid // 2 + 1]
     Mh = grid // 2 + 1
     A = np.zeros((Mh, c + 1, c + 1), dtype=complex)
