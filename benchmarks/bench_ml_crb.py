@@ -4,7 +4,7 @@ Run from the repository root::
 
     python -m benchmarks.bench_ml_crb --quick          # 20 records at N = 1e4, ~1 min
     python -m benchmarks.bench_ml_crb --json ml.json   # the make-bench plan, ~25 min (PLAN)
-    python -m benchmarks.bench_ml_crb --large          # the points it leaves out (~1.5 h)
+    python -m benchmarks.bench_ml_crb --large          # the points it leaves out (~1.2 h)
 
 ``make bench`` runs the same plan as a section (``SECTION``; each point in its
 own worker process with its own time budget, so a slow point loses records,
@@ -104,7 +104,7 @@ SIZES = (10_000, 100_000, 1_000_000)
 #: Expected wall on 2 workers: 3 x 35 + 3 x 50 + 3 x 110 + 3 x 170 + 350 s =
 #: ~1450 s, plus the bounds and the 1e5 timing (~30 s): **~25 min** (~14 min
 #: before, without the nonlinear 0.3x/3x 1e5 and the linear 1e6 points).
-#: Left out (``--large``): linear 1e6 at 0.3x / 3x (~6 min each) and every
+#: Left out (``--large``, ~1.2 h): linear 1e6 at 0.3x / 3x (~6 min each) and every
 #: nonlinear 1e6 point (~22 s a record, of which 15 s are the record and its
 #: twin through the sample-by-sample RK4 loop: ~18 min a point). The budgets
 #: are caps for a loaded machine, not the estimate.
@@ -123,7 +123,7 @@ PLAN: tuple[tuple[str, str, int, int, float], ...] = (
     ("nonlinear", "3x", 100_000, 100, 600.0),
     ("linear", "default", 1_000_000, 100, 900.0),
 )
-#: The points the plan leaves out, for a separate run (``--large``; ~1.5 h on 2 cores).
+#: The points the plan leaves out, for a separate run (``--large``; ~1.2 h on 2 cores).
 LARGE_PLAN: tuple[tuple[str, str, int, int, float], ...] = (
     ("linear", "0.3x", 1_000_000, 100, 900.0),
     ("linear", "3x", 1_000_000, 100, 900.0),

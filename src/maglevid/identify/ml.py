@@ -32,8 +32,10 @@ controller (Ljung 1999, sec. 13.4).
 How: Fisher scoring (Gauss-Newton on eq. (1) with the expected Hessian, eq.
 (2)) with Levenberg-Marquardt damping, from the ``physical`` IV estimate.
 Sensitivities come from the linear recursions (3)-(4) of the predictor,
-evaluated by the block recursion of :mod:`maglevid.identify._recursion` in
-chunks; every iteration costs a few passes over the record. The covariance
+evaluated in the frequency domain (the record's DFT bins; above ~74k
+samples the same sums from the record's lagged products on a fixed grid,
+:func:`_lag_spectra`, so an iteration costs the same at 1e6 as at 1e5:
+``docs/gosiewski.md``, "The ml method"). The covariance
 is the inverse Fisher matrix at the optimum (all nuisance parameters
 included), propagated to R, L, ki, kw, x0, ... by the delta method.
 """
