@@ -3,8 +3,8 @@
 Run from the repository root::
 
     python -m benchmarks.bench_ml_crb --quick          # 20 records at N = 1e4, ~1 min
-    python -m benchmarks.bench_ml_crb --json ml.json   # the make-bench plan, ~17 min (PLAN)
-    python -m benchmarks.bench_ml_crb --large          # the points it leaves out (hours)
+    python -m benchmarks.bench_ml_crb --json ml.json   # the make-bench plan, ~25 min (PLAN)
+    python -m benchmarks.bench_ml_crb --large          # the points it leaves out (~1.2 h)
 
 ``make bench`` runs the same plan as a section (``SECTION``; each point in its
 own worker process with its own time budget, so a slow point loses records,
@@ -94,18 +94,20 @@ PLANTS = {"linear": {"R1": 1.2}, "nonlinear": {}}  # plant model -> fault
 SIZES = (10_000, 100_000, 1_000_000)
 
 #: The make-bench plan: (plant, noise level, N, records at most, time budget [s]).
-#: Every N = 1e4 point and every linear N = 1e5 point, and the nonlinear default
-#: at 1e5, each to 100 records. Per record on one worker at load 2 (the
-#: section's own two workers; ``stages`` in the output), from the stage times
-#: measured at loads 3-14 scaled to the previous run's 1e4/1e5 wall times: linear
-#: 1e4 ~0.7 s, nonlinear 1e4 ~1.0 s, linear 1e5 ~2.6 s (three ML fits are ~85 %),
-#: nonlinear 1e5 ~3.6 s (plus two simulations at :data:`SUBSTEPS`). Expected
-#: wall on 2 workers: 3 x 35 + 3 x 50 + 3 x 130 + 180 s = ~825 s, plus the
-#: bounds and the 1e5 timing (~30 s): **~14 min**. Left out (not measured,
-#: ``--large``): the nonlinear 0.3x/3x points at 1e5 (~180 s each: 20 min in
-#: all with them) and every N = 1e6 point (~35-50 s per record: 100 records
-#: are 30-40 min a point on 2 cores). The budgets are caps for a loaded
-#: machine, not the estimate.
+#: Every N = 1e4 and N = 1e5 point and the linear default at 1e6, each to 100
+#: records. Per record on one worker (CPU seconds, one BLAS thread, measured
+#: at load ~7 with ``stages``; at the section's load ~2 wall is about CPU):
+#: linear 1e4 ~0.7 s, nonlinear 1e4 ~1.0 s, linear 1e5 ~2.2 s (was 2.9 s before
+#: ML's large-N path), nonlinear 1e5 ~3.4 s (two simulations 1.5 s: the
+#: sample loop), linear 1e6 ~7 s (was 27 s: simulations 0.8, IV 0.6, ML from
+#: IV 1.0, from the truth 1.2, the twin's IV + ML 2.1, DB 0.8, MOESP 0.4).
+#: Expected wall on 2 workers: 3 x 35 + 3 x 50 + 3 x 110 + 3 x 170 + 350 s =
+#: ~1450 s, plus the bounds and the 1e5 timing (~30 s): **~25 min** (~14 min
+#: before, without the nonlinear 0.3x/3x 1e5 and the linear 1e6 points).
+#: Left out (``--large``, ~1.2 h): linear 1e6 at 0.3x / 3x (~6 min each) and every
+#: nonlinear 1e6 point (~22 s a record, of which 15 s are the record and its
+#: twin through the sample-by-sample RK4 loop: ~18 min a point). The budgets
+#: are caps for a loaded machine, not the estimate.
 PLAN: tuple[tuple[str, str, int, int, float], ...] = (
     ("linear", "default", 10_000, 100, 100.0),
     ("linear", "0.3x", 10_000, 100, 100.0),
@@ -117,12 +119,15 @@ PLAN: tuple[tuple[str, str, int, int, float], ...] = (
     ("linear", "0.3x", 100_000, 100, 300.0),
     ("linear", "3x", 100_000, 100, 300.0),
     ("nonlinear", "default", 100_000, 100, 600.0),
+    ("nonlinear", "0.3x", 100_000, 100, 600.0),
+    ("nonlinear", "3x", 100_000, 100, 600.0),
+    ("linear", "default", 1_000_000, 100, 900.0),
 )
-#: The points the plan leaves out, for a separate run (``--large``; hours on 2 cores).
+#: The points the plan leaves out, for a separate run (``--large``; ~1.2 h on 2 cores).
 LARGE_PLAN: tuple[tuple[str, str, int, int, float], ...] = (
-    ("nonlinear", "0.3x", 100_000, 100, 900.0),
-    ("nonlinear", "3x", 100_000, 100, 900.0),
-    *((p, lv, 1_000_000, 100, 3600.0) for p in PLANTS for lv in NOISE_LEVELS),
+    ("linear", "0.3x", 1_000_000, 100, 900.0),
+    ("linear", "3x", 1_000_000, 100, 900.0),
+    *(("nonlinear", lv, 1_000_000, 100, 2400.0) for lv in NOISE_LEVELS),
 )
 QUICK_PLAN = (("linear", "default", 10_000, 20, 60.0),)
 
