@@ -100,7 +100,7 @@ SUBSPACE_TOOLS: dict[str, dict[str, Any]] = {
         "module": "ctrlsys_slicot",
         "fn": "identify",
         "kw": {"method": "MOESP Cholesky"},
-        "note": "IB01AD alg C + IB01BD, same horizon",
+        "note": "IB01AD alg C + IB01BD (jobck K: with K, Q, Ry, S), same horizon",
     },
     CTRLSYS_MOESP + ", default s": {
         "kind": "peer",
@@ -115,7 +115,7 @@ SUBSPACE_TOOLS: dict[str, dict[str, Any]] = {
         "module": "ctrlsys_slicot",
         "fn": "identify",
         "kw": {"method": "N4SID Cholesky"},
-        "note": "IB01AD/BD meth N",
+        "note": "IB01AD/BD meth N, jobck K",
     },
     "SLICOT MOESP QR (ctrlsys)": {
         "kind": "peer",
