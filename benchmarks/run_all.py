@@ -1381,9 +1381,10 @@ SUBSPACE_PLAN = (
     "before the projection bases, the Kalman gain's solve and row indices without their "
     "wrappers' checks, the Markov Toeplitz by one gather. SLICOT is asked for the Kalman "
     "gain too (jobck K), as maglevid's default computes it. Next, if needed: SLICOT itself "
-    "as an optional fast path or a compiled model stage (a fit is ~1370 Python-level "
-    "calls, none above ~10 %); the projections read off one LQ factor (changes the rank "
-    "decisions and the state basis); docs/performance.md, 'Subspace against SLICOT', "
+    "as an optional fast path or a compiled model stage (a fit at horizon 10 is ~1370 "
+    "Python-level calls, none above ~10 %); the projections read off one LQ factor "
+    "(changes the rank decisions and the state basis); docs/performance.md, 'Subspace "
+    "against SLICOT', "
     "fourth pass. Profile of the fit at this N:"
 )
 
