@@ -733,8 +733,10 @@ class RegressionAccumulator:
             chan = chan_buf[:, : s1 - s0]
             np.matmul(MT, B, out=chan)  # [Theta Phi^T; W^T Z^T] of the block
             epsT, psiT = chan[:ny], chan[ny:]
-            Yb = y[0][s0:s1] if len(y) == 1 else np.hstack([a[s0:s1] for a in y])
-            np.subtract(Yb.T, epsT, out=epsT)
+            c = 0
+            for a in y:  # Y - Phi Theta^T, block by block of Y's columns
+                np.subtract(a[s0:s1].T, epsT[c : c + a.shape[1]], out=epsT[c : c + a.shape[1]])
+                c += a.shape[1]
             epsT -= eps0
             psiT -= psi0
             out[s0:s1] = epsT.T

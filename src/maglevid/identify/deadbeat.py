@@ -183,13 +183,14 @@ def deadbeat_regression(
     phi : ndarray, shape (N - 1 - start, ny + 2 nu)
     """
     lhs, parts = deadbeat_regression_blocks(y, u, u_f, E=E, Fe=Fe, start=start)
-    return lhs, np.hstack(parts)
+    return np.hstack(lhs), np.hstack(parts)
 
 
 def deadbeat_regression_blocks(
     y: np.ndarray, u: np.ndarray, u_f: np.ndarray, *, E: Any, Fe: Any, start: int
-) -> tuple[np.ndarray, list[np.ndarray]]:
-    """:func:`deadbeat_regression` with ``phi`` as its column blocks (views, no copy)."""
+) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """:func:`deadbeat_regression` as column blocks: ``lhs = [y(k+1), u_f(k+1) + Fe E y(k+1)]``
+    (a view of ``y`` and one ``(N, nu)`` array) and ``phi`` (views, no copy)."""
     E = np.atleast_2d(np.asarray(E, dtype=float))
     Fe = np.atleast_2d(np.asarray(Fe, dtype=float))
     N = y.shape[0]
@@ -197,14 +198,11 @@ def deadbeat_regression_blocks(
         raise DataError(f"`start` must be in 0..{N - 2}; got {start}")
     nxt = slice(start + 1, N)
     cur = slice(start, N - 1)
-    # eq. (47), b0 v(k+1) moved left: [y(k+1), u_f(k+1) + Fe E y(k+1)], written in place
-    # (the same numbers as an hstack of the sum, without two record-sized temporaries)
-    ny = y.shape[1]
-    lhs = np.empty((N - 1 - start, ny + u_f.shape[1]))
-    lhs[:, :ny] = y[nxt]
-    lhs[:, ny:] = y[nxt] @ (Fe @ E).T
-    lhs[:, ny:] += u_f[nxt]
-    return lhs, [y[cur], u_f[cur], u[cur]]
+    # eq. (47), b0 v(k+1) moved left: [y(k+1), u_f(k+1) + Fe E y(k+1)]; y(k+1) stays a
+    # view (the regression takes column blocks), only the second block is new
+    w = y[nxt] @ (Fe @ E).T
+    w += u_f[nxt]
+    return [y[nxt], w], [y[cur], u_f[cur], u[cur]]
 
 
 def plant_from_observer_controller(
@@ -477,7 +475,7 @@ def fit_deadbeat(
         lhs_names=[*names_y, *(f"u_f{i + 1}" for i in range(nu))],
         dt=data.dt,
         loop=data.loop,
-        n_samples=lhs.shape[0],
+        n_samples=fit.n_rows,
         options=options,
         notes=notes,
         extras=paper,
