@@ -233,7 +233,8 @@ def versus_ctrlsys(
     """``moesp + physical coordinates`` (horizon 40) against ctrlsys MOESP at horizon 40.
 
     The bearing's speed targets in one process, interleaved: each round times the
-    maglevid fit and SLICOT's IB01AD + IB01BD (Cholesky, ``nobr = 40``) on the same
+    maglevid fit and SLICOT's IB01AD + IB01BD (Cholesky, ``nobr = 40``, with the Kalman
+    gain: ``jobck='K'``, as maglevid's default computes it) on the same
     record, ``repeat`` rounds after one warm-up; the best wall and CPU
     (``process_time``) time of each. At ``parsim_at`` samples SIPPY's PARSIM-K is
     timed too (2 rounds: it takes seconds). On a loaded machine compare the CPU

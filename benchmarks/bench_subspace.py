@@ -150,8 +150,10 @@ def versus_ctrlsys(sizes, order=4, horizon=10, noise=0.1, repeat=5, stages=True)
     """maglevid MOESP / N4SID against SLICOT (``ctrlsys``) in this process, interleaved.
 
     For each ``N`` of ``sizes``: the fits (maglevid MOESP, ctrlsys IB01AD/BD
-    MOESP with Cholesky, maglevid N4SID, ctrlsys N4SID with Cholesky, maglevid
-    ``lean``: ``noise_model=False``, the model alone, as SLICOT computes it) and two
+    MOESP with Cholesky and ``jobck='K'``, maglevid N4SID, ctrlsys N4SID with
+    Cholesky; the model with the noise covariances and the Kalman gain on both
+    sides; ``lean``: maglevid's ``noise_model=False`` against ctrlsys's
+    ``jobck='N'``, the model alone on both sides) and two
     reads of the data (``read``: ``y.sum() + u.sum()`` in memory; ``np.load``: the
     same data from a ``.npy`` file in the page cache) run in turn, ``repeat``
     rounds after one warm-up; the best (minimum) wall time of each is reported
@@ -196,9 +198,9 @@ def versus_ctrlsys(sizes, order=4, horizon=10, noise=0.1, repeat=5, stages=True)
         row.update({f"{k} cpu": min(v) for k, v in cpu.items()})
         row["MOESP ratio"] = row["maglevid MOESP"] / row["ctrlsys MOESP"]
         row["N4SID ratio"] = row["maglevid N4SID"] / row["ctrlsys N4SID"]
-        row["MOESP lean ratio"] = row["maglevid MOESP lean"] / row["ctrlsys MOESP"]
-        row["N4SID lean ratio"] = row["maglevid N4SID lean"] / row["ctrlsys N4SID"]
-        for a, b in (("MOESP", "MOESP"), ("N4SID", "N4SID"), ("MOESP lean", "MOESP")):
+        row["MOESP lean ratio"] = row["maglevid MOESP lean"] / row["ctrlsys MOESP lean"]
+        row["N4SID lean ratio"] = row["maglevid N4SID lean"] / row["ctrlsys N4SID lean"]
+        for a, b in (("MOESP", "MOESP"), ("N4SID", "N4SID"), ("MOESP lean", "MOESP lean")):
             row[f"{a} cpu ratio"] = row[f"maglevid {a} cpu"] / row[f"ctrlsys {b} cpu"]
         for k in ("maglevid MOESP", "maglevid MOESP lean"):
             row[f"{k} / read"] = row[k] / row["read"]
@@ -217,13 +219,15 @@ def _contenders(y, u, order, horizon, slicot):
         "ctrlsys MOESP": lambda: slicot(y, u, order, horizon),
         "maglevid N4SID": lambda: fit_n4sid(y, u, order=order, horizon=horizon),
         "ctrlsys N4SID": lambda: slicot(y, u, order, horizon, "N4SID Cholesky"),
-        # The same product as SLICOT's IB01AD/BD (A, B, C, D; no noise model):
+        # The model alone (A, B, C, D; no noise model) against SLICOT's jobck='N':
         "maglevid MOESP lean": lambda: fit_moesp(
             y, u, order=order, horizon=horizon, noise_model=False
         ),
+        "ctrlsys MOESP lean": lambda: slicot(y, u, order, horizon, jobck="N"),
         "maglevid N4SID lean": lambda: fit_n4sid(
             y, u, order=order, horizon=horizon, noise_model=False
         ),
+        "ctrlsys N4SID lean": lambda: slicot(y, u, order, horizon, "N4SID Cholesky", "N"),
     }
 
 

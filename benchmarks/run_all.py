@@ -100,7 +100,7 @@ SUBSPACE_TOOLS: dict[str, dict[str, Any]] = {
         "module": "ctrlsys_slicot",
         "fn": "identify",
         "kw": {"method": "MOESP Cholesky"},
-        "note": "IB01AD alg C + IB01BD, same horizon",
+        "note": "IB01AD alg C + IB01BD (jobck K: with K, Q, Ry, S), same horizon",
     },
     CTRLSYS_MOESP + ", default s": {
         "kind": "peer",
@@ -115,7 +115,7 @@ SUBSPACE_TOOLS: dict[str, dict[str, Any]] = {
         "module": "ctrlsys_slicot",
         "fn": "identify",
         "kw": {"method": "N4SID Cholesky"},
-        "note": "IB01AD/BD meth N",
+        "note": "IB01AD/BD meth N, jobck K",
     },
     "SLICOT MOESP QR (ctrlsys)": {
         "kind": "peer",
@@ -1379,17 +1379,22 @@ SUBSPACE_PLAN = (
     "continuous-time conversion by A's eigen-decomposition (0.11 instead of 0.86 ms, twice "
     "per fit with the physical coordinates), the noise statistics with Gamma^+ applied "
     "before the projection bases, the Kalman gain's solve and row indices without their "
-    "wrappers' checks. Next, if needed: the projections read off one LQ factor in the order "
-    "[U_f; W_p; Y_f] (changes the rank decisions on noise-free data: needs its own study), "
-    "the noise model computed on request; docs/performance.md, 'Subspace against SLICOT'. "
-    "Profile of the fit at this N:"
+    "wrappers' checks, the Markov Toeplitz by one gather. SLICOT is asked for the Kalman "
+    "gain too (jobck K), as maglevid's default computes it. Next, if needed: SLICOT itself "
+    "as an optional fast path or a compiled model stage (a fit at horizon 10 is ~1370 "
+    "Python-level calls, none above ~10 %); the projections read off one LQ factor "
+    "(changes the rank decisions and the state basis); docs/performance.md, 'Subspace "
+    "against SLICOT', "
+    "fourth pass. Profile of the fit at this N:"
 )
 
 
 SUBSPACE_OPEN_PLAN = (
-    "docs/performance.md, section 'Subspace against SLICOT': the profile of the fit at "
-    "every N and the plan (fixed costs of the noise model and the result at small N, the "
-    "one-step predictor residuals over the record and the lagged products at large N)."
+    "docs/performance.md, section 'Subspace against SLICOT' (fourth pass): the profile "
+    "(~1370 Python-level calls per default fit at 1e3-1e4, none above ~10 % of it; "
+    "SLICOT, asked for the Kalman gain too, is one compiled call of 0.3-0.4 ms at 1e3) and "
+    "the plan: SLICOT as an optional fast path or a compiled model stage below 1e5; the "
+    "one-step predictor residuals over the record and the lagged products at large N."
 )
 
 

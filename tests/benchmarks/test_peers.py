@@ -39,3 +39,17 @@ def test_missing_ctrlsys_is_a_peer_missing(monkeypatch):
     with pytest.raises(PeerMissing, match="pip install ctrlsys"):
         ctrlsys_slicot.identify(y, u, 4, 10)
     assert np.isfinite(y).all()
+
+
+def test_kalman_gain_call_returns_the_same_model():
+    """jobck='K' (what the benchmarks time: maglevid's default fit also returns the
+    noise model) identifies the same A as jobck='N'; only K and Q, Ry, S are added."""
+    y, u, true = make_data(3000, 0.1)
+    with_k = ctrlsys_slicot.identify(y, u, 4, 10)
+    alone = ctrlsys_slicot.identify(y, u, 4, 10, jobck="N")
+    assert with_k.info["jobck"] == "K" and with_k.info["kalman_gain"] == "computed"
+    assert alone.info["jobck"] == "N" and "kalman_gain" not in alone.info
+    np.testing.assert_allclose(np.sort_complex(with_k.poles), np.sort_complex(alone.poles))
+    assert pole_error(with_k.poles, true) < 0.05
+    with pytest.raises(ValueError, match="jobck"):
+        ctrlsys_slicot.identify(y, u, 4, 10, jobck="C")

@@ -255,3 +255,31 @@ def test_kalman_gain_solve_equals_scipy_positive_definite_solve():
     np.testing.assert_allclose(K, K_ref, rtol=1e-12, atol=1e-14)
     # (_kalman_gain first rebuilds cov from its eigen-decomposition: rounding-level change)
     np.testing.assert_allclose(Re, Re_ref, rtol=1e-12, atol=1e-14)
+
+
+@pytest.mark.parametrize("i", [1, 2, 10, 40])
+def test_markov_toeplitz_is_the_block_lower_triangular_definition(i):
+    # Definition (Van Overschee & De Moor 1996, eq. (2.19)): block (r, c) of H_i is
+    # h[r - c] for r >= c and zero above the diagonal; built here entry by entry.
+    from maglevid.identify.subspace import _toeplitz
+
+    h = np.random.default_rng(i).standard_normal((i, 3, 2))
+    H = np.zeros((3 * i, 2 * i))
+    for r in range(i):
+        for c in range(r + 1):
+            H[3 * r : 3 * r + 3, 2 * c : 2 * c + 2] = h[r - c]
+    got = _toeplitz(h)
+    assert np.array_equal(got, H)  # a gather: the same numbers, not a computation
+    assert got.flags.writeable and got.flags.c_contiguous
+
+
+@pytest.mark.parametrize(("p", "m", "nu"), [(1, 2, 1), (4, 5, 2), (19, 5, 2), (7, 3, 0)])
+def test_split_order_flat_index_is_the_ix_gather(p, m, nu):
+    # The cached flat index of the fold takes X[k][:, k] (numpy's np.ix_ gather).
+    from maglevid.identify._hankel import _split_order
+
+    k, flat = _split_order(p, m, nu)
+    assert sorted(k.tolist()) == list(range(p * m))  # a permutation of the columns
+    X = np.random.default_rng(p).standard_normal((p * m, p * m))
+    assert np.array_equal(np.take(X, flat).reshape(p * m, p * m), X[np.ix_(k, k)])
+    assert not k.flags.writeable and not flat.flags.writeable

