@@ -148,19 +148,6 @@ def centred_sumsq(x: np.ndarray) -> np.ndarray:
     return out
 
 
-def centred_gram(*parts: np.ndarray) -> np.ndarray:
-    """``sum_t d(t) d(t)^T`` of ``d = [parts] - mean``, chunk by chunk (see ``centred_sumsq``)."""
-    xs = [np.asarray(x, dtype=float) for x in parts]
-    N = xs[0].shape[0]
-    means = [np.einsum("ij->j", x) / N for x in xs]
-    k = sum(x.shape[1] for x in xs)
-    out = np.zeros((k, k))
-    for t0 in range(0, N, _CENTRE_CHUNK):
-        d = np.concatenate([x[t0 : t0 + _CENTRE_CHUNK] - m for x, m in zip(xs, means)], axis=1)
-        out += d.T @ d
-    return out
-
-
 def _one_step_fit(Y: np.ndarray, residuals: np.ndarray) -> np.ndarray:
     return one_step_fit_percent(np.einsum("ij,ij->j", residuals, residuals), centred_sumsq(Y))
 
