@@ -195,6 +195,12 @@ class Unresolved:
                 f"{format_seconds(self.plan_seconds_spectrum)} if you {how} "
                 f"({spectrum_label(self.plan_spectrum)})"
             )
+        if not parts and self.baseline_percent:
+            return (
+                f"the baseline's own ±{self.baseline_percent:.2g} % and the model error leave "
+                "no record of the present state, at any level within the limits, that decides "
+                "it; re-record the baseline or widen the tolerance"
+            )
         if not parts:
             return (
                 "no record of this kind resolves it at any level within the limits "
