@@ -5,7 +5,10 @@ A verdict promises which side of its engineering tolerance each cause lies on:
 it is inside. :func:`unresolved_parameters` checks that promise on the
 isolation's fits ("only k changed", and the best pair): the interval
 ``c_k ± z se_k`` of the change ``c_k = f_k - 1`` must lie wholly beyond
-``± tol_k`` or wholly inside it (:func:`interval_side`). Where it straddles the
+``± tol_k`` or wholly inside it (:func:`interval_side`). (A single-cause fit
+wholly beyond its tolerance while the isolation keeps "nothing changed" is
+flagged only when its interval is wider than the tolerance, with the tolerance
+as the half-width to reach: the rule before the straddling one.) Where it straddles the
 boundary the verdict is *inconclusive*, and the half-width that would clear the
 boundary is the estimate's distance from it, ``d_k = | |c_k| - tol_k |`` (not
 the tolerance: an estimate at 4.1 % against 5 % needs ±0.9 %). The factor's
@@ -167,11 +170,16 @@ class Unresolved:
                 f"(tolerance ±{self.tolerance_percent:.3g} %)"
             )
         c, w, tol = self.estimate_percent, self.half_width_percent, self.tolerance_percent
-        return (
+        head = (
             f"{self.parameter} {c:+.2g} % ± {w:.2g} % ({self.level_percent:.3g} % interval "
-            f"{c - w:+.2g} … {c + w:+.2g} %) straddles its tolerance ±{tol:.3g} "
-            f"%; deciding it needs ±{self.target_percent:.2g} % (the estimate's distance from "
-            "the boundary, if it stays there)"
+            f"{c - w:+.2g} … {c + w:+.2g} %)"
+        )
+        if abs(c) - w > tol:  # beyond, but not the isolation's answer
+            return f"{head} is wider than its tolerance ±{tol:.3g} %"
+        return (
+            f"{head} straddles its tolerance ±{tol:.3g} %; deciding it needs "
+            f"±{self.target_percent:.2g} % (the estimate's distance from the boundary, "
+            "if it stays there)"
         )
 
     def _plan_advice(self) -> str:
@@ -309,9 +317,13 @@ def unresolved_parameters(
         for j, name in enumerate(h.parameters):
             tol = tolerance_of(name, tolerances)
             c, se = h.factors[j] - 1.0, h.factor_std_errors[j]
-            if tol <= 0 or interval_side(c, z * se, tol) != "straddles":
+            side = interval_side(c, z * se, tol) if tol > 0 else "inside"
+            if side == "inside" or (side == "beyond" and (h is iso.best or z * se <= tol)):
                 continue
-            need = abs(abs(c) - tol)
+            # Straddling: the estimate's distance from the boundary decides it. Beyond
+            # in a fit that is not the isolation's answer ("nothing changed" was not
+            # rejected) and wider than the tolerance: the tolerance (module notes).
+            need = abs(abs(c) - tol) if side == "straddles" else tol
             se_b = _baseline_se(h, baseline_covariance)
             k = _length_factor(h, need / z, se_b, j) if need > 0 else math.inf
             out.append(

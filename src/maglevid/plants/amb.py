@@ -289,7 +289,10 @@ def _verdict(
         interval_side(f - 1, z * se, tolerance_of(k, tolerances))
         for k, f, se in zip(best.parameters, best.factors, best.factor_std_errors)
     ]
-    named = [u for u in unresolved if u.hypothesis == best.parameters]
+    straddling = {k for k, side in zip(best.parameters, sides) if side == "straddles"}
+    named = [
+        u for u in unresolved if u.hypothesis == best.parameters and u.parameter in straddling
+    ]
     if "beyond" in sides:  # a pair with one cause decided beyond: a fault either way
         reasons.extend(f"not decided: {u.advice()}" for u in named)
         return f"Fault {label}: {best.describe()}", "fault", reasons
