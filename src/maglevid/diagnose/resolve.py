@@ -554,11 +554,14 @@ def plan_unresolved(
     tolerances: Mapping[str, float] | float,
     level: float = 0.95,
     baseline_covariance: Any = None,
+    max_excitation_std: Any = None,
 ) -> tuple[list[Unresolved], str | None]:
     """:func:`with_cramer_rao_plan` for a recording and its identification result.
 
     ``baseline_covariance`` is the baseline's covariance of v1..v9 (as given to
-    the isolation; None for an exact baseline). Returns the advice and, when no
+    the isolation; None for an exact baseline); ``max_excitation_std`` the
+    amplifiers' limit [V rms], one or one per input (None: the planner's
+    default). Returns the advice and, when no
     plan can be made (no logged excitation, no operating point or noise model,
     a loop the plan cannot hold), the reason (the scaling rule's advice is
     then kept).
@@ -585,6 +588,7 @@ def plan_unresolved(
             tolerances=tolerances,
             level=level,
             baseline_covariance=baseline_covariance,
+            max_excitation_std=max_excitation_std,
         )
     except (MaglevidError, ArithmeticError, np.linalg.LinAlgError) as exc:
         return unresolved, f"no Cramér-Rao plan for the advice: {exc or type(exc).__name__}"

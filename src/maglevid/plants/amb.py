@@ -455,7 +455,7 @@ class AMBStages:
             )  # fmt: skip
             unresolved, why = plan_unresolved(
                 unresolved, iso, data, run.result, tolerances=tol, level=run.level,
-                baseline_covariance=base.v_cov,
+                baseline_covariance=base.v_cov, max_excitation_std=run.max_excitation_std,
             )  # fmt: skip
             run.notes.extend([why] if why else [])
         verdict, code, reasons = _verdict(c.changes, iso, tol, unresolved, run.level)
