@@ -28,7 +28,7 @@ TOL = 0.05
 
 
 def _iso(factor: float, se: float, *, se_f: float = 0.0) -> IsolationResult:
-    """"Only R1 changed" by ``factor`` with standard error ``se``, nothing else fitting."""
+    """ "Only R1 changed" by ``factor`` with standard error ``se``, nothing else fitting."""
     se_n = (se**2 - se_f**2) ** 0.5
     r1 = FaultHypothesis(("R1",), (factor,), (se,), 4.0, 8, 0.86, (se_n,), (se_f,))
     kw1 = FaultHypothesis(("kw1",), (0.9,), (0.01,), 80.0, 8, 1e-12, (0.01,), (0.0,))
@@ -106,7 +106,7 @@ def test_a_pair_with_one_cause_beyond_is_a_fault_and_names_the_undecided_one():
                           explained=True)  # fmt: skip
     un = unresolved_parameters(iso, TOL)
     assert [u.parameter for u in un] == ["kw1"] and un[0].hypothesis == ("R1", "kw1")
-    verdict, code, reasons = _verdict([], iso, TOL, un)
+    _, code, reasons = _verdict([], iso, TOL, un)
     assert code == "fault"
     assert any(r.startswith("not decided: kw1 -4 % ± 2 %") for r in reasons)
 
@@ -153,9 +153,10 @@ def test_cli_straddling_record_is_inconclusive_with_a_plan(straddling_record, ca
     out = json.loads(capsys.readouterr().out)
     assert out["verdict_code"] == "inconclusive", out["verdict"]
     r1 = next(u for u in out["resolution"] if u["parameter"] == "R1")
-    lo, hi = r1["estimate_percent"] - r1["half_width_percent"], r1["estimate_percent"] + r1[
-        "half_width_percent"
-    ]
+    lo, hi = (
+        r1["estimate_percent"] - r1["half_width_percent"],
+        r1["estimate_percent"] + r1["half_width_percent"],
+    )
     assert lo < 5.0 < hi  # the interval straddles the tolerance
     assert r1["needed_percent"] == pytest.approx(5.0 - r1["estimate_percent"])
     assert r1["plan_seconds"] > 0.25 and "Cramér-Rao plan" in out["verdict"]
