@@ -178,3 +178,31 @@ def test_cli_amplifier_limits_reach_the_plan(straddling_record, capsys):
     # A malformed limit is one clear error, not a traceback.
     with pytest.raises(SystemExit):
         main(["diagnose", str(straddling_record), "--max-excitation-std", "4,x"])
+
+
+# --- The levitator (plants/levitator.py): the same rule on the observations' moves ---
+
+
+@pytest.mark.parametrize(
+    ("change", "code"),
+    [({"R": 1.3}, "fault"), ({"gap_gain": 1.1}, "inconclusive"),
+     ({"gap_offset": -3e-4}, "within_tolerance")],
+)  # fmt: skip
+def test_levitator_verdict_from_the_intervals_of_the_moves(change, code):
+    """Exact observations of the UAQ rig (0.3 % noise assumed; the pole's 2 %, the
+    currents' 1 % and the coil circuit's 5 % model-error floors): R x1.3 moves R/L
+    by +30 % ± 13 % (95 %), wholly beyond 5 %; a gap-sensor gain of +10 % moves the
+    equilibrium currents by -4.5 % and -4.9 %, whose intervals (about ±1.2 %) cross
+    the 5 % tolerance (before: "within tolerance" from the points); a gap zero of
+    -0.3 mm moves every observation by less than 5 % with its interval."""
+    from test_levitator_isolation import P, _observed
+
+    from maglevid.diagnose.levitator import isolate_levitator_fault
+    from maglevid.plants.levitator import _verdict as levitator_verdict
+
+    iso = isolate_levitator_fault(_observed(change), P)
+    assert iso.explained and iso.best.parameters == tuple(change)
+    verdict, got = levitator_verdict([], iso, P, TOL)
+    assert got == code, verdict
+    if code == "inconclusive":
+        assert "i_eq@5mm -4.5 %" in verdict and "straddle" in verdict
