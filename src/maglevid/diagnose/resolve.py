@@ -377,7 +377,8 @@ def with_cramer_rao_plan(
         The loop around the estimated bearing
         (:func:`maglevid.identify.planning.design_for_recording`).
     n_samples, excitation_std : the recording's length and excitation [V rms].
-    tolerances, level : as in :func:`unresolved_parameters`.
+    tolerances, level : as in :func:`unresolved_parameters` (each entry of ``unresolved``
+        carries the half-width that decides it, its distance from the tolerance).
     max_excitation_std, max_displacement : the planner's limits (its defaults).
     baseline_covariance : array_like, shape (9, 9), optional
         The baseline's covariance of v1..v9 (as given to the isolation): it
