@@ -148,9 +148,23 @@ def straddling_record(tmp_path_factory):
     return path
 
 
-def test_cli_straddling_record_is_inconclusive_with_a_plan(straddling_record, capsys):
-    assert main(["-q", "--json", "diagnose", str(straddling_record)]) == 0
-    out = json.loads(capsys.readouterr().out)
+def _cli_json(argv: list[str]) -> dict:
+    import contextlib
+    import io
+
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        assert main(["-q", "--json", *argv]) == 0
+    return json.loads(buf.getvalue())
+
+
+@pytest.fixture(scope="module")
+def cli_default(straddling_record):
+    return _cli_json(["diagnose", str(straddling_record)])
+
+
+def test_cli_straddling_record_is_inconclusive_with_a_plan(cli_default):
+    out = cli_default
     assert out["verdict_code"] == "inconclusive", out["verdict"]
     r1 = next(u for u in out["resolution"] if u["parameter"] == "R1")
     lo, hi = (
@@ -162,15 +176,12 @@ def test_cli_straddling_record_is_inconclusive_with_a_plan(straddling_record, ca
     assert r1["plan_seconds"] > 0.25 and "Cramér-Rao plan" in out["verdict"]
 
 
-def test_cli_amplifier_limits_reach_the_plan(straddling_record, capsys):
+def test_cli_amplifier_limits_reach_the_plan(straddling_record, cli_default):
     """``--max-excitation-std 4,0.5``: the level the plan names at the present
     spectrum (both inputs alike) is within coil 2's 0.5 V rms limit; without the
     option the planner's default (4 V) let it choose 0.66 V rms."""
-    assert main(["-q", "--json", "diagnose", str(straddling_record)]) == 0
-    free = json.loads(capsys.readouterr().out)
-    argv = ["-q", "--json", "diagnose", str(straddling_record), "--max-excitation-std", "4,0.5"]
-    assert main(argv) == 0
-    held = json.loads(capsys.readouterr().out)
+    free = cli_default
+    held = _cli_json(["diagnose", str(straddling_record), "--max-excitation-std", "4,0.5"])
     f1 = next(u for u in free["resolution"] if u["parameter"] == "R1")
     h1 = next(u for u in held["resolution"] if u["parameter"] == "R1")
     assert f1["plan_excitation"] > 0.5 >= h1["plan_excitation"]
