@@ -217,3 +217,18 @@ def test_levitator_verdict_from_the_intervals_of_the_moves(change, code):
     assert got == code, verdict
     if code == "inconclusive":
         assert "i_eq@5mm -4.5 %" in verdict and "straddle" in verdict
+
+
+def test_a_drift_is_not_hidden_by_an_inconclusive_verdict(straddling_record, monkeypatch):
+    """A history that drifts is an alarm whether or not the present interval
+    decides the tolerance: the inconclusive verdict becomes ``drift``, its advice kept
+    (the demo's heating coil at R1 +9.6 % ± 0.7 % against 10 % lost its drift alarm)."""
+    from maglevid.diagnose import pipeline
+
+    d = pipeline.diagnose(straddling_record, drift=False)
+    assert d.verdict_code == "inconclusive"
+    trend = {"kind": "drift", "parameter": "R1", "slope_percent_per_day": 0.26, "p_value": 1e-9}
+    monkeypatch.setattr(pipeline, "_drifts", lambda *a: [trend])
+    out = pipeline._with_drifts(None, d, TOL, 0.01, ("R1",))
+    assert out.verdict_code == "drift" and out.verdict.startswith("No fault yet, but drifting")
+    assert "straddles the tolerance" in out.verdict and out.resolution == d.resolution
