@@ -19,11 +19,14 @@ from maglevid.simulate import simulate_amb_loop
 
 NOMINAL = AMBParameters.nominal()
 FAULTY = NOMINAL.with_fault(R1=1.2)
-#: Ten times the CLI's sensor noise and 0.2 s: the ml fit cannot resolve R1 to
-#: ±3 % (it states ±4.2 %), so the verdict is inconclusive with a plan.
+#: Ten times the CLI's sensor noise and 0.2 s: the ml fit states R1 +19.4 % ± 4.2 %
+#: (95 %), which straddles a 17 % tolerance, so the verdict is inconclusive with a
+#: plan for the 2.4 % half-width that would decide it (the estimate's distance from
+#: the boundary). Until the straddling rule (plants/amb.py) the tolerance here was
+#: 3 %: an interval wholly beyond it is now a decided fault, not inconclusive.
 LOOP = {"nominal": NOMINAL, "plant_model": "linear", "noise_std": (1e-6, 1e-3, 1e-3),
         "force_std": 0.0}  # fmt: skip
-TOL = {"R1": 0.03}
+TOL = {"R1": 0.17}
 
 
 @pytest.fixture(scope="module")
@@ -45,18 +48,22 @@ def test_the_verdict_cites_the_plan(advice):
 @pytest.mark.parametrize("seed", [11, 12])
 def test_following_the_plan_gives_the_promised_interval(advice, seed):
     """A record at the planned level and length (independent seed): R1's 95 %
-    half-width within the tolerance (measured 2.6-2.7 % for 3 %, seeds 11-14: the
-    model error's growth with the excursion is taken proportional, a little
-    pessimistic), and not far inside it (the plan is not wildly conservative)."""
+    half-width within the one the plan promised (the estimate's distance from the
+    tolerance, 2.4 %; the model error's growth with the excursion is taken
+    proportional, a little pessimistic), and not far inside it (the plan is not
+    wildly conservative). Whether the new interval then clears the boundary
+    depends on where the new estimate falls (the truth, +20 %, is 3 % beyond it),
+    so only the cause is asserted."""
     u, _ = advice
+    need = u["needed_percent"] / 100
     n = max(2000, round(u["plan_seconds"] / 1e-4))
     rec = simulate_amb_loop(FAULTY, rng=seed, n_samples=n, excitation_std=u["plan_excitation"],
                             **LOOP)  # fmt: skip
     d = diagnose(rec, baseline="nominal", method="ml", tolerances=TOL)
     h = next(x for x in d.isolation.singles if x.parameters == ("R1",))
     half = 1.96 * h.factor_std_errors[0]
-    assert 0.7 * TOL["R1"] < half <= TOL["R1"], half
-    assert d.verdict_code == "fault" and d.isolation.best.parameters == ("R1",)
+    assert 0.7 * need < half <= need, half
+    assert d.isolation.best.parameters == ("R1",)
 
 
 def test_without_a_logged_excitation_the_scaling_rule_stays_with_the_reason(advice):
@@ -76,7 +83,7 @@ def test_without_a_logged_excitation_the_scaling_rule_stays_with_the_reason(advi
 # --- The baseline's own uncertainty (resolve.py, module notes) ---------------------
 
 
-def _single(se_n: float, se_f: float, g5: float = 50.0, f: float = 1.2) -> FaultHypothesis:
+def _single(se_n: float, se_f: float, g5: float = 50.0, f: float = 1.0) -> FaultHypothesis:
     """An "only R1 changed" fit whose sensitivity is on v5 alone (R1 moves v5)."""
     g = tuple(g5 if i == 4 else 0.0 for i in range(9))
     se = (se_n**2 + se_f**2) ** 0.5
@@ -91,8 +98,9 @@ def _iso(h: FaultHypothesis) -> IsolationResult:
 def test_the_scaling_rule_counts_the_baseline_it_cannot_shrink():
     """Analytic: with the baseline's share ``se_b`` (from S_b and the sensitivity,
     ``se_b = f sqrt(S_b,55) / g5``) the length factor is
-    ``k = (se_n^2 - se_b^2) / ((tol/z)^2 - se_b^2 - se_f^2)``."""
-    z, tol, f, g5 = 1.959963984540054, 0.03, 1.2, 50.0
+    ``k = (se_n^2 - se_b^2) / ((tol/z)^2 - se_b^2 - se_f^2)``. The estimate is
+    on the baseline (f = 1), so the half-width that decides is the tolerance."""
+    z, tol, f, g5 = 1.959963984540054, 0.03, 1.0, 50.0
     h = _single(se_n=0.03, se_f=0.002, g5=g5, f=f)
     se_b = 0.008
     S_b = np.zeros((9, 9))
@@ -132,7 +140,8 @@ def test_the_cramer_rao_plan_with_a_baseline_needs_var_over_tol2_minus_var_b(adv
     h = next(x for x in iso0.singles if x.parameters == ("R1",))
     g, f = np.asarray(h.sensitivity), h.factors[0]
     z = 1.959963984540054
-    t2 = (TOL["R1"] / (z * f)) ** 2
+    need = (f - 1) - TOL["R1"]  # the estimate's distance beyond the tolerance
+    t2 = (need / (z * f)) ** 2
     c = 0.3 * t2
     S_b = c * np.outer(g, g)
     hb = dataclasses.replace(
@@ -143,7 +152,7 @@ def test_the_cramer_rao_plan_with_a_baseline_needs_var_over_tol2_minus_var_b(adv
     iso_b = dataclasses.replace(
         iso0, candidates=tuple(hb if x is h else x for x in iso0.candidates)
     )
-    tol0 = {"R1": z * f * (t2 - c) ** 0.5}
+    tol0 = {"R1": (f - 1) - z * f * (t2 - c) ** 0.5}  # distance z f sqrt(t2 - c)
     ub = unresolved_parameters(iso_b, TOL, baseline_covariance=S_b, duration_s=0.2)
     u0 = unresolved_parameters(iso0, tol0, duration_s=0.2)
     fit = d.identification
@@ -163,7 +172,8 @@ def test_the_cramer_rao_plan_with_a_baseline_needs_var_over_tol2_minus_var_b(adv
 
 def test_an_uncertain_baseline_is_named_not_planned(advice):
     """The isolation itself with a baseline whose v5 (R1's element) is uncertain by
-    3 %: R1's baseline alone has a 95 % half-width of ~5.9 % > the 3 % tolerance."""
+    3 %: R1's baseline alone has a 95 % half-width of ~5.9 % > the 2.4 % that
+    would decide the 17 % tolerance."""
     _, d = advice
     rec = simulate_amb_loop(FAULTY, rng=1, n_samples=2000, **LOOP)
     fit, iso0 = d.identification, d.isolation
@@ -188,8 +198,8 @@ def test_against_a_history_of_the_same_quality_the_advice_names_the_baseline(tmp
     """End to end: the history baseline's standard errors reach the advice
     (plants/amb.py passes them to the resolver). The baseline is an ``ml``
     identification of a healthy record as noisy and as short as the new one, so
-    R1's baseline alone has about the new record's half-width (~4 %, against the
-    3 % tolerance): no record of the present state resolves R1."""
+    R1's baseline alone has about the new record's half-width (~4 %), and the advice
+    counts it."""
     from maglevid.diagnose.history import open_history
 
     store = open_history(tmp_path / "h.sqlite")
@@ -203,4 +213,7 @@ def test_against_a_history_of_the_same_quality_the_advice_names_the_baseline(tmp
     assert d.baseline["source"].startswith("earlier identification")
     r1 = next(u for u in d.resolution if u["parameter"] == "R1")
     assert 2.0 < r1["baseline_percent"] < 8.0, r1
-    assert r1["baseline_percent"] >= 3.0 and "the baseline itself is uncertain" in r1["advice"]
+    # The baseline's share is named in the advice (against the history the estimate
+    # is +21 %: the 4.1 % that decides it is a little more than the baseline's 3.9 %,
+    # and with the model error no record of the present state decides it).
+    assert f"baseline's own ±{r1['baseline_percent']:.2g} %" in r1["advice"]

@@ -107,9 +107,16 @@ def test_readme_walkthrough_default_noise_is_inconclusive(seed):
     # (R1 +20 % named: test_default_ml_names_r1_on_the_readme_record).
     d = diagnose(rec, baseline="nominal", method="physical")
     assert d.verdict_code == "inconclusive", d.verdict
-    assert "s more of the same excitation" in d.verdict
+    # The verdict names a record length (since the straddling rule its headline is the
+    # cause furthest from deciding, seed 3 Ls1 -3.8 % ± 4.6 %: "21.1 min in all at
+    # 0.242 V rms", the same excitation alone never deciding it with its model error).
+    assert "s more of the same excitation" in d.verdict or " in all at " in d.verdict
     r1 = next(u for u in d.resolution if u["parameter"] == "R1")
-    assert r1["half_width_percent"] > 5 and r1["more_seconds"] > 2
+    # Where R1's interval straddles the tolerance the half-width that decides it is its
+    # estimate's distance from 5 % (seed 3: +32 % ± 28 % needs ±27 %); where it lies
+    # wholly beyond while "nothing changed" is kept (seed 5: +45 %), the tolerance.
+    c, w = abs(r1["estimate_percent"]), r1["half_width_percent"]
+    assert w > 5 and r1["needed_percent"] == pytest.approx(abs(c - 5) if c - w <= 5 else 5.0)
     out = json.loads(json.dumps(d.to_dict()))
     assert out["verdict_code"] == "inconclusive" and out["resolution"][0]["advice"]
     assert "to resolve the tolerance" in d.summary()
@@ -144,8 +151,11 @@ def test_resolver_length_advice_holds_when_followed():
     longer = simulate_amb_loop(NOMINAL, n_samples=round(20_000 * k), rng=9, **lin)
     d2 = diagnose(longer, baseline="nominal", tolerances=tol, method="physical")
     h = next(h for h in d2.isolation.singles if h.parameters == ("R1",))
-    # The noise part scales as 1/N: 1.96 se within 15 % of the tolerance.
-    assert 1.96 * h.factor_std_errors[0] == pytest.approx(0.2, rel=0.15)
+    # The noise part scales as 1/N: 1.96 se within 15 % of the half-width that was
+    # asked for (since the straddling rule: the estimate's distance from the 20 %
+    # tolerance, not the tolerance).
+    need = r1["needed_percent"] / 100
+    assert 1.96 * h.factor_std_errors[0] == pytest.approx(need, rel=0.15)
 
 
 def test_one_number_per_fault_is_labelled():

@@ -7,6 +7,7 @@ import json
 from pathlib import Path
 from typing import Any
 
+from maglevid.cli.plan import _limits
 from maglevid.exceptions import DataError
 
 COMMAND = "diagnose"
@@ -74,6 +75,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--overwrite", action="store_true", help="replace --report if it exists (default: refuse)"
+    )
+    parser.add_argument(
+        "--max-excitation-std",
+        type=_limits,
+        default=None,
+        metavar="V or V1,V2",
+        help="amplifier limit [V rms] that the advice of an inconclusive verdict keeps to, one "
+        "for both inputs or one per input (e.g. 4,0.5 when coil 2's amplifier has less "
+        "headroom) (default: the planner's, as in `maglevid plan`)",
     )
     parser.add_argument(
         "--fail-on-fault",
@@ -156,6 +166,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         tolerances=_tolerances(args.tolerance),
         history=store,
         mapping=args.mapping,
+        max_excitation_std=args.max_excitation_std,
     )
     out = diag.to_dict()
     if args.report:

@@ -25,7 +25,7 @@ DIAGNOSIS_VERSION = 1
 VERDICT_CODES = (
     "no_change",  # nothing significant twice over
     "within_tolerance",  # statistically detectable, below the engineering tolerance
-    "inconclusive",  # an interval is wider than its tolerance: the data cannot tell
+    "inconclusive",  # an interval straddles its tolerance: the data cannot tell
     "drift",  # no fault yet, but a parameter trends towards its tolerance (history)
     "fault",  # a change explained by one (or two) physical causes
     "unexplained_change",  # significant changes no hypothesis explains
@@ -96,7 +96,7 @@ class Diagnosis:
         store): ``{"parameter", "slope_percent_per_day", "p_value",
         "projected_crossing", "method", ...}``.
     resolution : tuple of mapping
-        The parameters whose interval is wider than their tolerance, each with
+        The causes whose interval straddles their tolerance, each with
         what would resolve it (:class:`maglevid.diagnose.resolve.Unresolved`
         as a dict: ``parameter``, ``more_seconds``, ``excitation_rms``, ``advice``).
     percentage_index : mapping or None

@@ -1,11 +1,22 @@
-"""Can the data resolve the tolerance? And if not, what record would?
+"""Does the interval decide the tolerance? And if not, what record would?
 
-A verdict of "no change" or "fault" promises that each parameter was measured
-to better than its engineering tolerance. :func:`unresolved_parameters` checks
-that promise on the single-cause fits of the isolation ("only k changed"): the
-interval ``± z se_k`` of hypothesis ``k``'s factor must be no wider than its
-tolerance ``tol_k``. Where it is wider, the verdict is *inconclusive* and this
-module says what would resolve it, from the scaling of the covariance:
+A verdict promises which side of its engineering tolerance each cause lies on:
+"fault" that the change is beyond it, "within tolerance" and "no change" that
+it is inside. :func:`unresolved_parameters` checks that promise on the
+isolation's fits ("only k changed", and the best pair): the interval
+``c_k ± z se_k`` of the change ``c_k = f_k - 1`` must lie wholly beyond
+``± tol_k`` or wholly inside it (:func:`interval_side`). (A single-cause fit
+wholly beyond its tolerance while the isolation keeps "nothing changed" is
+flagged only when its interval is wider than the tolerance, with the tolerance
+as the half-width to reach: the rule before the straddling one.) Where it straddles the
+boundary the verdict is *inconclusive*, and the half-width that would clear the
+boundary is the estimate's distance from it, ``d_k = | |c_k| - tol_k |`` (not
+the tolerance: an estimate at 4.1 % against 5 % needs ±0.9 %). The factor's
+standard error already holds the baseline's uncertainty (the isolation adds
+its covariance), so the interval is that of the change, not only of the
+estimate. This module says what would bring the half-width to ``d_k``, from
+the scaling of the covariance (``target = d_k / z`` below; the estimate
+itself moves with more data, so the advice holds "if it stays where it is"):
 
 * the noise part of the variance falls as ``1/N`` (record length) and as
   ``1/a^2`` (excitation amplitude ``a``) -- the information matrix of a
@@ -14,12 +25,12 @@ module says what would resolve it, from the scaling of the covariance:
 * the model-error part does not fall with more of the same data.
 
 With ``se^2 ~ se_n^2 / k + se_f^2`` the data resolve ``tol`` when
-``z^2 (se_n^2 / k + se_f^2) <= tol^2``, i.e. ``k >= se_n^2 / ((tol/z)^2 - se_f^2)``:
+``z^2 (se_n^2 / k + se_f^2) <= d^2``, i.e. ``k >= se_n^2 / ((d/z)^2 - se_f^2)``:
 ``k`` times the record length (``(k - 1) N dt`` seconds more of the same
 excitation) or ``sqrt(k)`` times the excitation amplitude (which also moves the
 magnet further from its linearisation, so the length is the safer lever).
-When ``se_f >= tol/z`` no record resolves it: the model error alone exceeds
-the tolerance.
+When ``se_f >= d/z`` no record resolves it: the model error alone exceeds
+the distance.
 
 **The baseline's own uncertainty.** A diagnosis compares the estimate with a
 baseline; when the baseline is itself an estimate (a stored history, an
@@ -27,9 +38,9 @@ earlier fit) its covariance ``S_b`` is part of the isolation's noise variance
 (:func:`~maglevid.diagnose.isolate.isolate_fault`) but does not fall with a
 longer record of the present state. With ``se_b`` the baseline's share
 (``g`` the hypothesis's sensitivity, ``se_b^2 = 1 / (g^T S_b^-1 g)``) the rule
-becomes ``k = (se_n^2 - se_b^2) / (tol^2/z^2 - se_b^2 - se_f^2)``, and when
-``se_b >= tol/z`` the advice says that the baseline itself is uncertain beyond
-the tolerance: re-record the baseline (or widen the tolerance).
+becomes ``k = (se_n^2 - se_b^2) / (d^2/z^2 - se_b^2 - se_f^2)``, and when
+``se_b >= d/z`` the advice says that the baseline itself is too uncertain to
+decide: re-record the baseline (or widen the tolerance).
 
 **The Cramér-Rao plan** (:func:`with_cramer_rao_plan`). The rule above treats
 all of the noise part as excitation-driven; in a closed loop part of the
@@ -67,12 +78,18 @@ from maglevid.diagnose.isolate import MODEL_ERROR_FLOOR, FaultHypothesis, Isolat
 from maglevid.diagnose.isolate import _std_error as isolate_std_error
 from maglevid.exceptions import DataError
 
-__all__ = ["Unresolved", "tolerance_of", "unresolved_parameters", "with_cramer_rao_plan"]
+__all__ = [
+    "Unresolved",
+    "interval_side",
+    "tolerance_of",
+    "unresolved_parameters",
+    "with_cramer_rao_plan",
+]
 
 
 @dataclass(frozen=True)
 class Unresolved:
-    """One hypothesis whose interval is wider than its tolerance, and what would resolve it."""
+    """One cause whose interval straddles its tolerance, and what would resolve it."""
 
     parameter: str
     tolerance_percent: float
@@ -94,6 +111,18 @@ class Unresolved:
     plan_share: float | None = None
     #: The baseline's own 95 % half-width [%] when it is an estimate (None: exact).
     baseline_percent: float | None = None
+    #: The estimated change [%] and the half-width [%] that would clear the
+    #: tolerance from it (its distance from the boundary; None: the tolerance).
+    estimate_percent: float | None = None
+    needed_percent: float | None = None
+    #: The fit it comes from ("only R1 changed": ("R1",); a pair: both names).
+    hypothesis: tuple[str, ...] = ()
+    level_percent: float = 95.0
+
+    @property
+    def target_percent(self) -> float:
+        """The half-width [%] that decides the verdict (the distance, else the tolerance)."""
+        return self.tolerance_percent if self.needed_percent is None else self.needed_percent
 
     @property
     def resolvable(self) -> bool:
@@ -102,20 +131,15 @@ class Unresolved:
     @property
     def baseline_limited(self) -> bool:
         """The baseline alone is uncertain beyond the tolerance: no new record helps."""
-        return (
-            self.baseline_percent is not None and self.baseline_percent >= self.tolerance_percent
-        )
+        return self.baseline_percent is not None and self.baseline_percent >= self.target_percent
 
     def advice(self) -> str:
         """One sentence: what this parameter needs."""
-        head = (
-            f"{self.parameter} ±{self.half_width_percent:.2g} % "
-            f"(tolerance ±{self.tolerance_percent:.3g} %)"
-        )
+        head = self._head()
         if self.baseline_limited:
             return (
                 f"{head}: the baseline itself is uncertain by ±{self.baseline_percent:.2g} %, "
-                "so no record of the present state resolves it; re-record the baseline "
+                "so no record of the present state decides it; re-record the baseline "
                 "(a longer or more strongly excited record of the reference state) "
                 "or widen the tolerance"
             )
@@ -139,6 +163,25 @@ class Unresolved:
             f"or raise the excitation about {self.excitation_factor:.2g}x{level}"
         )
 
+    def _head(self) -> str:
+        if self.estimate_percent is None:
+            return (
+                f"{self.parameter} ±{self.half_width_percent:.2g} % "
+                f"(tolerance ±{self.tolerance_percent:.3g} %)"
+            )
+        c, w, tol = self.estimate_percent, self.half_width_percent, self.tolerance_percent
+        head = (
+            f"{self.parameter} {c:+.2g} % ± {w:.2g} % ({self.level_percent:.3g} % interval "
+            f"{c - w:+.2g} … {c + w:+.2g} %)"
+        )
+        if abs(c) - w > tol:  # beyond, but not the isolation's answer
+            return f"{head} is wider than its tolerance ±{tol:.3g} %"
+        return (
+            f"{head} straddles its tolerance ±{tol:.3g} %; deciding it needs "
+            f"±{self.target_percent:.2g} % (the estimate's distance from the boundary, "
+            "if it stays there)"
+        )
+
     def _plan_advice(self) -> str:
         from maglevid.identify.planning import describe_excitation, format_seconds, spectrum_label
 
@@ -159,6 +202,12 @@ class Unresolved:
             parts.append(
                 f"{format_seconds(self.plan_seconds_spectrum)} if you {how} "
                 f"({spectrum_label(self.plan_spectrum)})"
+            )
+        if not parts and self.baseline_percent:
+            return (
+                f"the baseline's own ±{self.baseline_percent:.2g} % and the model error leave "
+                "no record of the present state, at any level within the limits, that decides "
+                "it; re-record the baseline or widen the tolerance"
             )
         if not parts:
             return (
@@ -186,6 +235,22 @@ def tolerance_of(name: str, tolerances: Mapping[str, float] | float) -> float:
     return float(tolerances)
 
 
+def interval_side(change: float, half_width: float, tolerance: float) -> str:
+    """Where the interval ``change ± half_width`` lies against ``± tolerance`` (relative).
+
+    ``"beyond"`` (wholly outside: a fault), ``"inside"`` (wholly within: no
+    fault) or ``"straddles"`` (the data cannot decide). A non-finite half-width
+    straddles.
+    """
+    if not math.isfinite(half_width):
+        return "straddles"
+    if abs(change) - half_width > tolerance:
+        return "beyond"
+    if abs(change) + half_width <= tolerance:
+        return "inside"
+    return "straddles"
+
+
 def _baseline_se(h: FaultHypothesis, baseline_covariance: Any) -> float:
     """``f se_b``: the baseline's share of hypothesis ``h``'s standard error (module notes)."""
     if baseline_covariance is None or not h.sensitivity:
@@ -197,12 +262,12 @@ def _baseline_se(h: FaultHypothesis, baseline_covariance: Any) -> float:
     return h.factors[0] * se if math.isfinite(se) else 0.0
 
 
-def _length_factor(h: FaultHypothesis, target: float, se_b: float = 0.0) -> float:
+def _length_factor(h: FaultHypothesis, target: float, se_b: float = 0.0, j: int = 0) -> float:
     """``k`` with ``(se_n^2 - se_b^2) / k + se_b^2 + se_f^2 = target^2`` (module notes)."""
-    se = h.factor_std_errors[0]
+    se = h.factor_std_errors[j]
     if not h.noise_std_errors:  # no decomposition: all of it is noise
         return (se**2 - se_b**2) / (target**2 - se_b**2) if target > se_b else math.inf
-    se_n, se_f = h.noise_std_errors[0], h.floor_std_errors[0]
+    se_n, se_f = h.noise_std_errors[j], h.floor_std_errors[j]
     fixed = se_b**2 + se_f**2  # what more of the present state cannot shrink
     if not math.isfinite(se) or fixed >= target**2:
         return math.inf
@@ -218,7 +283,12 @@ def unresolved_parameters(
     excitation_rms: float | None = None,
     baseline_covariance: Any = None,
 ) -> list[Unresolved]:
-    """Single-cause hypotheses whose interval at ``level`` is wider than their tolerance.
+    """The isolation's causes whose interval at ``level`` straddles their tolerance.
+
+    Checked: every single-cause fit, and the best fit when it is a pair (its
+    own factors and intervals). A cause is unresolved when ``c ± z se`` is
+    neither wholly beyond nor wholly inside ``± tol`` (:func:`interval_side`);
+    the half-width that would decide it is ``| |c| - tol |`` (module notes).
 
     Parameters
     ----------
@@ -237,35 +307,48 @@ def unresolved_parameters(
 
     Returns
     -------
-    list of Unresolved, widest interval (relative to its tolerance) first.
+    list of Unresolved, the furthest from deciding (half-width over the one
+    needed) first.
     """
     z = float(special.ndtri(0.5 + level / 2))
+    fits = [*iso.singles, *([iso.best] if len(iso.best.parameters) > 1 else [])]
     out = []
-    for h in iso.singles:
-        (name,) = h.parameters
-        tol = tolerance_of(name, tolerances)
-        se = h.factor_std_errors[0]
-        if tol <= 0 or (math.isfinite(se) and z * se <= tol):
-            continue
-        se_b = _baseline_se(h, baseline_covariance)
-        k = _length_factor(h, tol / z, se_b)
-        out.append(
-            Unresolved(
-                parameter=name,
-                tolerance_percent=100 * tol,
-                half_width_percent=100 * z * se,
-                length_factor=k,
-                more_seconds=(k - 1) * duration_s if duration_s is not None else math.inf,
-                excitation_factor=math.sqrt(k),
-                excitation_rms=(
-                    math.sqrt(k) * excitation_rms
-                    if excitation_rms is not None and math.isfinite(k)
-                    else None
-                ),
-                baseline_percent=100 * z * se_b if baseline_covariance is not None else None,
+    for h in fits:
+        for j, name in enumerate(h.parameters):
+            tol = tolerance_of(name, tolerances)
+            c, se = h.factors[j] - 1.0, h.factor_std_errors[j]
+            side = interval_side(c, z * se, tol) if tol > 0 else "inside"
+            if side == "inside" or (side == "beyond" and (h is iso.best or z * se <= tol)):
+                continue
+            # Straddling: the estimate's distance from the boundary decides it. Beyond
+            # in a fit that is not the isolation's answer ("nothing changed" was not
+            # rejected) and wider than the tolerance: the tolerance (module notes).
+            need = abs(abs(c) - tol) if side == "straddles" else tol
+            se_b = _baseline_se(h, baseline_covariance)
+            k = _length_factor(h, need / z, se_b, j) if need > 0 else math.inf
+            out.append(
+                Unresolved(
+                    parameter=name,
+                    tolerance_percent=100 * tol,
+                    half_width_percent=100 * z * se,
+                    length_factor=k,
+                    more_seconds=(k - 1) * duration_s
+                    if duration_s is not None and math.isfinite(k)
+                    else math.inf,
+                    excitation_factor=math.sqrt(k),
+                    excitation_rms=(
+                        math.sqrt(k) * excitation_rms
+                        if excitation_rms is not None and math.isfinite(k)
+                        else None
+                    ),
+                    baseline_percent=100 * z * se_b if baseline_covariance is not None else None,
+                    estimate_percent=100 * c,
+                    needed_percent=100 * need,
+                    hypothesis=h.parameters,
+                    level_percent=100 * level,
+                )
             )
-        )
-    return sorted(out, key=lambda u: -u.half_width_percent / u.tolerance_percent)
+    return sorted(out, key=lambda u: -u.half_width_percent / max(u.target_percent, 1e-300))
 
 
 def with_cramer_rao_plan(
@@ -294,7 +377,8 @@ def with_cramer_rao_plan(
         The loop around the estimated bearing
         (:func:`maglevid.identify.planning.design_for_recording`).
     n_samples, excitation_std : the recording's length and excitation [V rms].
-    tolerances, level : as in :func:`unresolved_parameters`.
+    tolerances, level : as in :func:`unresolved_parameters` (each entry of ``unresolved``
+        carries the half-width that decides it, its distance from the tolerance).
     max_excitation_std, max_displacement : the planner's limits (its defaults).
     baseline_covariance : array_like, shape (9, 9), optional
         The baseline's covariance of v1..v9 (as given to the isolation): it
@@ -315,11 +399,11 @@ def with_cramer_rao_plan(
     grid = _ExcitationGrid(design, amp, disp, excitation_std, iso.model_error, splits, S_b)
     out = []
     for u in unresolved:
-        h = singles.get(u.parameter)
-        if h is None or not h.noise_std_errors or u.baseline_limited:
+        h = singles.get(u.parameter) if len(u.hypothesis) <= 1 else None  # a pair: scaling rule
+        if h is None or not h.noise_std_errors or u.baseline_limited or u.target_percent <= 0:
             out.append(u)
             continue
-        need = grid.needs(h, tolerance_of(u.parameter, tolerances) / z, n_samples)
+        need = grid.needs(h, u.target_percent / 100 / z, n_samples)
         if need is None:
             out.append(u)
             continue
@@ -471,11 +555,14 @@ def plan_unresolved(
     tolerances: Mapping[str, float] | float,
     level: float = 0.95,
     baseline_covariance: Any = None,
+    max_excitation_std: Any = None,
 ) -> tuple[list[Unresolved], str | None]:
     """:func:`with_cramer_rao_plan` for a recording and its identification result.
 
     ``baseline_covariance`` is the baseline's covariance of v1..v9 (as given to
-    the isolation; None for an exact baseline). Returns the advice and, when no
+    the isolation; None for an exact baseline); ``max_excitation_std`` the
+    amplifiers' limit [V rms], one or one per input (None: the planner's
+    default). Returns the advice and, when no
     plan can be made (no logged excitation, no operating point or noise model,
     a loop the plan cannot hold), the reason (the scaling rule's advice is
     then kept).
@@ -502,6 +589,7 @@ def plan_unresolved(
             tolerances=tolerances,
             level=level,
             baseline_covariance=baseline_covariance,
+            max_excitation_std=max_excitation_std,
         )
     except (MaglevidError, ArithmeticError, np.linalg.LinAlgError) as exc:
         return unresolved, f"no Cramér-Rao plan for the advice: {exc or type(exc).__name__}"

@@ -22,6 +22,7 @@ from types import MappingProxyType
 from typing import Any
 
 import numpy as np
+from scipy import special
 
 from maglevid.data import ClosedLoopData
 from maglevid.diagnose.checks import run_checks
@@ -36,7 +37,12 @@ from maglevid.diagnose.isolate import (
     isolate_fault,
     v_with_sensor_gains,
 )
-from maglevid.diagnose.resolve import plan_unresolved, tolerance_of, unresolved_parameters
+from maglevid.diagnose.resolve import (
+    interval_side,
+    plan_unresolved,
+    tolerance_of,
+    unresolved_parameters,
+)
 from maglevid.exceptions import DataError, MaglevidError
 from maglevid.jsonable import thaw
 from maglevid.lti import StateSpace
@@ -189,11 +195,11 @@ def _free_estimate_reasons(changes: list[Any]) -> list[str]:
 
 
 def _inconclusive(head: str, unresolved: list[Any]) -> tuple[str, str]:
-    names = ", ".join(u.parameter for u in unresolved[:4]) + (
+    names = ", ".join(dict.fromkeys(u.parameter for u in unresolved[:4])) + (
         f" and {len(unresolved) - 4} more" if len(unresolved) > 4 else ""
     )
     return (
-        f"Inconclusive: {head}, but the data cannot resolve the tolerance of {names}: "
+        f"Inconclusive: {head}, but the interval of {names} straddles the tolerance: "
         + unresolved[0].advice(),
         "inconclusive",
     )
@@ -206,15 +212,16 @@ def _verdict_without_isolation(
     if sig:
         names = ", ".join(c.name for c in sig)
         return f"Significant change: {names}", "unexplained_change", reasons
-    wide = [
+    wide = [  # the interval of the change not wholly inside the tolerance
         c.name
         for c in changes
-        if c.baseline and (c.change_ci[1] - c.change_ci[0]) / 2 > c.tolerance * abs(c.baseline)
+        if c.baseline
+        and max(abs(c.change_ci[0]), abs(c.change_ci[1])) > c.tolerance * abs(c.baseline)
     ]
     if wide:
         return (
-            f"Inconclusive: no significant change, but the intervals of {', '.join(wide)} are "
-            "wider than their tolerance (a longer record or more excitation would resolve them)",
+            f"Inconclusive: no significant change, but the intervals of {', '.join(wide)} reach "
+            "beyond their tolerance (a longer record or more excitation would decide them)",
             "inconclusive",
             reasons,
         )
@@ -226,13 +233,17 @@ def _verdict(
     iso: IsolationResult | None,
     tolerances: Mapping[str, float] | float,
     unresolved: list[Any],
+    level: float = 0.95,
 ) -> tuple[str, str, list[str]]:
     """Verdict, code and reasons (see docs/diagnosis.md, "Verdicts").
 
-    ``unresolved`` holds the single-cause hypotheses whose interval is wider
-    than their tolerance (:func:`maglevid.diagnose.resolve.unresolved_parameters`).
-    The headline number of a fault is the constrained fit ("only R1 changed");
-    the free estimates follow in the reasons, labelled as such.
+    ``unresolved`` holds the causes whose interval straddles their tolerance
+    (:func:`maglevid.diagnose.resolve.unresolved_parameters`). A cause is a
+    fault only when its interval (``level``) lies wholly beyond the tolerance,
+    within tolerance only when it lies wholly inside; otherwise the verdict is
+    inconclusive with what would decide it. The headline number of a fault is
+    the constrained fit ("only R1 changed"); the free estimates follow in the
+    reasons, labelled as such.
     """
     reasons = _free_estimate_reasons(changes)
     if iso is None:
@@ -272,13 +283,28 @@ def _verdict(
     )
     for h in iso.indistinguishable:
         reasons.append(f"cannot be told apart from: {h.describe()} (chi2 = {h.chi2:.3g})")
-    named = [u for u in unresolved if u.parameter in best.parameters]
-    if named:
-        return (*_inconclusive(f"the data point to {best.describe()}", named), reasons)
     label = f"(fit with only {names} changed)"
-    factors = zip(best.parameters, best.factors)
-    if any(abs(f - 1) > tolerance_of(k, tolerances) for k, f in factors):
+    z = float(special.ndtri(0.5 + level / 2))
+    sides = [
+        interval_side(f - 1, z * se, tolerance_of(k, tolerances))
+        for k, f, se in zip(best.parameters, best.factors, best.factor_std_errors)
+    ]
+    straddling = {k for k, side in zip(best.parameters, sides) if side == "straddles"}
+    named = [
+        u for u in unresolved if u.hypothesis == best.parameters and u.parameter in straddling
+    ]
+    if "beyond" in sides:  # a pair with one cause decided beyond: a fault either way
+        reasons.extend(f"not decided: {u.advice()}" for u in named)
         return f"Fault {label}: {best.describe()}", "fault", reasons
+    if "straddles" in sides:
+        if not named:  # the caller gave no advice for it: the interval alone
+            return (
+                f"Inconclusive: the data point to {best.describe()}, but its "
+                f"{100 * level:.3g} % interval straddles the tolerance",
+                "inconclusive",
+                reasons,
+            )
+        return (*_inconclusive(f"the data point to {best.describe()}", named), reasons)
     return f"Change within tolerance {label}: {best.describe()}", "within_tolerance", reasons
 
 
@@ -429,10 +455,10 @@ class AMBStages:
             )  # fmt: skip
             unresolved, why = plan_unresolved(
                 unresolved, iso, data, run.result, tolerances=tol, level=run.level,
-                baseline_covariance=base.v_cov,
+                baseline_covariance=base.v_cov, max_excitation_std=run.max_excitation_std,
             )  # fmt: skip
             run.notes.extend([why] if why else [])
-        verdict, code, reasons = _verdict(c.changes, iso, tol, unresolved)
+        verdict, code, reasons = _verdict(c.changes, iso, tol, unresolved, run.level)
         op = c.operating_point
         if op is not None:
             reasons.append(

@@ -67,6 +67,9 @@ class DiagnosisRun:
     machine: str | None = None
     when: Any = None
     method_options: Mapping[str, Any] | None = None
+    #: The amplifiers' limit for the inconclusive verdict's plan [V rms], one for
+    #: both inputs or one per input (None: the planner's default).
+    max_excitation_std: float | tuple[float, ...] | None = None
     quality: tuple[QualityCheck, ...] = ()
     identify_options: dict[str, Any] = field(default_factory=dict)
     base: Any = None

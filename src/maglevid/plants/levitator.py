@@ -19,12 +19,14 @@ Any other method runs the shared stages (:class:`maglevid.plants.amb.AMBStages`)
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Mapping
 from dataclasses import dataclass
 from types import MappingProxyType
 from typing import Any
 
 import numpy as np
+from scipy import special
 
 from maglevid.data import ClosedLoopData
 from maglevid.diagnose import levitator as lev
@@ -142,7 +144,7 @@ class LevitatorStages:
             verdict, code = _verdict_without_isolation(changes, run.notes)
         else:
             reasons += isolation_reasons(iso, c.params)
-            verdict, code = _verdict(changes, iso, c.params, run.tolerances)
+            verdict, code = _verdict(changes, iso, c.params, run.tolerances, run.level)
         return Diagnosis(
             verdict=verdict,
             verdict_code=code,
@@ -170,24 +172,87 @@ def _verdict_without_isolation(changes: list[Any], notes: list[str]) -> tuple[st
     return "No significant change", "no_change"
 
 
-def _largest_move(iso: lev.LevitatorIsolation, params: Any) -> float:
-    """Largest relative change of any observation against the baseline's prediction."""
-    obs = iso.observations
+def _moves(
+    iso: lev.LevitatorIsolation, params: Any, tol: float, level: float
+) -> tuple[str, list[str]]:
+    """Where the observations' moves lie against the tolerance, and the undecided ones.
+
+    With a cause that explains the record, the moves it predicts (baseline with
+    the cause against the baseline) over its interval: each fitted value at
+    ``± z se`` (the box's corners for a pair); without one, the data's own moves
+    ``d = z - z0`` (log units) with ``d ± z sd`` (noise and model-error floor,
+    :meth:`~maglevid.diagnose.levitator.LevitatorObservations.covariance`). As
+    relative changes: ``"beyond"`` when some interval lies wholly beyond
+    ``± tol``, ``"inside"`` when every one lies wholly inside, else
+    ``"straddles"`` (the same rule as the bearing's verdict).
+    """
+    obs, best = iso.observations, iso.best
+    zq = float(special.ndtri(0.5 + level / 2))
     z0 = lev.predict_observations(params, obs)
-    return float(np.max(np.abs(np.expm1(obs.vector() - z0))))
+    if iso.explained and best.parameters:
+        box = [(v - zq * se, v + zq * se) for v, se in zip(best.values, best.std_errors)]
+        moves = np.array([
+            lev.predict_observations(params, obs, dict(zip(best.parameters, corner))) - z0
+            for corner in itertools.product(*box)
+        ])  # fmt: skip
+        d = lev.predict_observations(params, obs, dict(zip(best.parameters, best.values))) - z0
+        lo, hi = np.expm1(moves.min(axis=0)), np.expm1(moves.max(axis=0))
+    else:
+        d = obs.vector() - z0
+        half = zq * np.sqrt(np.diag(obs.covariance()))
+        lo, hi = np.expm1(d - half), np.expm1(d + half)
+    beyond = (lo > tol) | (hi < -tol)
+    inside = (lo >= -tol) & (hi <= tol)
+    undecided = [
+        f"{n} {100 * np.expm1(x):+.2g} % (interval {100 * a:+.2g} … {100 * b:+.2g} %)"
+        for n, x, a, b, ok, out in zip(obs.names, d, lo, hi, inside, beyond)
+        if not (ok or out)
+    ]
+    return ("beyond" if beyond.any() else "inside" if inside.all() else "straddles"), undecided
+
+
+def _free_beyond(changes: list[Any]) -> bool:
+    """Some free estimate's interval lies wholly beyond its tolerance."""
+    return any(
+        ch.baseline
+        and (ch.change_ci[0] > ch.tolerance * abs(ch.baseline)
+             or ch.change_ci[1] < -ch.tolerance * abs(ch.baseline))
+        for ch in changes
+    )  # fmt: skip
 
 
 def _verdict(
-    changes: list[Any], iso: lev.LevitatorIsolation, params: Any, tolerances: Any
+    changes: list[Any],
+    iso: lev.LevitatorIsolation,
+    params: Any,
+    tolerances: Any,
+    level: float = 0.95,
 ) -> tuple[str, str]:
-    """Verdict and code from the isolation (docs/diagnosis.md, "Levitator")."""
+    """Verdict and code from the isolation (docs/diagnosis.md, "Levitator").
+
+    Beyond the tolerance only when an interval lies wholly beyond it (a free
+    estimate's, or an observation's move), within it only when every
+    observation's interval lies wholly inside; otherwise inconclusive.
+    """
     best = iso.best
     if not best.parameters:
         if any(ch.statistically_significant for ch in changes):
             return "Change within tolerance", "within_tolerance"
         return "No significant change", "no_change"
     tol = tolerances if isinstance(tolerances, float) else DEFAULT_TOLERANCE
-    big = any(ch.significant for ch in changes) or _largest_move(iso, params) > tol
+    side, undecided = _moves(iso, params, tol, level)
+    if _free_beyond(changes):
+        side = "beyond"
+    if side == "straddles":
+        what = "closest" if not iso.explained else "explained by"
+        return (
+            f"Inconclusive: changed ({what}: {best.describe()}), but whether beyond the "
+            f"±{100 * tol:.3g} % tolerance cannot be decided: "
+            + "; ".join(undecided[:3])
+            + " straddle it (a longer record would narrow them)",
+            "inconclusive",
+        )
+    big = side == "beyond"
     if not iso.explained:
         head = "Changed; no single cause explains it" if big else "Change within tolerance"
         return f"{head} (closest: {best.describe()})", (

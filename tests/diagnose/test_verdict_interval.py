@@ -1,0 +1,234 @@
+"""The verdict from the cause's interval, not its point (plants/amb.py ``_verdict``).
+
+A cause is a fault only when its 95 % interval lies wholly beyond its tolerance,
+within tolerance only when it lies wholly inside; an interval that straddles the
+boundary is inconclusive, and the half-width that would decide it is the
+estimate's distance from the boundary (docs/diagnosis.md, "Verdicts").
+
+Reference values: the constructed isolation results below are exact numbers
+(factor, standard error, z = 1.959964 for 95 %), so the sides and the half-width
+needed follow by arithmetic; the length factor of the scaling rule is
+``k = se_n^2 / ((d/z)^2 - se_f^2)`` (diagnose/resolve.py, module notes).
+"""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from maglevid.cli.main import main
+from maglevid.diagnose.isolate import FaultHypothesis, IsolationResult
+from maglevid.diagnose.resolve import interval_side, unresolved_parameters
+from maglevid.plants.amb import _verdict
+from maglevid.simulate import simulate_amb_loop
+
+Z = 1.959963984540054
+TOL = 0.05
+
+
+def _iso(factor: float, se: float, *, se_f: float = 0.0) -> IsolationResult:
+    """ "Only R1 changed" by ``factor`` with standard error ``se``, nothing else fitting."""
+    se_n = (se**2 - se_f**2) ** 0.5
+    r1 = FaultHypothesis(("R1",), (factor,), (se,), 4.0, 8, 0.86, (se_n,), (se_f,))
+    kw1 = FaultHypothesis(("kw1",), (0.9,), (0.01,), 80.0, 8, 1e-12, (0.01,), (0.0,))
+    none = FaultHypothesis((), (), (), 60.0, 9, 1e-9)
+    return IsolationResult(
+        best=r1, candidates=(r1, kw1), no_change=none, alpha=0.01, explained=True,
+        model_error=1e-3, single_cause_p_value=1e-6,
+    )  # fmt: skip
+
+
+def _decide(factor: float, se: float, **kw) -> tuple[str, str, list]:
+    iso = _iso(factor, se, **kw)
+    un = unresolved_parameters(iso, TOL, duration_s=2.0)
+    verdict, code, _ = _verdict([], iso, TOL, un)
+    return verdict, code, un
+
+
+@pytest.mark.parametrize(
+    ("change", "half", "side"),
+    [(0.041, 0.022, "straddles"), (0.08, 0.02, "beyond"), (-0.08, 0.02, "beyond"),
+     (0.02, 0.02, "inside"), (-0.049, 0.0009, "inside"), (0.0, 0.06, "straddles"),
+     (0.2, float("inf"), "straddles")],
+)  # fmt: skip
+def test_interval_side(change, half, side):
+    assert interval_side(change, half, TOL) == side
+
+
+def test_straddling_interval_is_inconclusive_with_the_distance_as_target():
+    # The record of the report: R1 +4.1 % ± 1.1 % (se), 95 % interval 1.9-6.3 %.
+    verdict, code, un = _decide(1.041, 0.011, se_f=0.002)
+    assert code == "inconclusive"
+    (u,) = un
+    assert u.parameter == "R1" and u.hypothesis == ("R1",)
+    assert u.estimate_percent == pytest.approx(4.1)
+    assert u.needed_percent == pytest.approx(0.9)  # 5 % - 4.1 %, not the tolerance
+    assert u.half_width_percent == pytest.approx(100 * Z * 0.011)
+    k = (0.011**2 - 0.002**2) / ((0.009 / Z) ** 2 - 0.002**2)
+    assert u.length_factor == pytest.approx(k, rel=1e-9)
+    assert u.more_seconds == pytest.approx((k - 1) * 2.0, rel=1e-9)
+    assert "straddles" in verdict and "R1 +4.1 %" in verdict and "±5 %" in verdict
+    assert "needs ±0.9 %" in verdict and "s more of the same excitation" in verdict
+
+
+def test_wholly_beyond_is_a_fault_even_when_wider_than_the_tolerance():
+    # +20 % ± 7.8 % (95 %): 12-28 %, wholly beyond 5 %. Before the straddling rule
+    # this was "inconclusive" (half-width wider than the tolerance).
+    verdict, code, un = _decide(1.20, 0.04)
+    assert code == "fault" and verdict.startswith("Fault (fit with only R1 changed)")
+    assert not [u for u in un if u.parameter == "R1"]
+    # And below the tolerance: -8 % ± 2 % (se 1 %) is a fault too.
+    assert _decide(0.92, 0.01)[1] == "fault"
+
+
+def test_wholly_inside_is_within_tolerance():
+    # +2 % ± 2 % (95 %, se 1.02 %): 0-4 %, inside 5 %.
+    verdict, code, un = _decide(1.02, 0.0102)
+    assert code == "within_tolerance" and "R1 +2.0 %" in verdict
+    assert not [u for u in un if u.parameter == "R1"]
+
+
+def test_just_beyond_and_just_inside_the_boundary():
+    # The same half-width either side of the boundary: the point alone decided both
+    # before; now the one that touches it is inconclusive.
+    assert _decide(1.0701, 0.01)[1] == "fault"  # 5.05-9 %: beyond
+    assert _decide(1.06, 0.01)[1] == "inconclusive"  # 4.0-8.0 %
+    assert _decide(1.04, 0.01)[1] == "inconclusive"  # 2.0-6.0 %
+    assert _decide(1.0299, 0.01)[1] == "within_tolerance"  # 1.0-4.95 %
+
+
+def test_a_pair_with_one_cause_beyond_is_a_fault_and_names_the_undecided_one():
+    pair = FaultHypothesis(("R1", "kw1"), (1.2, 0.96), (0.01, 0.01), 3.0, 7, 0.9, (0.01, 0.01),
+                           (0.0, 0.0))  # fmt: skip
+    none = FaultHypothesis((), (), (), 60.0, 9, 1e-9)
+    iso = IsolationResult(best=pair, candidates=(pair,), no_change=none, alpha=0.01,
+                          explained=True)  # fmt: skip
+    un = unresolved_parameters(iso, TOL)
+    assert [u.parameter for u in un] == ["kw1"] and un[0].hypothesis == ("R1", "kw1")
+    _, code, reasons = _verdict([], iso, TOL, un)
+    assert code == "fault"
+    assert any(r.startswith("not decided: kw1 -4 % ± 2 %") for r in reasons)
+
+
+def test_an_uncertain_baseline_widens_the_interval_of_the_change():
+    """The factor's standard error holds the baseline's covariance (the isolation
+    adds it); a baseline share ``se_b`` larger than the distance/z cannot be
+    shrunk by a longer record of the present state."""
+    import numpy as np
+
+    g5 = 50.0
+    se_b = 0.006  # 95 %: ±1.18 % > the 0.9 % that decides +4.1 %
+    h = FaultHypothesis(("R1",), (1.041,), (0.011,), 4.0, 8, 0.86, (0.011,), (0.0,),
+                        tuple(g5 if i == 4 else 0.0 for i in range(9)))  # fmt: skip
+    none = FaultHypothesis((), (), (), 60.0, 9, 1e-9)
+    iso = IsolationResult(best=h, candidates=(h,), no_change=none, alpha=0.01, explained=True)
+    S_b = np.zeros((9, 9))
+    S_b[4, 4] = (se_b / 1.041 * g5) ** 2
+    (u,) = unresolved_parameters(iso, TOL, baseline_covariance=S_b)
+    assert u.baseline_percent == pytest.approx(100 * Z * se_b, rel=1e-9)
+    assert u.baseline_limited and "re-record the baseline" in u.advice()
+
+
+@pytest.fixture(scope="module")
+def straddling_record(tmp_path_factory):
+    """The record of the report: the realistic bearing (nonlinear, nominal bias,
+    default force disturbance) with R1 +4 % and 3x the CLI's sensor noise, 0.25 s.
+    Measured: R1 +4.1 % ± 1.1 % (se), 95 % interval 1.9-6.2 %."""
+    from maglevid.io import write_recording
+    from maglevid.physics.amb import AMBParameters
+
+    nominal = AMBParameters.nominal()
+    rec = simulate_amb_loop(
+        nominal.with_fault(R1=1.04), nominal=nominal, plant_model="nonlinear",
+        noise_std=(3e-7, 3e-4, 3e-4), n_samples=2500, rng=8,
+    )  # fmt: skip
+    path = tmp_path_factory.mktemp("straddle") / "rec.npz"
+    write_recording(rec, path)
+    return path
+
+
+def _cli_json(argv: list[str]) -> dict:
+    import contextlib
+    import io
+
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        assert main(["-q", "--json", *argv]) == 0
+    return json.loads(buf.getvalue())
+
+
+@pytest.fixture(scope="module")
+def cli_default(straddling_record):
+    return _cli_json(["diagnose", str(straddling_record)])
+
+
+def test_cli_straddling_record_is_inconclusive_with_a_plan(cli_default):
+    out = cli_default
+    assert out["verdict_code"] == "inconclusive", out["verdict"]
+    r1 = next(u for u in out["resolution"] if u["parameter"] == "R1")
+    lo, hi = (
+        r1["estimate_percent"] - r1["half_width_percent"],
+        r1["estimate_percent"] + r1["half_width_percent"],
+    )
+    assert lo < 5.0 < hi  # the interval straddles the tolerance
+    assert r1["needed_percent"] == pytest.approx(5.0 - r1["estimate_percent"])
+    assert r1["plan_seconds"] > 0.25 and "Cramér-Rao plan" in out["verdict"]
+
+
+def test_cli_amplifier_limits_reach_the_plan(straddling_record, cli_default):
+    """``--max-excitation-std 4,0.5``: the level the plan names at the present
+    spectrum (both inputs alike) is within coil 2's 0.5 V rms limit; without the
+    option the planner's default (4 V) let it choose 0.66 V rms."""
+    free = cli_default
+    held = _cli_json(["diagnose", str(straddling_record), "--max-excitation-std", "4,0.5"])
+    f1 = next(u for u in free["resolution"] if u["parameter"] == "R1")
+    h1 = next(u for u in held["resolution"] if u["parameter"] == "R1")
+    assert f1["plan_excitation"] > 0.5 >= h1["plan_excitation"]
+    assert h1["plan_seconds"] >= f1["plan_seconds"]
+    # A malformed limit is one clear error, not a traceback.
+    with pytest.raises(SystemExit):
+        main(["diagnose", str(straddling_record), "--max-excitation-std", "4,x"])
+
+
+# --- The levitator (plants/levitator.py): the same rule on the observations' moves ---
+
+
+@pytest.mark.parametrize(
+    ("change", "code"),
+    [({"R": 1.3}, "fault"), ({"gap_gain": 1.1}, "inconclusive"),
+     ({"gap_offset": -3e-4}, "within_tolerance")],
+)  # fmt: skip
+def test_levitator_verdict_from_the_intervals_of_the_moves(change, code):
+    """Exact observations of the UAQ rig (0.3 % noise assumed; the pole's 2 %, the
+    currents' 1 % and the coil circuit's 5 % model-error floors): R x1.3 moves R/L
+    by +30 % ± 13 % (95 %), wholly beyond 5 %; a gap-sensor gain of +10 % moves the
+    equilibrium currents by -4.5 % and -4.9 %, whose intervals (about ±1.2 %) cross
+    the 5 % tolerance (before: "within tolerance" from the points); a gap zero of
+    -0.3 mm moves every observation by less than 5 % with its interval."""
+    from test_levitator_isolation import P, _observed
+
+    from maglevid.diagnose.levitator import isolate_levitator_fault
+    from maglevid.plants.levitator import _verdict as levitator_verdict
+
+    iso = isolate_levitator_fault(_observed(change), P)
+    assert iso.explained and iso.best.parameters == tuple(change)
+    verdict, got = levitator_verdict([], iso, P, TOL)
+    assert got == code, verdict
+    if code == "inconclusive":
+        assert "i_eq@5mm -4.5 %" in verdict and "straddle" in verdict
+
+
+def test_a_drift_is_not_hidden_by_an_inconclusive_verdict(straddling_record, monkeypatch):
+    """A history that drifts is an alarm whether or not the present interval
+    decides the tolerance: the inconclusive verdict becomes ``drift``, its advice kept
+    (the demo's heating coil at R1 +9.6 % ± 0.7 % against 10 % lost its drift alarm)."""
+    from maglevid.diagnose import pipeline
+
+    d = pipeline.diagnose(straddling_record, drift=False)
+    assert d.verdict_code == "inconclusive"
+    trend = {"kind": "drift", "parameter": "R1", "slope_percent_per_day": 0.26, "p_value": 1e-9}
+    monkeypatch.setattr(pipeline, "_drifts", lambda *a: [trend])
+    out = pipeline._with_drifts(None, d, TOL, 0.01, ("R1",))
+    assert out.verdict_code == "drift" and out.verdict.startswith("No fault yet, but drifting")
+    assert "straddles the tolerance" in out.verdict and out.resolution == d.resolution
