@@ -826,11 +826,11 @@ def _solve(
         th = z * scale
         out = []
         for s in range(len(segs)):
-            try:
+            try:  # a predictor with no finite gain (e.g. a Riccati solution lost) is refused
                 inn, Yd, U = gm.predictor(th, s)
+                e = (Yd - _one_step(inn, Yd, U)) * wts[None, :]
             except (np.linalg.LinAlgError, ValueError, ZeroDivisionError, FloatingPointError):
                 return np.full(n_res, 1e3)
-            e = (Yd - _one_step(inn, Yd, U)) * wts[None, :]
             out.append(e[burn:].ravel())
         r = np.concatenate(out)
         return r if np.all(np.isfinite(r)) else np.full(n_res, 1e3)
