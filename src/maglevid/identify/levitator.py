@@ -612,6 +612,9 @@ def _consensus(
     return _inconclusive(res, silent) if silent else res
 
 
+_NOISE_WORDS = {"white": "white", "ar1": "AR(1)"}
+
+
 def _inconclusive(res: IdentificationResult, silent: list[str]) -> IdentificationResult:
     """A record with no excitation whose pole one of the noise models cannot identify: no
     pole and no interval, the candidates' table kept, and what would resolve it."""
@@ -626,7 +629,8 @@ def _inconclusive(res: IdentificationResult, silent: list[str]) -> Identificatio
     c = res.extras["consensus"]
     why = (
         "inconclusive: no excitation - only noise drives the loop, so the pole rests on the "
-        f"noise model, and with the {' and '.join(silent)} force-disturbance model no "
+        f"noise model, and with the {' and '.join(_NOISE_WORDS[w] for w in silent)} "
+        "force-disturbance model no "
         f"candidate identifies it (the other gives {c['pole_rad_s']:.4g} rad/s "
         f"[{c['ci95'][0]:.4g}, {c['ci95'][1]:.4g}]; see the candidates' fold poles); no pole "
         "claimed. What would resolve it: a reference step or a dither in the command "
