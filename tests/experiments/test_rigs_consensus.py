@@ -42,10 +42,11 @@ def test_maggy_states_why_it_gives_no_plant_pole(shared_data, capsys):
 
 def test_sessions_one_by_one_and_together(shared_data, capsys):
     # three of the five sessions; docs/real-rigs.md has all five. With the default
-    # candidates (the command delay included): the faster grey box (docs/real-rigs.md,
-    # 'Speed') pools five sessions in 43 s of CPU. Without the delay candidates
-    # senoidal's interval is -23 % wide (50.9 [39.3, 56.4]): the delay is part of its
-    # answer.
+    # candidates (the command delay and both noise models, white and AR(1), included):
+    # the five sessions pool in 118 s of CPU (docs/real-rigs.md, 'Speed'); this test took
+    # 445 s wall at load 7-8 on 2 cores. Now escalon 52.9 [52.4, 53.4], multiescalon 53.3
+    # [50.5, 55.9], senoidal 53.0 [49.0, 56.9]. Without the delay candidates senoidal's
+    # interval is -23 % wide (50.9 [39.3, 56.4]): the delay is part of its answer.
     paths = [next((shared_data / UAQ).glob(f"dataset_{n}_*.txt"))
              for n in ("escalon", "multiescalon", "senoidal")]  # fmt: skip
     res = _identify(capsys, *paths, "--mapping", "uaq-levitador")
