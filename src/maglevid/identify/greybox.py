@@ -9,7 +9,8 @@ criterion. The linear model is sampled (ZOH for the held command ``u``; FOH,
 straight lines between samples, for the measured current when it is the input)
 and put in innovations form with the steady-state Kalman gain of a physical
 noise model (held acceleration/voltage disturbances, white sensor noise; their
-intensity ratios are estimated too); the parameters minimise the one-step
+intensity ratios are estimated too; ``disturbance="ar1"`` makes the acceleration
+disturbance an AR(1) state with its coefficient estimated); the parameters minimise the one-step
 prediction errors (Ljung 1999, sec. 4.2 "grey-box" and 7.2). A Kalman predictor
 is stable, so the unstable plant is never simulated open loop.
 

@@ -11,7 +11,8 @@ What a real levitator log needs before any fit, and how the answer is chosen:
    reference steps, one operating point each.
 2. **Candidates**: in the command frame the electromechanical grey box without and
    with a flux lag and a command delay; in the current frame the force laws of
-   :data:`~maglevid.identify.greybox.FORCE_LAWS`, each without and with a flux lag.
+   :data:`~maglevid.identify.greybox.FORCE_LAWS`, each without and with a flux lag;
+   every one with a white and with an AR(1) force disturbance in its noise model.
    Each is fitted on one half of the segments (at one operating point alternate
    segments, halves of one segment if there is only one; at several gaps the first
    and second halves of every segment, so each fold keeps the static information)
@@ -24,6 +25,9 @@ What a real levitator log needs before any fit, and how the answer is chosen:
    segments and on each half - it covers the spread between segments and models
    (model uncertainty), not only noise. A fit with a parameter at a bound or not
    identifiable claims no pole and enters neither the point nor the interval.
+   With no logged excitation (noise only) the pole rests on the noise model: each
+   noise model is ranked on its own, the hull covers both, and when one of them
+   identifies no pole the answer is "inconclusive: no excitation" (no pole, no interval).
 
 Several recordings of one rig (:func:`fit_levitator_sessions`) are validated and
 pooled across sessions: the folds are the sessions.
