@@ -136,14 +136,17 @@ def main(argv: list[str] | None = None) -> dict[str, object]:
     rows = [
         run_one(a.seed, k, a.samples, a.frame, a.command_delay, a.noise) for k in range(a.runs)
     ]
-    cov = np.mean([r["covered"] for r in rows])
-    err = np.array([r["estimate"] - r["truth"] for r in rows])
-    half = np.array([(r["hi"] - r["lo"]) / 2 / r["truth"] for r in rows])
+    # an inconclusive consensus (no pole, no interval: a noise-only log whose noise models
+    # disagree) is counted apart; coverage, errors and widths are over the answered runs
+    answered = [r for r in rows if np.isfinite(r["estimate"])]
+    cov = np.mean([r["covered"] for r in answered]) if answered else float("nan")
+    err = np.array([r["estimate"] - r["truth"] for r in answered])
+    half = np.array([(r["hi"] - r["lo"]) / 2 / r["truth"] for r in answered])
     out = {
         "frame": a.frame, "noise": a.noise, "command_delay_samples": a.command_delay,
-        "runs": a.runs,
+        "runs": a.runs, "inconclusive": len(rows) - len(answered),
         "samples": a.samples, "coverage": float(cov),
-        "coverage_mc_se": float(np.sqrt(cov * (1 - cov) / a.runs)),
+        "coverage_mc_se": float(np.sqrt(cov * (1 - cov) / max(len(answered), 1))),
         "mean_error_rad_s": float(err.mean()), "rms_error_rad_s": float(np.sqrt(np.mean(err**2))),
         "median_half_width_percent": float(100 * np.median(half)),
     }  # fmt: skip
