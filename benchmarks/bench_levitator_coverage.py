@@ -21,7 +21,9 @@ under a noise case (``--noise``, :data:`NOISE_CASES`)::
     python -m benchmarks.bench_levitator_coverage --per-fit --noise white --runs 40
     python -m benchmarks.bench_levitator_coverage --per-fit --noise coloured --runs 40
 
-It reports each interval's coverage, the Monte Carlo standard deviation of the
+``--disturbance ar1`` fits the grey box with the AR(1) force disturbance in its noise
+model (``fit_greybox_levitator(disturbance="ar1")``); the consensus mode always offers
+both noise models. It reports each interval's coverage, the Monte Carlo standard deviation of the
 estimates against the mean Fisher standard error (the Cramer-Rao bound at the
 estimate: their ratio is ~1 for an efficient estimator under white noise) and the
 mean sandwich standard error.
