@@ -9,6 +9,7 @@ reported in docs/real-rigs.md, not tuned away.
 from __future__ import annotations
 
 import json
+import math
 
 import pytest
 
@@ -41,10 +42,11 @@ def test_maggy_states_why_it_gives_no_plant_pole(shared_data, capsys):
 
 def test_sessions_one_by_one_and_together(shared_data, capsys):
     # three of the five sessions; docs/real-rigs.md has all five. With the default
-    # candidates (the command delay included): the faster grey box (docs/real-rigs.md,
-    # 'Speed') pools five sessions in 43 s of CPU. Without the delay candidates
-    # senoidal's interval is -23 % wide (50.9 [39.3, 56.4]): the delay is part of its
-    # answer.
+    # candidates (the command delay and both noise models, white and AR(1), included):
+    # the five sessions pool in 118 s of CPU (docs/real-rigs.md, 'Speed'); this test took
+    # 445 s wall at load 7-8 on 2 cores. Now escalon 52.9 [52.4, 53.4], multiescalon 53.3
+    # [50.5, 55.9], senoidal 53.0 [49.0, 56.9]. Without the delay candidates senoidal's
+    # interval is -23 % wide (50.9 [39.3, 56.4]): the delay is part of its answer.
     paths = [next((shared_data / UAQ).glob(f"dataset_{n}_*.txt"))
              for n in ("escalon", "multiescalon", "senoidal")]  # fmt: skip
     res = _identify(capsys, *paths, "--mapping", "uaq-levitador")
@@ -71,19 +73,25 @@ def _meets_the_interval_condition(sessions):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(
-    strict=True,
-    reason="constante (no excitation) gives 59.3 [54.2, 60.8] rad/s with the sandwich "
-    "intervals and excludes chirp's and escalon's; docs/real-rigs.md, 'Result with the "
-    "sandwich'",
-)
 def test_every_uaq_session_meets_the_interval_condition(shared_data, capsys):
     # the five sessions one by one, as `identify SESSION --mapping uaq-levitador` (the
-    # table in docs/real-rigs.md); several minutes on one core
+    # table in docs/real-rigs.md); several minutes on one core. Constante has no
+    # excitation (no r, one reference value): its pole rests on the noise model, and with
+    # the AR(1) force disturbance no candidate identifies it (k0 at its bound or not
+    # identifiable), so it is answered "inconclusive: no excitation" with no interval
+    # (docs/real-rigs.md, 'Noise-only records'); every session that gives an interval
+    # meets issue 14's condition.
     sessions = []
     for path in sorted((shared_data / UAQ).glob("dataset_*_*.txt")):
         res = _identify(capsys, path, "--mapping", "uaq-levitador")
         assert res["method"] == "levitator"
         sessions.append({**res, "recording": str(path)})
     assert len(sessions) == 5
-    _meets_the_interval_condition(sessions)
+    quiet = [s for s in sessions if "constante" in s["recording"]]
+    (c,) = quiet
+    assert c["consensus"]["inconclusive"].startswith("inconclusive: no excitation")
+    pole = c["parameters"]["pole_rad_s"]
+    assert (pole is None or math.isnan(pole)) and c["consensus"]["ci95"] == [None, None]
+    answered = [s for s in sessions if s is not c]
+    assert all(s["consensus"]["ci95"][0] is not None for s in answered)
+    _meets_the_interval_condition(answered)

@@ -90,6 +90,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="exit code 3 when the verdict is a fault, an unexplained change or a drift",
     )
+    parser.add_argument(
+        "--option",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="option of the identification method, typed by its declaration as in "
+        "`maglevid identify --option` (`maglevid identify --method list` shows them); "
+        "repeatable",
+    )
 
 
 def _tolerances(items: list[str]) -> float | dict[str, float] | None:
@@ -116,6 +125,25 @@ def _tolerances(items: list[str]) -> float | dict[str, float] | None:
 
         per = {**dict.fromkeys(DIAGNOSED_PARAMETERS, default), **per}
     return per
+
+
+def _method_options(args: argparse.Namespace, store: Any) -> dict[str, Any] | None:
+    """``--option`` items typed by the method the diagnosis will use (the stated one, or
+    the one :func:`~maglevid.diagnose.pipeline.choose_method` picks for this recording),
+    exactly as ``identify --option``; an unknown key is one DataError."""
+    if not args.option:
+        return None
+    from maglevid.cli.identify import _check_option_syntax, _typed_options
+
+    _check_option_syntax(args.option)
+    method = args.method
+    if method is None:
+        from maglevid.diagnose.pipeline import choose_method
+        from maglevid.io import read_recording
+
+        data = read_recording(args.recording, mapping=args.mapping)
+        method = choose_method(data, history=store, machine=args.machine)[0]
+    return _typed_options(method, args.option)
 
 
 def _baseline(text: str) -> Any:
@@ -156,6 +184,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         store = open_history(args.store)
     from maglevid.cli._progress import stages
 
+    method_options = _method_options(args, store)
     steps = stages(("diagnosing", "writing the report"), desc="diagnose", args=args)
     next(steps)
     diag = diagnose(
@@ -167,6 +196,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         history=store,
         mapping=args.mapping,
         max_excitation_std=args.max_excitation_std,
+        method_options=method_options,
     )
     out = diag.to_dict()
     if args.report:

@@ -450,7 +450,7 @@ def uaq_session_estimates(d: ClosedLoopData) -> dict[str, Any]:
             "ci_high": c["ci95"][1], "gap_mm": 1e3 * y_c,
             "published_there": unstable_pole(PUBLISHED, y_c),
         }  # fmt: skip
-        out["notes"]["levitator consensus (own gap)"] = [c["chosen_model"]]
+        out["notes"]["levitator consensus (own gap)"] = [c.get("inconclusive", c["chosen_model"])]
     except MaglevidError as exc:
         est["levitator consensus (own gap)"] = {"error": str(exc)}
     run("pem-arx i->y", lambda: fit_pem(d, input="y:1", na=2, nb=3, nk=0, segments=lev))

@@ -11,7 +11,8 @@ What a real levitator log needs before any fit, and how the answer is chosen:
    reference steps, one operating point each.
 2. **Candidates**: in the command frame the electromechanical grey box without and
    with a flux lag and a command delay; in the current frame the force laws of
-   :data:`~maglevid.identify.greybox.FORCE_LAWS`, each without and with a flux lag.
+   :data:`~maglevid.identify.greybox.FORCE_LAWS`, each without and with a flux lag;
+   every one with a white and with an AR(1) force disturbance in its noise model.
    Each is fitted on one half of the segments (at one operating point alternate
    segments, halves of one segment if there is only one; at several gaps the first
    and second halves of every segment, so each fold keeps the static information)
@@ -24,6 +25,9 @@ What a real levitator log needs before any fit, and how the answer is chosen:
    segments and on each half - it covers the spread between segments and models
    (model uncertainty), not only noise. A fit with a parameter at a bound or not
    identifiable claims no pole and enters neither the point nor the interval.
+   With no logged excitation (noise only) the pole rests on the noise model: each
+   noise model is ranked on its own, the hull covers both, and when one of them
+   identifies no pole the answer is "inconclusive: no excitation" (no pole, no interval).
 
 Several recordings of one rig (:func:`fit_levitator_sessions`) are validated and
 pooled across sessions: the folds are the sessions.
@@ -42,7 +46,12 @@ import numpy as np
 from maglevid.data import ClosedLoopData
 from maglevid.diagnose.quality import SegmentReport, find_levitation_segments, split_segments
 from maglevid.exceptions import DataError, IdentificationError, MaglevidError
-from maglevid.identify.greybox import FORCE_LAWS, fit_greybox_levitator, validate_greybox
+from maglevid.identify.greybox import (
+    DISTURBANCES,
+    FORCE_LAWS,
+    fit_greybox_levitator,
+    validate_greybox,
+)
 from maglevid.identify.options import Option
 from maglevid.identify.result import IdentificationResult
 
@@ -66,6 +75,8 @@ TRACKING_SHARE = 0.25
 #: Candidates within this many percentage points of the best held-out k-step fit
 #: count as equally supported by the data.
 SUPPORT_MARGIN = 2.0
+#: Force-disturbance noise models of the candidates (greybox.DISTURBANCES).
+DEFAULT_DISTURBANCES = ("white", "ar1")
 #: Shortest operating-point segment [s] for the grey box.
 MIN_SEGMENT_SECONDS = 2.0
 
@@ -248,13 +259,22 @@ def _candidates(
     return out
 
 
+def _disturbances(disturbance: Sequence[str]) -> list[str]:
+    out = list(dict.fromkeys(disturbance))
+    bad = [w for w in out if w not in DISTURBANCES]
+    if bad or not out:
+        raise DataError(f"`disturbance`: {bad or 'none'} given; choose from {DISTURBANCES}")
+    return out
+
+
 def _label(c: dict[str, Any]) -> str:
+    noise = " + AR(1) force noise" if c.get("disturbance") == "ar1" else ""
     if c.get("model") == "electromechanical":
         lag = " + flux lag" if c["flux_lag"] else ""
         lag += " + command delay" if c.get("command_delay") else ""
-        return f"electromechanical u -> [gap, i] (inverse-square{lag})"
+        return f"electromechanical u -> [gap, i] (inverse-square{lag}{noise})"
     tie = "" if c["use_equilibrium"] else ", dynamics only"
-    return c["force_law"] + (" + flux lag" if c["flux_lag"] else "") + tie
+    return c["force_law"] + (" + flux lag" if c["flux_lag"] else "") + noise + tie
 
 
 def _pole_ci(res: IdentificationResult) -> tuple[float, float, float] | None:
@@ -307,6 +327,7 @@ def fit_levitator(
     flux_lag: Sequence[bool] = (False, True),
     equilibrium: Sequence[bool] = (True, False),
     command_delay: Sequence[bool] = (False, True),
+    disturbance: Sequence[str] = DEFAULT_DISTURBANCES,
     y_ref: float | None = None,
     k_step: int = 5,
     m: float = 0.018,
@@ -334,6 +355,9 @@ def fit_levitator(
     command_delay : sequence of bool
         Command frame: fit each model without and/or with an estimated delay (within
         one sample) between the logged command and the coil.
+    disturbance : sequence of {"white", "ar1"}
+        Fit each model with a held white and/or an AR(1) force disturbance in its noise
+        model (:func:`~maglevid.identify.greybox.fit_greybox_levitator`).
     y_ref : float, optional
         Gap at which the pole is reported (default: mean gap of the segments).
     k_step : int
@@ -395,6 +419,7 @@ def _fit_sessions(
     flux_lag: Sequence[bool],
     equilibrium: Sequence[bool],
     command_delay: Sequence[bool],
+    disturbance: Sequence[str],
     y_ref: float | None,
     k_step: int,
     m: float,
@@ -451,12 +476,16 @@ def _fit_sessions(
         if frame == "command"
         else _candidates(force_laws, flux_lag, equilibrium)
     )
+    cands = [{**c, "disturbance": w} for w in _disturbances(disturbance) for c in cands]
     for cand in cands:
         ev = _evaluate(pooled, folds, cand, common, k_step) if len(folds) > 1 else {
             "validation": float("nan"), "fold_poles": []}  # fmt: skip
         rows.append({"candidate": cand, **ev})
-    res = _consensus(pooled, pooled_segs, rows, common, k_step, exclusions, len(sessions))
     quiet = [j for j, (d, sl) in enumerate(zip(sessions, seg_lists)) if sl and _noise_only(d, sl)]
+    noise_only = len(quiet) == sum(bool(sl) for sl in seg_lists)
+    res = _consensus(
+        pooled, pooled_segs, rows, common, k_step, exclusions, len(sessions), noise_only
+    )
     notes = [FRAME_NOTES[frame]]
     if quiet:
         notes.append(
@@ -525,11 +554,25 @@ def _consensus(
     k_step: int,
     exclusions: list[dict[str, Any]],
     n_sessions: int,
+    noise_only: bool = False,
 ) -> IdentificationResult:
     """Refit every candidate on all segments; the best-validated one with a pole gives the
-    point, the supported ones (within ``SUPPORT_MARGIN`` of it) the hull interval."""
+    point, the supported ones (within ``SUPPORT_MARGIN`` of it) the hull interval.
+
+    With no logged excitation (``noise_only``) the pole rests on the noise model, so each
+    noise model (``disturbance``) is ranked on its own and the hull covers every noise
+    model's supported candidates; when one noise model identifies no pole the answer is
+    inconclusive (:func:`_inconclusive`)."""
     scores = np.array([r["validation"] for r in rows])
-    fits = _refit(data, segs, rows, scores, common)
+    noise = [r["candidate"].get("disturbance", "white") for r in rows]
+    groups = [list(range(len(rows)))]
+    if noise_only and len(set(noise)) > 1:
+        groups = [[j for j in groups[0] if noise[j] == w] for w in dict.fromkeys(noise)]
+    fits: list[Any] = [None] * len(rows)
+    for grp in groups:
+        sub = _refit(data, segs, [rows[j] for j in grp], scores[grp], common)
+        for j, f in zip(grp, sub):
+            fits[j] = f
     fulls = [None if isinstance(f, (Exception, str)) else _pole_ci(f) for f in fits]
     ok = np.array([f is not None for f in fulls])
     if not ok.any():
@@ -537,12 +580,16 @@ def _consensus(
             "no candidate model gives an identifiable pole on these segments: "
             + "; ".join(f"{_label(r['candidate'])}: {_why_not(f)}" for r, f in zip(rows, fits))
         )
-    ranked = ok & np.isfinite(scores)
-    if ranked.any():
-        best_score = float(np.max(scores[ranked]))
-        support = ranked & (scores >= best_score - SUPPORT_MARGIN)
-    else:  # nothing to validate on (one fold): every identified candidate counts
-        support = ok
+    support = np.zeros(len(rows), dtype=bool)
+    for grp in groups:
+        g = np.array(grp)
+        ranked = ok[g] & np.isfinite(scores[g])
+        if ranked.any():
+            best_score = float(np.max(scores[g][ranked]))
+            support[g] = ranked & (scores[g] >= best_score - SUPPORT_MARGIN)
+        else:  # nothing to validate on (one fold): every identified candidate counts
+            support[g] = ok[g]
+    silent = [noise[grp[0]] for grp in groups if not support[grp].any()] if len(groups) > 1 else []
     order = sorted(
         range(len(rows)),
         key=lambda j: (not support[j], not ok[j], -np.nan_to_num(scores[j], nan=-np.inf)),
@@ -565,7 +612,45 @@ def _consensus(
     point = float(best.parameters["pole_rad_s"])
     lo = min(p[1] for p in pool)
     hi = max(p[2] for p in pool)
-    return _with_consensus(best, point, lo, hi, table, exclusions, n_sessions, k_step, data.dt)
+    res = _with_consensus(best, point, lo, hi, table, exclusions, n_sessions, k_step, data.dt)
+    return _inconclusive(res, silent) if silent else res
+
+
+_NOISE_WORDS = {"white": "white", "ar1": "AR(1)"}
+
+
+def _inconclusive(res: IdentificationResult, silent: list[str]) -> IdentificationResult:
+    """A record with no excitation whose pole one of the noise models cannot identify: no
+    pole and no interval, the candidates' table kept, and what would resolve it."""
+    names = list(res.parameters)
+    cov = np.array(res.covariance, dtype=float, copy=True)
+    params = dict(res.parameters)
+    for key in ("pole_rad_s", "pole_z"):
+        if key in names:
+            j = names.index(key)
+            cov[j, :] = cov[:, j] = np.nan
+            params[key] = float("nan")
+    c = res.extras["consensus"]
+    why = (
+        "inconclusive: no excitation - only noise drives the loop, so the pole rests on the "
+        f"noise model, and with the {' and '.join(_NOISE_WORDS[w] for w in silent)} "
+        "force-disturbance model no "
+        f"candidate identifies it (the other gives {c['pole_rad_s']:.4g} rad/s "
+        f"[{c['ci95'][0]:.4g}, {c['ci95'][1]:.4g}]; see the candidates' fold poles); no pole "
+        "claimed. What would resolve it: a reference step or a dither in the command "
+        "(logged, or recoverable from a stated controller law), or this session identified "
+        "together with excited sessions of the rig"
+    )
+    consensus = {**c, "pole_rad_s": float("nan"), "ci95": [float("nan")] * 2,
+                 "inconclusive": why, "noise_only_estimate": c["pole_rad_s"],
+                 "noise_only_ci95": c["ci95"]}  # fmt: skip
+    return replace(
+        res,
+        parameters=params,
+        covariance=cov,
+        notes=(why, res.notes[0], *res.notes[2:]),  # in place of the consensus line
+        extras={**res.extras, "consensus": consensus, "pole_identified": False},
+    )
 
 
 def _refit(
@@ -669,6 +754,8 @@ OPTIONS = {
         Option("equilibrium", "bools", "with and/or without the equilibrium-current tie"),
         Option("command_delay", "bools", "command-input candidates without and/or with an "
                "estimated command-to-coil delay"),
+        Option("disturbance", "strs", "force-disturbance noise models of the candidates: "
+               "white and/or ar1", choices=DISTURBANCES),
         Option("y_ref", "float", "gap at which the pole is reported (default: mean gap)",
                unit="m"),
         Option("k_step", "int", "horizon of the validation, samples ahead", low=1),
