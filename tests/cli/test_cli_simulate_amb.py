@@ -72,3 +72,24 @@ def test_command_writes_a_readable_recording(tmp_path):
     back = io.read_recording(out)
     assert back.n_samples == 500
     assert back.loop["observer"]["type"] == "deadbeat"
+
+
+def test_i0_fault_on_the_nonlinear_plant_is_refused(capsys):
+    # the nonlinear plant's bias follows from the nominal voltages: i0 would be a silent no-op
+    code = main(["simulate", "amb", "--out", "x.npz", "--fault", "i0=1.2", "--n-samples", "100"])
+    assert code != 0
+    err = capsys.readouterr().err
+    assert "no effect on the nonlinear plant" in err and "--plant linear" in err
+
+
+def test_sensor_gain_fault_is_diagnosed_end_to_end(tmp_path, capsys):
+    out = tmp_path / "gx.npz"
+    code = main(["-q", "simulate", "amb", "--plant", "nonlinear", "--fault", "gx=1.2",
+                 "--n-samples", "5000", "--seed", "1", "--out", str(out)])  # fmt: skip
+    assert code == 0
+    capsys.readouterr()
+    assert main(["diagnose", str(out), "--baseline", "nominal"]) == 0
+    verdict = capsys.readouterr().out.splitlines()[0]
+    assert "only gx changed" in verdict and "displacement sensor reads high" in verdict
+    change = float(verdict.split("displacement-sensor gain")[1].split("%")[0])
+    assert change == pytest.approx(20.0, abs=1.5)  # +19.5 % +- 0.39 % at seed 1

@@ -55,6 +55,7 @@ from maglevid.control import (
 )
 from maglevid.data import ClosedLoopData
 from maglevid.exceptions import DataError, DesignError, ModelError
+from maglevid.lti import StateSpace
 from maglevid.physics.amb import (
     C_AMB,
     INPUT_NAMES,
@@ -82,6 +83,7 @@ __all__ = [
     "PLANT_MODELS",
     "SCENARIO",
     "SCENARIO_HELP",
+    "SENSOR_GAINS",
     "add_scenario_arguments",
     "default_amb_controller",
     "default_amb_observer",
@@ -139,6 +141,12 @@ PLANT_MODELS = ("linear", "nonlinear")
 #: on the nominal bearing): ``"nominal"`` (a real controller) or ``"plant"``
 #: (the real bearing's ZOH model -- how the paper's examples are reproduced).
 OBSERVER_MODELS = ("nominal", "plant")
+
+#: Sensor-gain faults (the names of the diagnosis hypotheses,
+#: :data:`maglevid.diagnose.isolate.HYPOTHESES`): the displacement sensor and the
+#: two current sensors. A gain ``g`` multiplies the measured deviation
+#: (``y_j = g_j y_true_j + noise``); the controller sees the measured signal.
+SENSOR_GAINS = ("gx", "gi1", "gi2")
 
 #: Largest accepted unit-free loop-matrix condition for the default design.
 _DEFAULT_DESIGN_MAX_CONDITION = 1e3
@@ -304,11 +312,14 @@ def _simulate_nonlinear(
     eq: dict[str, Any],
     progress: Callable[[Iterable[int]], Iterable[int]] | None,
     force: np.ndarray | None = None,
+    gains: Sequence[float] = (1.0, 1.0, 1.0),
 ) -> tuple[np.ndarray, np.ndarray]:
     """Sample-by-sample loop with eq. (1) integrated by RK4 under ZOH. Returns y, u_f.
 
     ``force`` (N,): external force on the rotor [N], held over each period.
+    ``gains``: sensor gains on ``[x, i1 - i0, i2 - i0]`` (:data:`SENSOR_GAINS`).
     """
+    gx, gi1, gi2 = (float(g) for g in gains)
     N = r.shape[0]
     i0, x0 = nominal.i0, plant.x0
     ub1, ub2 = (float(b) for b in bias_voltages(nominal))
@@ -332,7 +343,7 @@ def _simulate_nonlinear(
     Y = np.empty((N, 3))
     UF = np.empty((N, 2))
     x, dx, I1, I2 = float(eq["x"]), 0.0, float(eq["I1"]), float(eq["I2"])
-    y0 = np.array([x, I1 - i0, I2 - i0]) + v[0]
+    y0 = np.array([gx * x, gi1 * (I1 - i0), gi2 * (I2 - i0)]) + v[0]
     state = np.concatenate([eq["x_hat"], np.asarray(eq["e"]) + E @ y0]).tolist()
     ns = nx + ne
     chunk = 2000
@@ -347,7 +358,8 @@ def _simulate_nonlinear(
         ys, ufs = [], []
         for j in range(stop - start):
             (v0, v1, v2), (r0, r1) = vl[j], rl[j]
-            yk = [x + v0, I1 - i0 + v1, I2 - i0 + v2]  # y(k), measured at t = k dt
+            # y(k), measured at t = k dt, through the sensors' gains
+            yk = [gx * x + v0, gi1 * (I1 - i0) + v1, gi2 * (I2 - i0) + v2]
             out = (M @ np.array(state + yk + rl[j])).tolist()
             state = out[:ns]  # x̂(k+1), and e(k) as next sample's e(k-1)
             uf1, uf2 = out[ns], out[ns + 1]
@@ -385,10 +397,15 @@ def _make_rng(rng: Any) -> tuple[np.random.Generator, int | None]:
 
 
 def _check_settled_loop(
-    eq: dict[str, Any], observer: Observer, controller: IntegralStateFeedback, dt: float
+    eq: dict[str, Any],
+    observer: Observer,
+    controller: IntegralStateFeedback,
+    dt: float,
+    gains: Sequence[float] = (1.0, 1.0, 1.0),
 ) -> None:
     """DesignError when the loop is unstable around the settled point (it would diverge)."""
     lin = amb_state_space(np.asarray(eq["v"]), dt)
+    lin = StateSpace(np.asarray(lin.A), np.asarray(lin.B), np.diag(gains) @ lin.C, dt=dt)
     rho = float(np.max(np.abs(closed_loop_system(lin, observer, controller).poles())))
     if rho >= 1.0:
         raise DesignError(
@@ -429,6 +446,18 @@ def _linear_operating_point(
     ).to_dict()  # fmt: skip
 
 
+def _sensor_gains(sensor_gains: Any) -> tuple[float, float, float]:
+    """``(gx, gi1, gi2)`` from a dict of :data:`SENSOR_GAINS` (default 1)."""
+    given = dict(sensor_gains or {})
+    unknown = sorted(set(given) - set(SENSOR_GAINS))
+    if unknown:
+        raise DataError(f"unknown sensor gains {unknown}; expected names from {SENSOR_GAINS}")
+    out = tuple(float(given.get(k, 1.0)) for k in SENSOR_GAINS)
+    if not all(math.isfinite(g) and g > 0 for g in out):
+        raise DataError(f"sensor gains must be positive finite numbers; got {given!r}")
+    return out  # type: ignore[return-value]
+
+
 def _noise_std(noise_std: Any) -> np.ndarray:
     s = np.asarray(noise_std, dtype=float).reshape(-1)
     if s.size != 3 or not np.all(np.isfinite(s)) or np.any(s < 0):
@@ -457,6 +486,7 @@ def simulate_amb_loop(
     observer_model: str = "nominal",
     kernel: str = "auto",
     progress: Callable[[Iterable[int]], Iterable[int]] | None = None,
+    sensor_gains: dict[str, float] | None = None,
 ) -> ClosedLoopData:
     """Simulate the AMB under observer-based state feedback with integral action.
 
@@ -513,6 +543,12 @@ def simulate_amb_loop(
     progress : callable, optional
         Wraps an iterable of chunk start indices (e.g. a progress bar); used by
         the nonlinear plant, whose loop runs in Python.
+    sensor_gains : dict, optional
+        Sensor faults ``{"gx": g, "gi1": g, "gi2": g}`` (:data:`SENSOR_GAINS`,
+        default 1): the measured deviation is ``g`` times the true one (plus
+        noise), and the controller acts on the measured signal. Nonlinear plant:
+        a current-sensor gain cannot be combined with a fault that moves that
+        coil's rest current (DataError).
 
     Returns
     -------
@@ -541,6 +577,14 @@ def simulate_amb_loop(
     nominal, dt, n_samples, substeps = _check_arguments(
         plant, nominal, dt, n_samples, plant_model, excitation, substeps
     )
+    gains = _sensor_gains(sensor_gains)
+    if plant_model == "nonlinear" and plant.i0 != nominal.i0:
+        raise DataError(
+            "an i0 fault has no effect on the nonlinear plant: its bias currents follow from "
+            "the nominal bias voltages and the coil resistances (a wrong bias current is an R1/"
+            "R2 or kw1/kw2 fault there); use plant_model='linear' (--plant linear) to move "
+            "the linearisation point i0"
+        )
     noise = _noise_std(noise_std)
     fstd = _force_std(force_std, plant_model)
     gen, seed = _make_rng(rng)
@@ -564,8 +608,9 @@ def simulate_amb_loop(
         "noise_std": noise.tolist(),
         "force_std": fstd,
         "observer_model": observer_model,
+        "sensor_gains": dict(zip(SENSOR_GAINS, gains, strict=True)),
     }
-    bearing = _Bearing(plant, nominal, controller, observer, dt)
+    bearing = _Bearing(plant, nominal, controller, observer, dt, gains)
     if plant_model == "linear":
         y, u_f, u = _run_linear(bearing, r, v, kernel, meta)
     else:
@@ -669,6 +714,7 @@ class _Bearing:
     controller: IntegralStateFeedback
     observer: Observer
     dt: float
+    gains: tuple[float, float, float] = (1.0, 1.0, 1.0)
 
 
 def _run_linear(
@@ -676,9 +722,10 @@ def _run_linear(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The linear plant of eqs. (3)-(7) in the loop; ``meta`` gets its operating point."""
     plant, nominal, controller, observer, dt = b.plant, b.nominal, b.controller, b.observer, b.dt
-    sig = simulate_linear_loop(
-        amb_state_space(plant, dt), observer, controller, r=r, noise=v, kernel=kernel
-    )
+    true = amb_state_space(plant, dt)
+    # the sensors' gains scale the measured outputs: y = diag(g) C x + noise
+    sensed = StateSpace(np.asarray(true.A), np.asarray(true.B), np.diag(b.gains) @ true.C, dt=dt)
+    sig = simulate_linear_loop(sensed, observer, controller, r=r, noise=v, kernel=kernel)
     # the linear plant runs at the nominal point x = 0, i = i0 of the real bearing
     meta["operating_point_true"] = _linear_operating_point(plant, nominal, controller, observer)
     meta["initial_state"] = {
@@ -686,6 +733,25 @@ def _run_linear(
         "e": np.asarray(sig.e0).tolist(),
     }
     return sig.y, sig.u_f, sig.u
+
+
+def _check_current_gains_at_rest(
+    eq: dict[str, Any], i0: float, gains: tuple[float, float, float]
+) -> None:
+    """Refuse a current-sensor gain where the bearing rests off the bias current.
+
+    The rest point is found for true sensors; a current-sensor gain leaves it
+    unchanged only while ``I_j = i0`` there (the healthy coils' point). With a
+    coil fault as well, the record would start off its rest point.
+    """
+    for j, (name, g) in enumerate(zip(("gi1", "gi2"), gains[1:], strict=True)):
+        dev = float(eq[f"I{j + 1}"]) - i0
+        if g != 1.0 and abs(dev) > 1e-9 * i0:
+            raise DataError(
+                f"a current-sensor fault {name}={g:g} together with a fault that moves coil "
+                f"{j + 1}'s rest current ({dev:+.3g} A from i0) is not supported on the "
+                "nonlinear plant; simulate them one at a time, or use plant_model='linear'"
+            )
 
 
 def _run_nonlinear(
@@ -700,7 +766,8 @@ def _run_nonlinear(
     """The bearing of eq. (1) from the point it settles at under the nominal bias voltages."""
     plant, nominal, controller, observer, dt = b.plant, b.nominal, b.controller, b.observer, b.dt
     eq = nonlinear_equilibrium(plant, nominal, observer, controller)
-    _check_settled_loop(eq, observer, controller, dt)
+    _check_settled_loop(eq, observer, controller, dt, b.gains)
+    _check_current_gains_at_rest(eq, nominal.i0, b.gains)
     y, u_f = _simulate_nonlinear(
         plant,
         nominal,
@@ -713,6 +780,7 @@ def _run_nonlinear(
         eq=eq,
         progress=progress,
         force=force,
+        gains=b.gains,
     )
     meta["substeps"] = substeps
     meta["operating_point_true"] = {
@@ -786,7 +854,8 @@ def add_scenario_arguments(parser: argparse.ArgumentParser) -> None:
         default=[],
         metavar="NAME=FACTOR",
         help="multiply a parameter of the simulated bearing (R1, R2, Ls1, Ls2, K1, K2, kw1, kw2, "
-        "m, i0, x0), e.g. --fault R1=1.2 --fault K1=0.9; repeatable",
+        "m, x0; i0 on the linear plant only) or a sensor's gain (gx displacement, gi1, gi2 "
+        "coil currents), e.g. --fault R1=1.2 --fault gx=1.1; repeatable",
     )
     parser.add_argument(
         "--noise",
@@ -857,7 +926,9 @@ def run_scenario(
     the same items; it reports the nonlinear plant's chunks simulated.
     """
     nominal = AMBParameters.nominal()
-    plant = nominal.with_fault(**dict(args.fault)) if args.fault else nominal
+    faults = dict(args.fault)
+    gains = {k: faults.pop(k) for k in SENSOR_GAINS if k in faults}
+    plant = nominal.with_fault(**faults) if faults else nominal
     exc = args.excitation_std
     chunks = None
     if args.plant == "nonlinear" and progress is not None:
@@ -879,4 +950,5 @@ def run_scenario(
         force_std=args.force_std,
         rng=args.seed,
         progress=chunks,
+        sensor_gains=gains,
     )
