@@ -468,6 +468,17 @@ def _noise_std(noise_std: Any) -> np.ndarray:
     return s
 
 
+def _check_bias_current(plant: AMBParameters, nominal: AMBParameters, plant_model: str) -> None:
+    """Refuse an ``i0`` fault on the nonlinear plant, where it would change nothing."""
+    if plant_model == "nonlinear" and plant.i0 != nominal.i0:
+        raise DataError(
+            "an i0 fault has no effect on the nonlinear plant: its bias currents follow from "
+            "the nominal bias voltages and the coil resistances (a wrong bias current is an R1/"
+            "R2 or kw1/kw2 fault there); use plant_model='linear' (--plant linear) to move "
+            "the linearisation point i0"
+        )
+
+
 def simulate_amb_loop(
     plant: AMBParameters,
     *,
@@ -578,13 +589,7 @@ def simulate_amb_loop(
         plant, nominal, dt, n_samples, plant_model, excitation, substeps
     )
     gains = _sensor_gains(sensor_gains)
-    if plant_model == "nonlinear" and plant.i0 != nominal.i0:
-        raise DataError(
-            "an i0 fault has no effect on the nonlinear plant: its bias currents follow from "
-            "the nominal bias voltages and the coil resistances (a wrong bias current is an R1/"
-            "R2 or kw1/kw2 fault there); use plant_model='linear' (--plant linear) to move "
-            "the linearisation point i0"
-        )
+    _check_bias_current(plant, nominal, plant_model)
     noise = _noise_std(noise_std)
     fstd = _force_std(force_std, plant_model)
     gen, seed = _make_rng(rng)
@@ -598,18 +603,13 @@ def simulate_amb_loop(
     v = gen.standard_normal((n_samples, 3)) * noise if np.any(noise) else np.zeros((n_samples, 3))
     force = gen.standard_normal(n_samples) * fstd if fstd > 0 else None  # after the noise
 
-    meta: dict[str, Any] = {
-        "simulated": True,
-        "truth": plant.to_dict(),
-        "truth_v": plant.v().tolist(),
-        "seed": seed,
-        "plant_model": plant_model,
+    meta = {
+        "simulated": True, "truth": plant.to_dict(), "truth_v": plant.v().tolist(),
+        "seed": seed, "plant_model": plant_model,
         "excitation": {"kind": excitation, "std": np.broadcast_to(excitation_std, (2,)).tolist()},
-        "noise_std": noise.tolist(),
-        "force_std": fstd,
-        "observer_model": observer_model,
+        "noise_std": noise.tolist(), "force_std": fstd, "observer_model": observer_model,
         "sensor_gains": dict(zip(SENSOR_GAINS, gains, strict=True)),
-    }
+    }  # fmt: skip
     bearing = _Bearing(plant, nominal, controller, observer, dt, gains)
     if plant_model == "linear":
         y, u_f, u = _run_linear(bearing, r, v, kernel, meta)
