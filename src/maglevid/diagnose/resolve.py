@@ -80,6 +80,7 @@ from maglevid.exceptions import DataError
 
 __all__ = [
     "Unresolved",
+    "bounds_side",
     "interval_side",
     "tolerance_of",
     "unresolved_parameters",
@@ -242,11 +243,19 @@ def interval_side(change: float, half_width: float, tolerance: float) -> str:
     fault) or ``"straddles"`` (the data cannot decide). A non-finite half-width
     straddles.
     """
-    if not math.isfinite(half_width):
-        return "straddles"
-    if abs(change) - half_width > tolerance:
+    return bounds_side(change - half_width, change + half_width, tolerance)
+
+
+def bounds_side(low: float, high: float, tolerance: float) -> str:
+    """Where the interval ``[low, high]`` of a relative change lies against ``± tolerance``.
+
+    The rule of :func:`interval_side` for an interval that is not symmetric about
+    its estimate (e.g. a change in log units mapped back by ``expm1``). A NaN bound,
+    or an interval from ``-inf`` to ``inf``, straddles.
+    """
+    if low > tolerance or high < -tolerance:
         return "beyond"
-    if abs(change) + half_width <= tolerance:
+    if low >= -tolerance and high <= tolerance:
         return "inside"
     return "straddles"
 

@@ -32,6 +32,7 @@ from maglevid.data import ClosedLoopData
 from maglevid.diagnose import levitator as lev
 from maglevid.diagnose.compare import DEFAULT_TOLERANCE, compare_parameters
 from maglevid.diagnose.diagnosis import Diagnosis, QualityCheck
+from maglevid.diagnose.resolve import bounds_side
 from maglevid.exceptions import DataError, MaglevidError
 from maglevid.plants.amb import STAGES, AMBStages
 from maglevid.plants.base import BaseKind, DiagnosisRun, as_mapping, cannot_diagnose, shape_of
@@ -201,24 +202,27 @@ def _moves(
         d = obs.vector() - z0
         half = zq * np.sqrt(np.diag(obs.covariance()))
         lo, hi = np.expm1(d - half), np.expm1(d + half)
-    beyond = (lo > tol) | (hi < -tol)
-    inside = (lo >= -tol) & (hi <= tol)
+    sides = [bounds_side(a, b, tol) for a, b in zip(lo, hi)]
     undecided = [
         f"{n} {100 * np.expm1(x):+.2g} % (interval {100 * a:+.2g} … {100 * b:+.2g} %)"
-        for n, x, a, b, ok, out in zip(obs.names, d, lo, hi, inside, beyond)
-        if not (ok or out)
+        for n, x, a, b, side in zip(obs.names, d, lo, hi, sides)
+        if side == "straddles"
     ]
-    return ("beyond" if beyond.any() else "inside" if inside.all() else "straddles"), undecided
+    if "beyond" in sides:
+        return "beyond", undecided
+    return ("inside" if all(s == "inside" for s in sides) else "straddles"), undecided
 
 
 def _free_beyond(changes: list[Any]) -> bool:
     """Some free estimate's interval lies wholly beyond its tolerance."""
     return any(
         ch.baseline
-        and (ch.change_ci[0] > ch.tolerance * abs(ch.baseline)
-             or ch.change_ci[1] < -ch.tolerance * abs(ch.baseline))
+        and bounds_side(
+            ch.change_ci[0] / abs(ch.baseline), ch.change_ci[1] / abs(ch.baseline), ch.tolerance
+        )
+        == "beyond"
         for ch in changes
-    )  # fmt: skip
+    )
 
 
 def _verdict(
