@@ -165,7 +165,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         source = args.recording
     else:
         nominal = AMBParameters.nominal()
-        plant = nominal.with_fault(**dict(args.fault)) if args.fault else nominal
+        plant = _faulty_plant(nominal, dict(args.fault))
         design = design_information(plant, nominal=nominal, dt=args.dt, noise=noise)
         n = DEFAULT_N_SAMPLES if args.seconds is None else max(1, round(args.seconds / args.dt))
         exc = DEFAULT_EXCITATION_STD if args.excitation_std is None else args.excitation_std
@@ -176,6 +176,23 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     out = plan.to_dict()
     out["source"] = source
     return out
+
+
+def _faulty_plant(nominal: Any, faults: dict[str, float]) -> Any:
+    """The bearing of ``--fault``: parameter factors and sensor gains (gx, gi1, gi2).
+
+    A sensor gain is planned as the bearing the loop and the identification
+    see through it (:func:`~maglevid.diagnose.isolate.v_with_sensor_gains`: a
+    change of state scale, the same loop), as ``maglevid simulate amb`` takes it.
+    """
+    from maglevid.diagnose.isolate import SENSOR_GAINS, v_with_sensor_gains
+    from maglevid.identify.cramer_rao import plant_from_v
+
+    gains = {k: faults.pop(k) for k in SENSOR_GAINS if k in faults}
+    plant = nominal.with_fault(**faults) if faults else nominal
+    if not gains:
+        return plant
+    return plant_from_v(v_with_sensor_gains(plant, **gains), m=plant.m, i0=plant.i0)
 
 
 def _limits(text: str) -> float | tuple[float, ...]:
@@ -272,8 +289,20 @@ def format_text(result: dict[str, Any]) -> str:
             + f" {_s(p['seconds_now']):>9} {_s(p['seconds_at_max_excitation']):>9} "
             f"{'unreachable' if exc is None else f'{exc:.3g}':>12}  {_best(p)}"
         )
+    lines.append(
+        f"model error of the linearisation: largest level with bias <= "
+        f"{r['model_error_ratio']:g} std at this length {_v(r['excitation_model_error'])}; "
+        + ", ".join(
+            f"{p['name']} {_s(p['model_error_in_std'])} std" for p in rows
+        )
+        + " at the present excitation"
+    )
     lines.append(r["sentence"])
     return "\n".join(lines)
+
+
+def _v(volts: float | None) -> str:
+    return "none" if volts is None else f"{volts:.3g} V rms"
 
 
 def _volts(limit: Any) -> str:
