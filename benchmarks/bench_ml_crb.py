@@ -66,7 +66,7 @@ from maglevid.experiments._parallel import one_blas_thread, start_method
 from maglevid.identify.cramer_rao import NoiseModel, derived_parameters
 from maglevid.identify.ml import fit_ml
 from maglevid.identify.physical import fit_physical, to_physical_coordinates
-from maglevid.identify.planning import design_information
+from maglevid.identify.planning import design_information, model_error_level
 from maglevid.identify.registry import get_method
 from maglevid.physics.amb import V_NAMES, AMBParameters, v_from_matrices
 from maglevid.simulate.amb import DEFAULT_NOISE_STD, DEFAULT_SUBSTEPS, simulate_amb_loop
@@ -219,6 +219,7 @@ def _simulate(spec: dict[str, Any], rng: Any, noise: Any = None) -> Any:
         # realistic bearing with its 0.1 N force is bench_ml_realistic.py.
         force_std=0.0,
         substeps=SUBSTEPS if spec["plant"] == "nonlinear" else DEFAULT_SUBSTEPS,
+        excitation_std=spec.get("excitation_std", BENCH_EXCITATION_STD),
         rng=rng,
     )
 
@@ -337,6 +338,43 @@ def _map_until(specs: list[dict[str, Any]], workers: int, budget_s: float) -> li
     return [r for r in results if r is not None]
 
 
+#: The bench's amplifier limit [V rms]: the simulator's default excitation,
+#: the level every point used before the model-error rule.
+BENCH_EXCITATION_STD = 1.0
+
+
+def point_excitation_std(plant: str, level: str, n: int) -> float:
+    """The excitation [V rms] of a point (its spec's ``"excitation_std"``).
+
+    Linear plant: 1 V (no model error). Nonlinear plant: the planner's level
+    (:func:`~maglevid.identify.planning.model_error_level`) for this N and
+    noise, within 1 V: the largest at which the linearisation's predicted
+    model-error bias is at most 0.1 standard errors of every v_i and
+    physical parameter reported, so that ML's estimand (the best linear model
+    at the excitation) stays within the target of the settled-point truth. The
+    bound of the point is evaluated at the same level.
+    """
+    if plant == "linear":
+        return BENCH_EXCITATION_STD
+    design = _point_design(plant, level)
+    names = design.bound(n_samples=1, excitation_std=1.0).names
+    return model_error_level(
+        design,
+        n_samples=int(n),
+        parameters=[k for k in REPORTED if k in names],
+        max_excitation_std=BENCH_EXCITATION_STD,
+    )
+
+
+def _point_design(plant: str, level: str) -> Any:
+    """The bound's design of a point: its bearing, the sensor noise, no force."""
+    nominal = AMBParameters.nominal()
+    noise = tuple(float(s) * NOISE_LEVELS[level] for s in DEFAULT_NOISE_STD)
+    return design_information(
+        nominal.with_fault(**PLANTS[plant]), nominal=nominal, noise=NoiseModel(noise)
+    )
+
+
 def run_point(
     *,
     plant: str,
@@ -350,24 +388,24 @@ def run_point(
     """One point of the plan: at most ``runs`` records within ``budget_s``."""
     label = point_label(plant, level, n)
     noise = tuple(float(s) * NOISE_LEVELS[level] for s in DEFAULT_NOISE_STD)
+    exc = point_excitation_std(plant, level, n)
     specs = [
         {"label": label, "plant": plant, "n": int(n), "noise": noise, "seed": seed, "run": i}
+        | {"excitation_std": exc}
         for i in range(runs)
     ]
     workers = max(1, int(workers or os.cpu_count() or 1))
     t0 = time.perf_counter()
     records = _map_until(specs, workers, budget_s)
     wall = time.perf_counter() - t0
-    nominal = AMBParameters.nominal()
-    design = design_information(
-        nominal.with_fault(**PLANTS[plant]), nominal=nominal, noise=NoiseModel(noise)
-    )
-    crb = design.bound(n_samples=int(n), excitation_std=1.0).std()
+    design = _point_design(plant, level)
+    crb = design.bound(n_samples=int(n), excitation_std=exc).std()
     return {
         "label": label,
         "plant": plant,
         "level": level,
         "n": int(n),
+        "excitation_std": exc,
         "planned": runs,
         "summary": summarise(records, crb),
         "timing": {"wall_s": wall, "workers": workers, "budget_s": budget_s},
@@ -552,7 +590,14 @@ def markdown_section(results: dict[str, Any]) -> list[str]:
             continue
         s, ml = pt["summary"], pt["summary"].get("ML", {})
         L.append(
-            f"{s['records']} of {pt['planned']} planned records (budget "
+            f"Excitation {pt.get('excitation_std', BENCH_EXCITATION_STD):.3g} V rms per input"
+            + (
+                " (the planner's level for this N and noise: model-error bias <= 0.1 std, "
+                "`point_excitation_std`; the bound at the same level). "
+                if pt.get("plant") == "nonlinear"
+                else ". "
+            )
+            + f"{s['records']} of {pt['planned']} planned records (budget "
             f"{pt['timing']['budget_s']:.0f} s, wall {pt['timing']['wall_s']:.0f} s on "
             f"{pt['timing']['workers']} workers, load {pt['load']:.1f}). "
             "ML/IV time (median per record) "

@@ -396,8 +396,8 @@ def _derived_jacobian(design: DesignInformation) -> np.ndarray:
     """d(v1..v9, physical parameters) / d(v1..v9) at the design's v (central differences)."""
     v = np.asarray(design.v, float)
 
-    def chain(vv: np.ndarray) -> np.ndarray:
-        return np.concatenate([vv, derived_parameters(vv, m=design.m, i0=design.i0)[1]])
+    def derived(vv: np.ndarray) -> np.ndarray:
+        return np.asarray(derived_parameters(vv, m=design.m, i0=design.i0)[1], float)
 
     cols = []
     for i in range(9):
@@ -405,8 +405,8 @@ def _derived_jacobian(design: DesignInformation) -> np.ndarray:
         vp, vm = v.copy(), v.copy()
         vp[i] += h
         vm[i] -= h
-        cols.append((chain(vp) - chain(vm)) / (2 * h))
-    return np.column_stack(cols)
+        cols.append((derived(vp) - derived(vm)) / (2 * h))
+    return np.vstack([np.eye(9), np.column_stack(cols)])  # v itself: exactly
 
 
 def model_error_bias(
@@ -487,8 +487,25 @@ def model_error_level(
         bias = model_error_bias(design, a, spectrum=spectrum, share=share)[index]
         return bool(np.any(bias > ratio * std))
 
-    crossing = smallest_satisfying(too_biased, 0.0, a_max, xtol=1e-3 * a_max)
-    return a_max if crossing is None else crossing
+    a = _largest_level(lambda a: not too_biased(a), a_max)
+    return 0.0 if a is None else a
+
+
+def _largest_level(ok: Callable[[float], bool], a_max: float) -> float | None:
+    """Largest ``a`` in ``[0, a_max]`` where ``ok`` (true below some level) holds.
+
+    Bisection to 1e-4 of the level, from below (the returned level satisfies
+    ``ok``); ``None`` when not even ``ok(0)``.
+    """
+    if ok(a_max):
+        return a_max
+    if not ok(0.0):
+        return None
+    lo, hi = 0.0, a_max
+    while hi - lo > 1e-4 * hi:
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if ok(mid) else (lo, mid)
+    return lo
 
 
 def _loop_record(
@@ -1022,13 +1039,9 @@ def _with_model_error(
     """
     limit = ratio * math.sqrt(max(t2 - var_b, 0.0))
 
-    def too_biased(a: float) -> bool:
-        return bool(model_error_bias(design, a)[i] > limit)
-
-    if limit <= 0 or too_biased(0.0):
+    a = _largest_level(lambda a: bool(model_error_bias(design, a)[i] <= limit), a_max)
+    if limit <= 0 or a is None:
         return {"excitation_with_model_error": None, "seconds_with_model_error": math.inf}
-    crossing = smallest_satisfying(too_biased, 0.0, a_max, xtol=1e-3 * a_max)
-    a = a_max if crossing is None else crossing
     var1 = float(design.bound(n_samples=1, excitation_std=a).covariance[i, i])
     seconds = _samples_needed(var1, t2, var_b) * design.dt if a > 0 else math.inf
     return {"excitation_with_model_error": a, "seconds_with_model_error": seconds}
