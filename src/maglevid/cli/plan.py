@@ -292,9 +292,7 @@ def format_text(result: dict[str, Any]) -> str:
     lines.append(
         f"model error of the linearisation: largest level with bias <= "
         f"{r['model_error_ratio']:g} std at this length {_v(r['excitation_model_error'])}; "
-        + ", ".join(
-            f"{p['name']} {_s(p['model_error_in_std'])} std" for p in rows
-        )
+        + ", ".join(f"{p['name']} {_s(p['model_error_in_std'])} std" for p in rows)
         + " at the present excitation"
     )
     lines.append(r["sentence"])

@@ -84,6 +84,8 @@ __all__ = [
     "DEFAULT_MAX_EXCITATION_STD",
     "DEFAULT_SPECTRA",
     "DEFAULT_SPLITS",
+    "MODEL_ERROR_GAIN",
+    "MODEL_ERROR_RATIO",
     "DesignInformation",
     "ExperimentPlan",
     "PlanRow",
@@ -96,8 +98,6 @@ __all__ = [
     "format_seconds",
     "input_levels",
     "limit_share",
-    "MODEL_ERROR_GAIN",
-    "MODEL_ERROR_RATIO",
     "model_error_bias",
     "model_error_level",
     "noise_of_result",
@@ -1018,9 +1018,13 @@ def plan_experiment(
         excitation_best=at_max[best_all][0],
         best_share=best_all[1],
         excitation_model_error=model_error_level(
-            design, n_samples=n_samples, parameters=parameters, ratio=model_error_ratio,
-            max_excitation_std=amp, max_displacement=max_displacement,
-        ),  # fmt: skip
+            design,
+            n_samples=n_samples,
+            parameters=parameters,
+            ratio=model_error_ratio,
+            max_excitation_std=amp,
+            max_displacement=max_displacement,
+        ),
         model_error_ratio=float(model_error_ratio),
     )
 
