@@ -119,6 +119,9 @@ class Unresolved:
     #: The fit it comes from ("only R1 changed": ("R1",); a pair: both names).
     hypothesis: tuple[str, ...] = ()
     level_percent: float = 95.0
+    #: The amplifiers' limit [V rms, the smaller input's] the scaling rule's
+    #: "raise the excitation" must respect (None: not stated).
+    amplifier_limit: float | None = None
 
     @property
     def target_percent(self) -> float:
@@ -156,13 +159,26 @@ class Unresolved:
                 f"{head}: {what} the tolerance; no longer record of this "
                 "kind resolves it (use a wider tolerance or a smaller excitation)"
             )
-        level = (
-            f" (about {self.excitation_rms:.3g} V rms)" if self.excitation_rms is not None else ""
-        )
         return (
-            f"{head}: record about {self.more_seconds:.3g} s more of the same excitation, "
-            f"or raise the excitation about {self.excitation_factor:.2g}x{level}"
+            f"{head}: record about {self.more_seconds:.3g} s more of the same excitation"
+            + self._raise_advice()
         )
+
+    def _raise_advice(self) -> str:
+        """The scaling rule's "raise the excitation", within the amplifiers' limit."""
+        f, exc, lim = self.excitation_factor, self.excitation_rms, self.amplifier_limit
+        if lim is not None and exc is not None and exc > lim:
+            return (
+                f" (raising the excitation about {f:.2g}x, to {exc:.3g} V rms, would exceed "
+                f"the amplifiers' {lim:.3g} V rms limit)"
+            )
+        if lim is not None and exc is None:
+            return (
+                f", or raise the excitation about {f:.2g}x if the amplifiers allow it (limit "
+                f"{lim:.3g} V rms; the recording logs no excitation level)"
+            )
+        level = f" (about {exc:.3g} V rms)" if exc is not None else ""
+        return f", or raise the excitation about {f:.2g}x{level}"
 
     def _head(self) -> str:
         if self.estimate_percent is None:
@@ -601,5 +617,13 @@ def plan_unresolved(
             max_excitation_std=max_excitation_std,
         )
     except (MaglevidError, ArithmeticError, np.linalg.LinAlgError) as exc:
-        return unresolved, f"no Cramér-Rao plan for the advice: {exc or type(exc).__name__}"
+        # The scaling rule's advice stays: its "raise the excitation" within the
+        # amplifiers' limit (issue 13: it proposed any level without a logged r).
+        amp = planning.DEFAULT_MAX_EXCITATION_STD if max_excitation_std is None else max_excitation_std
+        try:
+            limit: float | None = min(planning.amplifier_limits(amp))
+        except MaglevidError:
+            limit = None
+        kept = [replace(u, amplifier_limit=limit) for u in unresolved]
+        return kept, f"no Cramér-Rao plan for the advice: {exc or type(exc).__name__}"
     return planned, None
