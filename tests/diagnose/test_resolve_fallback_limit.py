@@ -34,6 +34,7 @@ def test_a_level_beyond_the_amplifier_limit_is_not_proposed():
 def test_without_a_logged_excitation_the_fallback_states_the_limit():
     nominal = AMBParameters.nominal()
     d = simulate_amb_loop(nominal, n_samples=500, plant_model="linear", force_std=0.0, rng=1)
+
     def without_r(table):
         return {k: v for k, v in dict(table).items() if k != "r"}
 

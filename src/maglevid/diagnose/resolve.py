@@ -619,7 +619,8 @@ def plan_unresolved(
     except (MaglevidError, ArithmeticError, np.linalg.LinAlgError) as exc:
         # The scaling rule's advice stays: its "raise the excitation" within the
         # amplifiers' limit (issue 13: it proposed any level without a logged r).
-        amp = planning.DEFAULT_MAX_EXCITATION_STD if max_excitation_std is None else max_excitation_std
+        amp = max_excitation_std
+        amp = planning.DEFAULT_MAX_EXCITATION_STD if amp is None else amp
         try:
             limit: float | None = min(planning.amplifier_limits(amp))
         except MaglevidError:
