@@ -77,7 +77,10 @@ def test_without_a_logged_excitation_the_scaling_rule_stays_with_the_reason(advi
 
     un = unresolved_parameters(d.isolation, TOL, duration_s=0.2)
     same, why = plan_unresolved(un, d.isolation, bare, fit_ml(rec), tolerances=TOL)
-    assert same == un and "excitation r" in why
+    # The scaling rule's advice stays, now carrying the amplifiers' limit (the
+    # planner's default 4 V) so that it proposes no level beyond it (issue 13).
+    assert [dataclasses.replace(u, amplifier_limit=None) for u in same] == un
+    assert all(u.amplifier_limit == 4.0 for u in same) and "excitation r" in why
 
 
 # --- The baseline's own uncertainty (resolve.py, module notes) ---------------------

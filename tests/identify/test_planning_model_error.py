@@ -148,3 +148,14 @@ def test_plan_command_accepts_sensor_gain_faults(capsys):
     assert v2 == pytest.approx(v_with_sensor_gains(NOMINAL, gx=1.1, gi1=0.9)[1], rel=1e-9)
     assert main(["plan", "--fault", "gq=1.1"]) == 1
     assert "unknown parameter 'gq'" in capsys.readouterr().err
+
+
+def test_the_bench_points_take_the_planners_level_on_the_nonlinear_plant():
+    from benchmarks.bench_ml_crb import point_excitation_std
+
+    # The linear plant has no model error: 1 V as before. The nonlinear points
+    # take the planner's level, within the bench's 1 V, falling with N.
+    assert point_excitation_std("linear", "0.3x", 10**6) == 1.0
+    levels = [point_excitation_std("nonlinear", "0.3x", n) for n in (10**5, 10**6)]
+    assert 0 < levels[1] < levels[0] < 1.0
+    assert levels[1] / levels[0] == pytest.approx(10 ** (-1 / 6), rel=0.1)
