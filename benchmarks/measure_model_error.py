@@ -11,6 +11,12 @@ The result is what :func:`maglevid.identify.planning.model_error_bias` uses
 (docs/gosiewski.md, "Model error of the linearisation").
 
     PYTHONPATH=src python -m benchmarks.measure_model_error [--n 100000] [--json out.json]
+    PYTHONPATH=src python -m benchmarks.measure_model_error --records 8 --designs healthy \
+        --levels 1,2                     # the mean over records (seeds 20..27)
+
+A single record's error has a part that changes from record to record (the
+nonlinear distortion acting as a disturbance, ~ a / sqrt(N)) besides the mean
+(the bias, ~ a^2); ``--records`` separates them.
 """
 
 from __future__ import annotations
@@ -18,6 +24,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from typing import Any
 
 import numpy as np
 
@@ -75,15 +82,54 @@ def fit_law(rows: list[dict[str, float]]) -> tuple[np.ndarray, np.ndarray]:
     return sol[0], np.exp(sol[1])
 
 
+def measure_mean(fault: dict[str, float], level: float, n: int, records: int) -> dict[str, Any]:
+    """Mean and std over ``records`` records (seeds 20, 21, ...; degenerate fits skipped)."""
+    rows = []
+    for seed in range(20, 20 + records):
+        try:
+            rows.append(measure(fault, level, n, seed))
+        except DataError as exc:
+            print(f"  seed {seed}: {exc}", flush=True)
+    b = np.array([r["rel_bias"] for r in rows])
+    e = rows[0]["excursion"]
+    return {
+        "level": level,
+        "excursion": e,
+        "records": len(rows),
+        "mean": b.mean(0).tolist(),
+        "sd": b.std(0, ddof=1).tolist(),
+        "mean_over_e2": (b.mean(0) / e**2).tolist(),
+    }
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, default=100_000)
     ap.add_argument("--json", default=None)
+    ap.add_argument("--records", type=int, default=1, help="records per level (mean, sd)")
+    ap.add_argument("--designs", default=",".join(DESIGNS), help="names among " + str(DESIGNS))
+    ap.add_argument("--levels", default=",".join(map(str, LEVELS)), help="V rms, comma-separated")
     a = ap.parse_args(argv)
+    designs = {k: DESIGNS[k] for k in a.designs.split(",")}
+    levels = [float(x) for x in a.levels.split(",")]
+    if a.records > 1:
+        out = {
+            name: [measure_mean(f, lv, a.n, a.records) for lv in levels]
+            for name, f in designs.items()
+        }
+        for name, rows in out.items():
+            for r in rows:
+                print(f"{name} {r['level']} V e {r['excursion']:.4f} ({r['records']} records)")
+                for k in ("mean", "sd", "mean_over_e2"):
+                    print(f"  {k:12s} {np.array2string(np.array(r[k]), precision=2)}")
+        if a.json:
+            with open(a.json, "w") as f:
+                json.dump(out, f, indent=1)
+        return 0
     out = {}
-    for name, fault in DESIGNS.items():
+    for name, fault in designs.items():
         rows = []
-        for level in LEVELS:
+        for level in levels:
             t0 = time.perf_counter()
             rows.append(_measure_any_seed(fault, level, a.n))
             r = rows[-1]
