@@ -121,7 +121,7 @@ def main(argv: list[str] | None = None) -> int:
             for r in rows:
                 print(f"{name} {r['level']} V e {r['excursion']:.4f} ({r['records']} records)")
                 for k in ("mean", "sd", "mean_over_e2"):
-                    print(f"  {k:12s} {np.array2string(np.array(r[k]), precision=2)}")
+                    print(f"  {k:12s} " + " ".join(f"{x:+.2e}" for x in r[k]))
         if a.json:
             with open(a.json, "w") as f:
                 json.dump(out, f, indent=1)
