@@ -158,3 +158,12 @@ def test_the_bench_points_take_the_planners_level_on_the_nonlinear_plant():
     levels = [point_excitation_std("nonlinear", "0.3x", n) for n in (10**5, 10**6)]
     assert 0 < levels[1] < levels[0] < 1.0
     assert levels[1] / levels[0] == pytest.approx(10 ** (-1 / 6), rel=0.1)
+
+
+def test_plan_command_prints_the_model_error_and_the_level_for_a_long_record(capsys):
+    # 100 s at 1 V on the realistic default bearing: x0's predicted bias is above
+    # 0.1 std, so the table's note and the sentence name the lower level.
+    assert main(["plan", "--parameters", "R1,kw1,x0", "--seconds", "100"]) == 0
+    out = capsys.readouterr().out
+    assert "model error of the linearisation: largest level with bias <= 0.1 std" in out
+    assert "excite at most" in out and "for a record of 100 s" in out
