@@ -69,7 +69,12 @@ from maglevid.identify.physical import fit_physical, to_physical_coordinates
 from maglevid.identify.planning import design_information
 from maglevid.identify.registry import get_method
 from maglevid.physics.amb import V_NAMES, AMBParameters, v_from_matrices
-from maglevid.simulate.amb import DEFAULT_NOISE_STD, DEFAULT_SUBSTEPS, simulate_amb_loop
+from maglevid.simulate.amb import (
+    DEFAULT_NOISE_STD,
+    DEFAULT_SUBSTEPS,
+    simulate_amb_loop,
+    simulate_amb_loops,
+)
 
 #: Parameters reported (v1..v9 and the physical parameters a diagnosis names).
 REPORTED = (*V_NAMES, "R1", "R2", "L1", "L2", "ki1", "ki2", "kw1", "kw2", "x0")
@@ -194,45 +199,94 @@ class _NegatedNoise(np.random.Generator):
         return -x if isinstance(size, tuple) and len(size) == 2 and size[1] == 3 else x
 
 
+def _twin_rng(rng: int) -> np.random.Generator:
+    """The generator of a record's antithetic twin: same seed, sensor noise negated."""
+    return _NegatedNoise(np.random.default_rng(rng).bit_generator)
+
+
 def _mirror(data: Any, spec: dict[str, Any], rng: int) -> Any:
     """The record with its sensor noise negated, d(r, -n), simulated again.
 
     On the linear plant this is ``2 d(r, 0) - d(r, n)`` (tested); on the
     nonlinear one it is the only way to it, and ``-n`` has the law of ``n``, so
     the pair mean is an unbiased estimate of the error's mean whatever the
-    plant (the variance reduction is that of the error's part odd in ``n``)."""
-    twin = _simulate(spec, _NegatedNoise(np.random.default_rng(rng).bit_generator))
+    plant (the variance reduction is that of the error's part odd in ``n``).
+    :func:`records` simulates the twins in the records' batch instead (the same
+    arrays, bit for bit)."""
+    return _check_twin(data, _simulate(spec, _twin_rng(rng)))
+
+
+def _check_twin(data: Any, twin: Any) -> Any:
     if not np.array_equal(np.asarray(twin.r), np.asarray(data.r)):
         raise RuntimeError("the twin's excitation differs: the simulator's draw order changed")
     return twin
 
 
-def _simulate(spec: dict[str, Any], rng: Any, noise: Any = None) -> Any:
+def _sim_options(spec: dict[str, Any], noise: Any = None) -> dict[str, Any]:
+    """simulate_amb_loop's arguments for one point (``noise`` overrides the spec's)."""
     nominal = AMBParameters.nominal()
-    return simulate_amb_loop(
-        nominal.with_fault(**PLANTS[spec["plant"]]),
-        nominal=nominal,
-        n_samples=spec["n"],
-        noise_std=spec["noise"] if noise is None else noise,
-        plant_model=spec["plant"],
+    opts: dict[str, Any] = {
+        "nominal": nominal,
+        "n_samples": spec["n"],
+        "noise_std": spec["noise"] if noise is None else noise,
+        "plant_model": spec["plant"],
         # No force disturbance: the bound here is the sensor-noise model's; the
         # realistic bearing with its 0.1 N force is bench_ml_realistic.py.
-        force_std=0.0,
-        substeps=SUBSTEPS if spec["plant"] == "nonlinear" else DEFAULT_SUBSTEPS,
-        rng=rng,
+        "force_std": 0.0,
+        "substeps": SUBSTEPS if spec["plant"] == "nonlinear" else DEFAULT_SUBSTEPS,
+    }
+    if spec.get("excitation_std") is not None:  # None: the simulator's 1 V
+        opts["excitation_std"] = spec["excitation_std"]
+    return opts
+
+
+def _simulate(spec: dict[str, Any], rng: Any, noise: Any = None) -> Any:
+    nominal = AMBParameters.nominal()
+    plant = nominal.with_fault(**PLANTS[spec["plant"]])
+    return simulate_amb_loop(plant, rng=rng, **_sim_options(spec, noise))
+
+
+def _record_seed(spec: dict[str, Any]) -> int:
+    label = zlib.crc32(spec["label"].encode())
+    return int(np.random.SeedSequence([spec["seed"], label, spec["run"]]).generate_state(1)[0])
+
+
+def records(specs: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Simulate the records of ``specs`` (one point) and their twins in one batch
+    (:func:`~maglevid.simulate.amb.simulate_amb_loops`, each record bit for bit
+    :func:`_simulate` of its seed), then fit them one by one (module-level: pickled).
+
+    Each record's ``stages["simulate"]`` is its share of the batch (the batch's
+    time over its records: the record and its twin)."""
+    seeds = [_record_seed(sp) for sp in specs]
+    nominal = AMBParameters.nominal()
+    plant = nominal.with_fault(**PLANTS[specs[0]["plant"]])
+    t0 = time.perf_counter()
+    sims = simulate_amb_loops(
+        plant, rngs=[*seeds, *(_twin_rng(r) for r in seeds)], **_sim_options(specs[0])
     )
+    share = (time.perf_counter() - t0) / len(specs)
+    k = len(specs)
+    out = []
+    for i, spec in enumerate(specs):
+        d, twin = sims[i], sims[k + i]
+        sims[i] = sims[k + i] = None  # the record's memory goes with its fits
+        out.append(_fit_record(spec, d, twin, share))
+    return out
 
 
 def one_record(spec: dict[str, Any]) -> dict[str, Any]:
-    """Simulate one record and fit it by every method (module-level: pickled).
+    """One record (and its twin) simulated and fitted by every method: :func:`records`."""
+    return records([spec])[0]
 
-    ``out["stages"]`` holds where the record's time went [s]: the simulation,
-    each method, ML from the truth and the antithetic twin (simulation + ML)."""
-    label = zlib.crc32(spec["label"].encode())
-    rng = int(np.random.SeedSequence([spec["seed"], label, spec["run"]]).generate_state(1)[0])
-    t0 = time.perf_counter()
-    d = _simulate(spec, rng)
-    stages = {"simulate": time.perf_counter() - t0}
+
+def _fit_record(spec: dict[str, Any], d: Any, twin: Any, sim_s: float) -> dict[str, Any]:
+    """Fit one record by every method, ML also from the truth and on its twin.
+
+    ``out["stages"]`` holds where the record's time went [s]: the simulation
+    (its share of the batch, twin included), each method, ML from the truth and
+    the twin's ML."""
+    stages = {"simulate": sim_s}
     truth = _truth(d)
     out: dict[str, Any] = {"truth": truth, "stages": stages}
     iv = None
@@ -256,7 +310,7 @@ def one_record(spec: dict[str, Any]) -> dict[str, Any]:
         }
         stages[name] = time.perf_counter() - t0
         if name == "ML":
-            out[name].update(_ml_extras(d, res, out[name], truth, spec, rng, stages))
+            out[name].update(_ml_extras(d, res, out[name], truth, twin, stages))
     return out
 
 
@@ -265,8 +319,7 @@ def _ml_extras(
     res: Any,
     row: dict[str, Any],
     truth: dict[str, float],
-    spec: dict[str, Any],
-    rng: int,
+    twin: Any,
     stages: dict[str, float],
 ) -> dict[str, Any]:
     """ML from the truth (same optimum?), restarts, and the antithetic twin's estimate."""
@@ -290,50 +343,71 @@ def _ml_extras(
     stages["ML from the truth"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     try:
-        twin = _mirror(d, spec, rng)
-        stages["twin simulate"] = time.perf_counter() - t0
-        tw = fit_ml(twin)
+        tw = fit_ml(_check_twin(d, twin))
         if tw.extras["converged"]:
             x["twin_est"] = {k: tw.parameters[k] for k in REPORTED}
         else:  # a twin that did not converge is left out of the bias, counted
             x["twin_error"] = "did not converge"
     except Exception as exc:  # the pair is left out of the antithetic bias
         x["twin_error"] = str(exc)[:200]
-    stages["twin ML"] = time.perf_counter() - t0 - stages.get("twin simulate", 0.0)
+    stages["twin ML"] = time.perf_counter() - t0
     return x
 
 
-def _map_until(specs: list[dict[str, Any]], workers: int, budget_s: float) -> list[Any]:
-    """``one_record`` over ``specs`` on ``workers`` processes within ``budget_s``.
+#: Records simulated together on the nonlinear plant (each with its twin, so the
+#: batch is twice this): the vectorised loop's ~50 us a sample for the whole batch
+#: is paid once (docs/gosiewski.md, the stage table). At most
+#: :data:`BATCH_SAMPLES` samples of records a batch (~200 MB a record of 1e6 samples
+#: while it is simulated, twin included: 6 records ~2.4 GB, inside run_all's
+#: 8 GB address-space limit per worker) and :data:`BATCH_MAX` records. The linear
+#: plant, vectorised in time already, runs a record and its twin per batch.
+BATCH_SAMPLES, BATCH_MAX = 6_000_000, 16
 
-    ``workers`` records are kept in flight; a new one is started only while the
-    time spent plus the slowest record so far (times the records still to run
-    per worker) fits the budget, so a point ends near its budget instead of
-    overrunning it by the records in flight (measured: a 240 s budget at N = 1e6
-    took 492 s when all records were queued at once, load 12-20)."""
+
+def batch_size(plant: str, n: int) -> int:
+    """Records per batch (:data:`BATCH_SAMPLES`)."""
+    if plant != "nonlinear":
+        return 1
+    return max(1, min(BATCH_MAX, BATCH_SAMPLES // int(n)))
+
+
+def _map_until(specs: list[dict[str, Any]], workers: int, budget_s: float) -> list[Any]:
+    """:func:`records` over batches of ``specs`` on ``workers`` processes within ``budget_s``.
+
+    ``workers`` batches (:func:`batch_size` records each) are kept in flight; a
+    new one is started only while the time spent plus the slowest batch so far
+    fits the budget, and made smaller when only a few records' time (at the
+    slowest record rate seen) is left, so a point ends near its budget instead
+    of overrunning it by the records in flight (measured: a 240 s budget at N =
+    1e6 took 492 s when all records were queued at once, load 12-20). A batch's
+    cost is all its records', its simulation included."""
     results: list[Any] = [None] * len(specs)
+    size = batch_size(specs[0]["plant"], specs[0]["n"]) if specs else 1
     t0 = time.perf_counter()
-    slowest = 0.0
+    per_record = 0.0  # the slowest seconds per record of a finished batch
     with one_blas_thread():
         ctx = multiprocessing.get_context(start_method())
         with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
-            running: dict[Any, tuple[int, float]] = {}
+            running: dict[Any, tuple[int, int, float]] = {}
             nxt = 0
             while nxt < len(specs) or running:
-                while (
-                    nxt < len(specs)
-                    and len(running) < workers
-                    and time.perf_counter() - t0 + slowest <= budget_s
-                ):
-                    running[pool.submit(one_record, specs[nxt])] = (nxt, time.perf_counter())
-                    nxt += 1
+                while nxt < len(specs) and len(running) < workers:
+                    left = budget_s - (time.perf_counter() - t0)
+                    k = min(size, len(specs) - nxt)
+                    if per_record > 0:
+                        k = min(k, int(left // per_record))
+                    if k < 1 or left <= 0:
+                        break
+                    f = pool.submit(records, specs[nxt : nxt + k])
+                    running[f] = (nxt, k, time.perf_counter())
+                    nxt += k
                 if not running:
                     break
                 done, _ = wait(running, return_when=FIRST_COMPLETED)
                 for f in done:
-                    i, started = running.pop(f)
-                    slowest = max(slowest, time.perf_counter() - started)
-                    results[i] = f.result()
+                    i, k, started = running.pop(f)
+                    per_record = max(per_record, (time.perf_counter() - started) / k)
+                    results[i : i + k] = f.result()
     return [r for r in results if r is not None]
 
 
