@@ -18,6 +18,8 @@ there (a stacked ``matmul``; one ``gemm`` for the batch differs at 1e-16). Teste
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from maglevid.exceptions import ModelError
@@ -31,7 +33,9 @@ class _BatchRK4:
 
     Same equations and operation order as
     :func:`~maglevid.simulate.amb._rk4_stepper` (one record on Python floats),
-    with the coils as rows 0 and 1 of ``(2, B)`` arrays.
+    with the coils as rows 0 and 1 of ``(2, B)`` arrays; every operation writes
+    into a buffer made once (a numpy call on a few dozen numbers costs its
+    overhead, not its arithmetic).
     """
 
     def __init__(self, p: AMBParameters, h: float, batch: int) -> None:
@@ -46,27 +50,49 @@ class _BatchRK4:
         self.kw = col(p.kw1, p.kw2)
         self.hh, self.h6 = 0.5 * h, h / 6.0
         self.k = np.empty((4, 4, batch))  # the four stages' derivatives
+        self.g, self.f, self.t, self.a = (np.empty((2, batch)) for _ in range(4))
+        self.zs, self.acc, self.tmp = (np.empty((4, batch)) for _ in range(3))
 
-    def _rhs(self, z: np.ndarray, a: np.ndarray, fz: np.ndarray, k: np.ndarray) -> None:
+    def _rhs(self, z: np.ndarray, fz: np.ndarray, k: np.ndarray) -> None:
         # eq. (1): m x'' = K1/4 (I1/g1)^2 - K2/4 (I2/g2)^2 + F_z,
         # (Ls_j + K_j/(2 g_j)) I_j' = kw_j u_j - R_j I_j -+ K_j I_j x' / (2 g_j^2)
-        g = self.x0 - self.sign * z[0]
-        f = z[2:4] / g
-        t = self.q * f * f
+        g, f, t = self.g, self.f, self.t
+        np.multiply(self.sign, z[0], out=g)
+        np.subtract(self.x0, g, out=g)  # g_j
+        np.divide(z[2:4], g, out=f)  # I_j / g_j
+        np.multiply(self.q, f, out=t)
+        t *= f
         k[0] = z[1]
-        k[1] = (t[0] - t[1] + fz) / self.m
-        k[2:4] = (a - self.R * z[2:4] - self.hs * f * z[1] / g) / (self.Ls + self.hf / g)
+        np.subtract(t[0], t[1], out=k[1])
+        k[1] += fz
+        k[1] /= self.m
+        ka = k[2:4]
+        np.multiply(self.R, z[2:4], out=ka)
+        np.subtract(self.a, ka, out=ka)  # kw_j u_j - R_j I_j
+        np.multiply(self.hs, f, out=t)
+        t *= z[1]
+        t /= g
+        ka -= t
+        np.divide(self.hf, g, out=t)
+        t += self.Ls  # Ls_j + K_j / (2 g_j)
+        ka /= t
 
-    def step(self, z: np.ndarray, u: np.ndarray, fz: np.ndarray) -> np.ndarray:
-        """``z`` (4, B) after one step under ``u`` (2, B) [V] and ``fz`` (B,) [N]."""
-        k, hh, h = self.k, self.hh, self.h
-        a = self.kw * u
-        self._rhs(z, a, fz, k[0])
-        self._rhs(z + hh * k[0], a, fz, k[1])
-        self._rhs(z + hh * k[1], a, fz, k[2])
-        zs = z + h * k[2]
-        self._rhs(zs, a, fz, k[3])  # k[3, 0] is the stage-4 velocity, the one-record k4x
-        return z + self.h6 * (k[0] + 2.0 * k[1] + 2.0 * k[2] + k[3])
+    def step(self, z: np.ndarray, u: np.ndarray, fz: np.ndarray) -> None:
+        """``z`` (4, B) one step on, in place, under ``u`` (2, B) [V] and ``fz`` (B,) [N]."""
+        k, zs, acc, tmp = self.k, self.zs, self.acc, self.tmp
+        np.multiply(self.kw, u, out=self.a)
+        self._rhs(z, fz, k[0])
+        for i, c in ((1, self.hh), (2, self.hh), (3, self.h)):
+            np.multiply(c, k[i - 1], out=zs)
+            zs += z
+            self._rhs(zs, fz, k[i])  # k[3, 0] is the stage-4 velocity, the one-record k4x
+        np.multiply(2.0, k[1], out=acc)
+        np.add(k[0], acc, out=acc)
+        np.multiply(2.0, k[2], out=tmp)
+        acc += tmp
+        acc += k[3]
+        acc *= self.h6
+        z += acc
 
 
 def simulate_nonlinear_batch(
@@ -100,33 +126,32 @@ def simulate_nonlinear_batch(
     g = np.array([[gains[0]], [gains[1]], [gains[2]]])
     off = np.array([[0.0], [i0], [i0]])
     ub = np.array([[u_bias[0]], [u_bias[1]]])
-    # time-major copies: one contiguous (B, .) slice per sample
-    rt, vt, ft = (np.ascontiguousarray(np.moveaxis(a, 1, 0)) for a in (r, v, force))
-    Y = np.empty((N, 3, B))
-    UF = np.empty((N, 2, B))
+    # record-major, as the records are kept: a sample is a strided (B, .) slice
+    Y = np.empty((B, N, 3))
+    UF = np.empty((B, N, 2))
     q = np.empty((B, M.shape[1]))
     q[:, :ns] = state0
     out = np.empty((B, M.shape[0]))
     q3, out3 = q[:, :, None], out[:, :, None]
     for k in range(N):
-        yk = g * (z[[0, 2, 3]] - off) + vt[k].T  # y(k) through the sensors' gains
-        Y[k] = yk
+        yk = g * (z[[0, 2, 3]] - off) + v[:, k].T  # y(k) through the sensors' gains
+        Y[:, k] = yk.T
         q[:, ns : ns + 3] = yk.T
-        q[:, ns + 3 :] = rt[k]
+        q[:, ns + 3 :] = r[:, k]
         # M @ q of every record: a stacked matmul calls the one-record loop's gemv per
         # record (so it rounds alike, bit for bit); one (B, 10) @ M.T gemm would not
         np.matmul(M, q3, out=out3)
         q[:, :ns] = out[:, :ns]  # x̂(k+1), and e(k) as next sample's e(k-1)
         uf = out[:, ns:].T
-        UF[k] = uf
-        u = ub + uf + rt[k].T  # eq. (16), on the bias voltage
+        UF[:, k] = uf.T
+        u = ub + uf + r[:, k].T  # eq. (16), on the bias voltage
         for _ in range(substeps):  # RK4 under zero-order hold
-            z = rk4.step(z, u, ft[k])
-        if not (np.abs(z[0]).max() < plant.x0 and np.isfinite(z[2:4]).all()):
+            rk4.step(z, u, force[:, k])
+        if not (np.abs(z[0]).max() < plant.x0 and math.isfinite(z[2:4].sum())):
             bad = int(np.argmax(~((np.abs(z[0]) < plant.x0) & np.isfinite(z[2:4]).all(0))))
             raise ModelError(
                 f"record {bad}: the rotor reached the pole face at sample {k + 1} (x = "
                 f"{z[0, bad]:.3g} m, gap {plant.x0:.3g} m): the loop does not hold this "
                 "bearing with this excitation"
             )
-    return np.moveaxis(Y, 2, 0), np.moveaxis(UF, 2, 0)
+    return Y, UF

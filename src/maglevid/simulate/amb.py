@@ -950,34 +950,38 @@ def _run_nonlinear(
 
 
 def _run_nonlinear_batch(
-    s: _Setup, drawn: list[tuple[np.ndarray, np.ndarray, np.ndarray | None, dict[str, Any]]]
+    s: _Setup, drawn: list[tuple[np.ndarray, Any, np.ndarray | None, dict[str, Any]]]
 ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """:func:`_run_nonlinear` for every drawn record at once (:mod:`._amb_batch`)."""
     b = s.bearing
     eq = _settle(b)
-    n = s.n_samples
-    zeros = np.zeros(n)
+    state0 = np.stack(
+        [_first_state(eq, b.controller, b.nominal.i0, b.gains, v[0]) for _, v, _, _ in drawn]
+    )
+    r = np.stack([d[0] for d in drawn])
+    v = np.stack([d[1] for d in drawn])
+    zeros = np.zeros(s.n_samples)
+    force = np.stack([zeros if d[2] is None else d[2] for d in drawn])
+    drawn[:] = [(d[0], None, None, d[3]) for d in drawn]  # the noise and force stacked: freed
     y, u_f = simulate_nonlinear_batch(
         b.plant,
         M=_loop_product(b.observer, b.controller),
-        state0=np.stack(
-            [_first_state(eq, b.controller, b.nominal.i0, b.gains, v[0]) for _, v, _, _ in drawn]
-        ),
+        state0=state0,
         start=(float(eq["x"]), float(eq["I1"]), float(eq["I2"])),
         i0=b.nominal.i0,
         u_bias=tuple(float(u) for u in bias_voltages(b.nominal)),  # type: ignore[arg-type]
         dt=b.dt,
-        r=np.stack([r for r, _, _, _ in drawn]),
-        v=np.stack([v for _, v, _, _ in drawn]),
-        force=np.stack([zeros if f is None else f for _, _, f, _ in drawn]),
+        r=r,
+        v=v,
+        force=force,
         substeps=s.substeps,
         gains=b.gains,
     )
+    del r, v, force
     out = []
-    for i, (r, _, _, meta) in enumerate(drawn):
+    for i, (ri, _, _, meta) in enumerate(drawn):
         _nonlinear_meta(eq, s.substeps, meta)
-        yi, ufi = np.ascontiguousarray(y[i]), np.ascontiguousarray(u_f[i])
-        out.append((yi, ufi, ufi + r))
+        out.append((y[i], u_f[i], u_f[i] + ri))
     return out
 
 
