@@ -361,7 +361,7 @@ def _ml_extras(
 #: while it is simulated, twin included: 6 records ~2.4 GB, inside run_all's
 #: 8 GB address-space limit per worker) and :data:`BATCH_MAX` records. The linear
 #: plant, vectorised in time already, runs a record and its twin per batch.
-BATCH_SAMPLES, BATCH_MAX = 6_000_000, 16
+BATCH_SAMPLES, BATCH_MAX = 8_000_000, 16
 
 
 def batch_size(plant: str, n: int) -> int:
