@@ -3,8 +3,8 @@
 Run from the repository root::
 
     python -m benchmarks.bench_ml_crb --quick          # 20 records at N = 1e4, ~1 min
-    python -m benchmarks.bench_ml_crb --json ml.json   # the make-bench plan, ~25 min (PLAN)
-    python -m benchmarks.bench_ml_crb --large          # the points it leaves out (~1.2 h)
+    python -m benchmarks.bench_ml_crb --json ml.json   # the make-bench plan, ~65 min (PLAN)
+    python -m benchmarks.bench_ml_crb --n 1000000      # the plan's points at one N only
 
 ``make bench`` runs the same plan as a section (``SECTION``; each point in its
 own worker process with its own time budget, so a slow point loses records,
@@ -99,19 +99,18 @@ PLANTS = {"linear": {"R1": 1.2}, "nonlinear": {}}  # plant model -> fault
 SIZES = (10_000, 100_000, 1_000_000)
 
 #: The make-bench plan: (plant, noise level, N, records at most, time budget [s]).
-#: Every N = 1e4 and N = 1e5 point and the linear default at 1e6, each to 100
-#: records. Per record on one worker (CPU seconds, one BLAS thread, measured
-#: at load ~7 with ``stages``; at the section's load ~2 wall is about CPU):
-#: linear 1e4 ~0.7 s, nonlinear 1e4 ~1.0 s, linear 1e5 ~2.2 s (was 2.9 s before
-#: ML's large-N path), nonlinear 1e5 ~3.4 s (two simulations 1.5 s: the
-#: sample loop), linear 1e6 ~7 s (was 27 s: simulations 0.8, IV 0.6, ML from
-#: IV 1.0, from the truth 1.2, the twin's IV + ML 2.1, DB 0.8, MOESP 0.4).
-#: Expected wall on 2 workers: 3 x 35 + 3 x 50 + 3 x 110 + 3 x 170 + 350 s =
-#: ~1450 s, plus the bounds and the 1e5 timing (~30 s): **~25 min** (~14 min
-#: before, without the nonlinear 0.3x/3x 1e5 and the linear 1e6 points).
-#: Left out (``--large``, ~1.2 h): linear 1e6 at 0.3x / 3x (~6 min each) and every
-#: nonlinear 1e6 point (~22 s a record, of which 15 s are the record and its
-#: twin through the sample-by-sample RK4 loop: ~18 min a point). The budgets
+#: The issue's whole grid, every point to 100 records. Per record on one worker
+#: (one BLAS thread; at the section's load ~2 wall is about CPU): linear 1e4
+#: ~0.7 s, nonlinear 1e4 ~1.0 s, linear 1e5 ~2.2 s, nonlinear 1e5 ~2-3 s (its
+#: two simulations batched: was 3.4 s), linear 1e6 ~7 s (simulations 0.8, IV
+#: 0.6, ML from IV 1.0, from the truth 1.2, the twin's ML 2.1, DB 0.8, MOESP
+#: 0.4), nonlinear 1e6 ~10-13 s (was ~22 s: the record and its twin are now
+#: simulated in batches of :func:`batch_size` records + twins, ~5-7 s a record
+#: instead of 15; the fits ~5 s). Measured: a reduced nonlinear default 1e6 run
+#: (docs/gosiewski.md, "The plan and its budget"). Expected wall on 2 workers:
+#: 3 x 35 + 3 x 45 + 3 x 110 + 3 x 130 + 3 x 350 + 3 x ~600 s = ~3800 s, plus
+#: the bounds and the 1e5 timing (~30 s): **~65 min** (~25 min before, without
+#: the five 1e6 points linear 0.3x/3x and nonlinear default/0.3x/3x). The budgets
 #: are caps for a loaded machine, not the estimate.
 PLAN: tuple[tuple[str, str, int, int, float], ...] = (
     ("linear", "default", 10_000, 100, 100.0),
@@ -127,12 +126,11 @@ PLAN: tuple[tuple[str, str, int, int, float], ...] = (
     ("nonlinear", "0.3x", 100_000, 100, 600.0),
     ("nonlinear", "3x", 100_000, 100, 600.0),
     ("linear", "default", 1_000_000, 100, 900.0),
-)
-#: The points the plan leaves out, for a separate run (``--large``; ~1.2 h on 2 cores).
-LARGE_PLAN: tuple[tuple[str, str, int, int, float], ...] = (
     ("linear", "0.3x", 1_000_000, 100, 900.0),
     ("linear", "3x", 1_000_000, 100, 900.0),
-    *(("nonlinear", lv, 1_000_000, 100, 2400.0) for lv in NOISE_LEVELS),
+    ("nonlinear", "default", 1_000_000, 100, 1200.0),
+    ("nonlinear", "0.3x", 1_000_000, 100, 1200.0),
+    ("nonlinear", "3x", 1_000_000, 100, 1200.0),
 )
 QUICK_PLAN = (("linear", "default", 10_000, 20, 60.0),)
 
@@ -355,13 +353,15 @@ def _ml_extras(
 
 
 #: Records simulated together on the nonlinear plant (each with its twin, so the
-#: batch is twice this): the vectorised loop's ~50 us a sample for the whole batch
-#: is paid once (docs/gosiewski.md, the stage table). At most
-#: :data:`BATCH_SAMPLES` samples of records a batch (~200 MB a record of 1e6 samples
-#: while it is simulated, twin included: 6 records ~2.4 GB, inside run_all's
-#: 8 GB address-space limit per worker) and :data:`BATCH_MAX` records. The linear
+#: batch is twice this): the vectorised loop's per-sample overhead (~45 us) is
+#: paid once per batch, ~0.8 us a sample per record on top (docs/control-and-
+#: simulation.md). At most :data:`BATCH_SAMPLES` samples of records a batch:
+#: ~170 bytes a record-sample while it is simulated (measured peak RSS: 2.4 GB
+#: for 8 records of 1e6 + twins, fits included), so 10 records of 1e6 ~3 GB,
+#: inside run_all's 8 GB address-space limit per worker; and at most
+#: :data:`BATCH_MAX` records (4 batches of a 100-record point). The linear
 #: plant, vectorised in time already, runs a record and its twin per batch.
-BATCH_SAMPLES, BATCH_MAX = 8_000_000, 16
+BATCH_SAMPLES, BATCH_MAX = 10_000_000, 25
 
 
 def batch_size(plant: str, n: int) -> int:
@@ -826,13 +826,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--workers", type=int, default=None)
     ap.add_argument("--seed", type=int, default=2026)
     ap.add_argument("--quick", action="store_true", help="20 records at N = 1e4 only")
-    ap.add_argument("--large", action="store_true", help="the points make bench leaves out")
+    ap.add_argument("--n", type=int, default=None, help="only the plan's points at this N")
     ap.add_argument("--no-timing", action="store_true", help="leave out the 1e5 time ratio")
     ap.add_argument("--json", default=None, help="write the results here")
     ap.add_argument("--markdown", default=None, help="write the markdown section here")
     a = ap.parse_args(argv)
     res = run(
-        QUICK_PLAN if a.quick else LARGE_PLAN if a.large else PLAN,
+        QUICK_PLAN if a.quick else tuple(p for p in PLAN if a.n in (None, p[2])),
         workers=a.workers,
         seed=a.seed,
         timing=not (a.quick or a.no_timing),

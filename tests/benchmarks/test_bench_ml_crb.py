@@ -204,7 +204,7 @@ def test_batched_records_are_the_one_by_one_records():
 def test_batch_size_keeps_a_batch_inside_the_memory_rule():
     """At most BATCH_SAMPLES record samples a batch (6 records of 1e6: ~2.4 GB with
     their twins, under run_all's 8 GB per worker); the linear plant one record."""
-    assert bench.batch_size("nonlinear", 1_000_000) == 8
+    assert bench.batch_size("nonlinear", 1_000_000) == 10
     assert bench.batch_size("nonlinear", 10_000) == bench.BATCH_MAX
     assert bench.batch_size("linear", 1_000_000) == 1
     for n in bench.SIZES:
