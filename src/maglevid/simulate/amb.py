@@ -610,12 +610,7 @@ def simulate_amb_loop(
     >>> d.y.shape, d.u.shape, d.loop["observer"]["type"]
     ((500, 3), (500, 2), 'deadbeat')
     """
-    s = _setup(
-        plant, dt=dt, n_samples=n_samples, nominal=nominal, controller=controller,
-        observer=observer, excitation_std=excitation_std, excitation=excitation,
-        noise_std=noise_std, plant_model=plant_model, force_std=force_std, substeps=substeps,
-        observer_model=observer_model, sensor_gains=sensor_gains,
-    )  # fmt: skip
+    s = _setup(dict(locals()))  # every argument, by name
     r, v, force, meta = _draw(s, rng)
     if plant_model == "linear":
         y, u_f, u = _run_linear(s.bearing, r, v, kernel, meta)
@@ -676,7 +671,9 @@ def simulate_amb_loops(
     rngs = list(rngs) if isinstance(rngs, Sequence) and not isinstance(rngs, str) else None
     if not rngs:
         raise DataError("`rngs` must be a non-empty sequence of rngs (one per record)")
-    s = _setup(plant, **options)
+    bound = inspect.signature(simulate_amb_loop).bind(plant, **options)
+    bound.apply_defaults()
+    s = _setup(bound.arguments)
     drawn = [_draw(s, rng) for rng in rngs]
     if s.plant_model == "linear":
         runs = [_run_linear(s.bearing, r, v, kernel, meta) for r, v, _, meta in drawn]
@@ -716,38 +713,26 @@ class _Setup:
     observer_model: str
 
 
-def _setup(
-    plant: AMBParameters,
-    *,
-    dt: float = DEFAULT_DT,
-    n_samples: int = DEFAULT_N_SAMPLES,
-    nominal: AMBParameters | None = None,
-    controller: IntegralStateFeedback | None = None,
-    observer: Observer | None = None,
-    excitation_std: float | Sequence[float] = DEFAULT_EXCITATION_STD,
-    excitation: str = "gaussian",
-    noise_std: Sequence[float] = DEFAULT_NOISE_STD,
-    plant_model: str = "nonlinear",
-    force_std: float | None = None,
-    substeps: int = DEFAULT_SUBSTEPS,
-    observer_model: str = "nominal",
-    sensor_gains: dict[str, float] | None = None,
-) -> _Setup:
-    """The arguments of :func:`simulate_amb_loop` checked, the controller and observer built."""
+def _setup(args: dict[str, Any]) -> _Setup:
+    """The arguments of :func:`simulate_amb_loop` (all of them, by name) checked, the
+    controller and observer built."""
+    plant, plant_model, excitation = args["plant"], args["plant_model"], args["excitation"]
     nominal, dt, n_samples, substeps = _check_arguments(
-        plant, nominal, dt, n_samples, plant_model, excitation, substeps
-    )
-    gains = _sensor_gains(sensor_gains)
+        plant, args["nominal"], args["dt"], args["n_samples"], plant_model, excitation,
+        args["substeps"],
+    )  # fmt: skip
+    gains = _sensor_gains(args["sensor_gains"])
     _check_bias_current(plant, nominal, plant_model)
-    noise = _noise_std(noise_std)
-    fstd = _force_std(force_std, plant_model)
+    noise = _noise_std(args["noise_std"])
+    fstd = _force_std(args["force_std"], plant_model)
+    observer_model = args["observer_model"]
     controller, observer = _controller_observer(
-        plant, nominal, dt, controller, observer, observer_model
+        plant, nominal, dt, args["controller"], args["observer"], observer_model
     )
     cond = _loop_condition(observer, controller)
     bearing = _Bearing(plant, nominal, controller, observer, dt, gains)
     return _Setup(
-        bearing, cond, plant_model, n_samples, excitation_std, excitation, noise, fstd,
+        bearing, cond, plant_model, n_samples, args["excitation_std"], excitation, noise, fstd,
         substeps, observer_model,
     )  # fmt: skip
 
