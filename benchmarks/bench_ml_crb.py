@@ -34,7 +34,8 @@ deviation to the Cramér-Rao bound (:func:`design_information`: the linear
 model at the truth with the sensor noise levels unknown, the model ML fits).
 
 ML's bias, antithetic: ML is fitted also on the record's twin with the sensor
-noise negated (same seed, same excitation; :func:`_mirror`), and the bias is
+noise negated (same seed, same excitation; :func:`_mirror`, simulated in the
+record's batch by :func:`records`), and the bias is
 the mean of the pair means ``(e(+n) + e(-n)) / 2``, in which the error's part
 odd in the noise (its first-order, zero-mean part) cancels. ``-n`` has the law
 of ``n``, so the pair mean is unbiased on either plant; on the linear one the

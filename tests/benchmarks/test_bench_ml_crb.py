@@ -209,3 +209,15 @@ def test_batch_size_keeps_a_batch_inside_the_memory_rule():
     assert bench.batch_size("linear", 1_000_000) == 1
     for n in bench.SIZES:
         assert bench.batch_size("nonlinear", n) * n <= bench.BATCH_SAMPLES
+
+
+def test_map_until_runs_batches_in_order_within_the_budget():
+    """_map_until hands records() whole batches (a worker process each) and puts
+    the results back in the specs' order; a spent budget starts nothing more.
+    Reference: records() on the same specs in this process (same seeds, same
+    numbers)."""
+    specs = [{**_spec(n=1200), "plant": "nonlinear", "label": "map", "run": i} for i in range(3)]
+    got = bench._map_until(specs, workers=1, budget_s=600.0)
+    want = bench.records(specs)
+    assert [r["IV"]["est"] for r in got] == [r["IV"]["est"] for r in want]
+    assert bench._map_until(specs, workers=1, budget_s=0.0) == []
