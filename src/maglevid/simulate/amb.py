@@ -629,9 +629,9 @@ def simulate_amb_loops(
     draws its excitation, noise and force from its own ``rngs[b]`` in the same
     order. On the nonlinear plant the ``B = len(rngs)`` loops run together
     (:mod:`maglevid.simulate._amb_batch`: the per-sample Python overhead is
-    paid once for all records): ~50 us a sample for the whole batch plus ~1.2 us
-    per record (CPU, load 4; ``docs/control-and-simulation.md``), so it pays from
-    ``B`` of about 10 on. The linear plant, already vectorised in time
+    paid once for all records): ~35-45 us a sample for the whole batch plus ~1 us
+    per record (CPU, load 2-3; ``docs/control-and-simulation.md``), so it pays from
+    ``B`` of about 6 on. The linear plant, already vectorised in time
     (:func:`~maglevid.simulate.kernel.simulate_lti`), runs record by record.
 
     Parameters
