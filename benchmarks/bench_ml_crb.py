@@ -3,8 +3,8 @@
 Run from the repository root::
 
     python -m benchmarks.bench_ml_crb --quick          # 20 records at N = 1e4, ~1 min
-    python -m benchmarks.bench_ml_crb --json ml.json   # the make-bench plan, ~25 min (PLAN)
-    python -m benchmarks.bench_ml_crb --large          # the points it leaves out (~1.2 h)
+    python -m benchmarks.bench_ml_crb --json ml.json   # the make-bench plan, ~65 min (PLAN)
+    python -m benchmarks.bench_ml_crb --n 1000000      # the plan's points at one N only
 
 ``make bench`` runs the same plan as a section (``SECTION``; each point in its
 own worker process with its own time budget, so a slow point loses records,
@@ -34,7 +34,8 @@ deviation to the Cramér-Rao bound (:func:`design_information`: the linear
 model at the truth with the sensor noise levels unknown, the model ML fits).
 
 ML's bias, antithetic: ML is fitted also on the record's twin with the sensor
-noise negated (same seed, same excitation; :func:`_mirror`), and the bias is
+noise negated (same seed, same excitation; :func:`_mirror`, simulated in the
+record's batch by :func:`records`), and the bias is
 the mean of the pair means ``(e(+n) + e(-n)) / 2``, in which the error's part
 odd in the noise (its first-order, zero-mean part) cancels. ``-n`` has the law
 of ``n``, so the pair mean is unbiased on either plant; on the linear one the
@@ -69,7 +70,12 @@ from maglevid.identify.physical import fit_physical, to_physical_coordinates
 from maglevid.identify.planning import design_information, model_error_level
 from maglevid.identify.registry import get_method
 from maglevid.physics.amb import V_NAMES, AMBParameters, v_from_matrices
-from maglevid.simulate.amb import DEFAULT_NOISE_STD, DEFAULT_SUBSTEPS, simulate_amb_loop
+from maglevid.simulate.amb import (
+    DEFAULT_NOISE_STD,
+    DEFAULT_SUBSTEPS,
+    simulate_amb_loop,
+    simulate_amb_loops,
+)
 
 #: Parameters reported (v1..v9 and the physical parameters a diagnosis names).
 REPORTED = (*V_NAMES, "R1", "R2", "L1", "L2", "ki1", "ki2", "kw1", "kw2", "x0")
@@ -94,19 +100,18 @@ PLANTS = {"linear": {"R1": 1.2}, "nonlinear": {}}  # plant model -> fault
 SIZES = (10_000, 100_000, 1_000_000)
 
 #: The make-bench plan: (plant, noise level, N, records at most, time budget [s]).
-#: Every N = 1e4 and N = 1e5 point and the linear default at 1e6, each to 100
-#: records. Per record on one worker (CPU seconds, one BLAS thread, measured
-#: at load ~7 with ``stages``; at the section's load ~2 wall is about CPU):
-#: linear 1e4 ~0.7 s, nonlinear 1e4 ~1.0 s, linear 1e5 ~2.2 s (was 2.9 s before
-#: ML's large-N path), nonlinear 1e5 ~3.4 s (two simulations 1.5 s: the
-#: sample loop), linear 1e6 ~7 s (was 27 s: simulations 0.8, IV 0.6, ML from
-#: IV 1.0, from the truth 1.2, the twin's IV + ML 2.1, DB 0.8, MOESP 0.4).
-#: Expected wall on 2 workers: 3 x 35 + 3 x 50 + 3 x 110 + 3 x 170 + 350 s =
-#: ~1450 s, plus the bounds and the 1e5 timing (~30 s): **~25 min** (~14 min
-#: before, without the nonlinear 0.3x/3x 1e5 and the linear 1e6 points).
-#: Left out (``--large``, ~1.2 h): linear 1e6 at 0.3x / 3x (~6 min each) and every
-#: nonlinear 1e6 point (~22 s a record, of which 15 s are the record and its
-#: twin through the sample-by-sample RK4 loop: ~18 min a point). The budgets
+#: The issue's whole grid, every point to 100 records. Per record on one worker
+#: (one BLAS thread; at the section's load ~2 wall is about CPU): linear 1e4
+#: ~0.7 s, nonlinear 1e4 ~1.0 s, linear 1e5 ~2.2 s, nonlinear 1e5 ~2-3 s (its
+#: two simulations batched: was 3.4 s), linear 1e6 ~7 s (simulations 0.8, IV
+#: 0.6, ML from IV 1.0, from the truth 1.2, the twin's ML 2.1, DB 0.8, MOESP
+#: 0.4), nonlinear 1e6 ~10-13 s (was ~22 s: the record and its twin are now
+#: simulated in batches of :func:`batch_size` records + twins, ~5-7 s a record
+#: instead of 15; the fits ~5 s). Measured: a reduced nonlinear default 1e6 run
+#: (docs/gosiewski.md, "The plan and its budget"). Expected wall on 2 workers:
+#: 3 x 35 + 3 x 45 + 3 x 110 + 3 x 130 + 3 x 350 + 3 x ~600 s = ~3800 s, plus
+#: the bounds and the 1e5 timing (~30 s): **~65 min** (~25 min before, without
+#: the five 1e6 points linear 0.3x/3x and nonlinear default/0.3x/3x). The budgets
 #: are caps for a loaded machine, not the estimate.
 PLAN: tuple[tuple[str, str, int, int, float], ...] = (
     ("linear", "default", 10_000, 100, 100.0),
@@ -122,12 +127,11 @@ PLAN: tuple[tuple[str, str, int, int, float], ...] = (
     ("nonlinear", "0.3x", 100_000, 100, 600.0),
     ("nonlinear", "3x", 100_000, 100, 600.0),
     ("linear", "default", 1_000_000, 100, 900.0),
-)
-#: The points the plan leaves out, for a separate run (``--large``; ~1.2 h on 2 cores).
-LARGE_PLAN: tuple[tuple[str, str, int, int, float], ...] = (
     ("linear", "0.3x", 1_000_000, 100, 900.0),
     ("linear", "3x", 1_000_000, 100, 900.0),
-    *(("nonlinear", lv, 1_000_000, 100, 2400.0) for lv in NOISE_LEVELS),
+    ("nonlinear", "default", 1_000_000, 100, 1200.0),
+    ("nonlinear", "0.3x", 1_000_000, 100, 1200.0),
+    ("nonlinear", "3x", 1_000_000, 100, 1200.0),
 )
 QUICK_PLAN = (("linear", "default", 10_000, 20, 60.0),)
 
@@ -194,46 +198,93 @@ class _NegatedNoise(np.random.Generator):
         return -x if isinstance(size, tuple) and len(size) == 2 and size[1] == 3 else x
 
 
+def _twin_rng(rng: int) -> np.random.Generator:
+    """The generator of a record's antithetic twin: same seed, sensor noise negated."""
+    return _NegatedNoise(np.random.default_rng(rng).bit_generator)
+
+
 def _mirror(data: Any, spec: dict[str, Any], rng: int) -> Any:
     """The record with its sensor noise negated, d(r, -n), simulated again.
 
     On the linear plant this is ``2 d(r, 0) - d(r, n)`` (tested); on the
     nonlinear one it is the only way to it, and ``-n`` has the law of ``n``, so
     the pair mean is an unbiased estimate of the error's mean whatever the
-    plant (the variance reduction is that of the error's part odd in ``n``)."""
-    twin = _simulate(spec, _NegatedNoise(np.random.default_rng(rng).bit_generator))
+    plant (the variance reduction is that of the error's part odd in ``n``).
+    :func:`records` simulates the twins in the records' batch instead (the same
+    arrays, bit for bit)."""
+    return _check_twin(data, _simulate(spec, _twin_rng(rng)))
+
+
+def _check_twin(data: Any, twin: Any) -> Any:
     if not np.array_equal(np.asarray(twin.r), np.asarray(data.r)):
         raise RuntimeError("the twin's excitation differs: the simulator's draw order changed")
     return twin
 
 
-def _simulate(spec: dict[str, Any], rng: Any, noise: Any = None) -> Any:
+def _sim_options(spec: dict[str, Any], noise: Any = None) -> dict[str, Any]:
+    """simulate_amb_loop's arguments for one point (``noise`` overrides the spec's)."""
     nominal = AMBParameters.nominal()
-    return simulate_amb_loop(
-        nominal.with_fault(**PLANTS[spec["plant"]]),
-        nominal=nominal,
-        n_samples=spec["n"],
-        noise_std=spec["noise"] if noise is None else noise,
-        plant_model=spec["plant"],
+    opts: dict[str, Any] = {
+        "nominal": nominal,
+        "n_samples": spec["n"],
+        "noise_std": spec["noise"] if noise is None else noise,
+        "plant_model": spec["plant"],
         # No force disturbance: the bound here is the sensor-noise model's; the
         # realistic bearing with its 0.1 N force is bench_ml_realistic.py.
-        force_std=0.0,
-        substeps=SUBSTEPS if spec["plant"] == "nonlinear" else DEFAULT_SUBSTEPS,
-        excitation_std=spec.get("excitation_std", BENCH_EXCITATION_STD),
-        rng=rng,
+        "force_std": 0.0,
+        "substeps": SUBSTEPS if spec["plant"] == "nonlinear" else DEFAULT_SUBSTEPS,
+    }
+    opts["excitation_std"] = spec.get("excitation_std", BENCH_EXCITATION_STD)
+    return opts
+
+
+def _simulate(spec: dict[str, Any], rng: Any, noise: Any = None) -> Any:
+    nominal = AMBParameters.nominal()
+    plant = nominal.with_fault(**PLANTS[spec["plant"]])
+    return simulate_amb_loop(plant, rng=rng, **_sim_options(spec, noise))
+
+
+def _record_seed(spec: dict[str, Any]) -> int:
+    label = zlib.crc32(spec["label"].encode())
+    return int(np.random.SeedSequence([spec["seed"], label, spec["run"]]).generate_state(1)[0])
+
+
+def records(specs: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Simulate the records of ``specs`` (one point) and their twins in one batch
+    (:func:`~maglevid.simulate.amb.simulate_amb_loops`, each record bit for bit
+    :func:`_simulate` of its seed), then fit them one by one (module-level: pickled).
+
+    Each record's ``stages["simulate"]`` is its share of the batch (the batch's
+    time over its records: the record and its twin)."""
+    seeds = [_record_seed(sp) for sp in specs]
+    nominal = AMBParameters.nominal()
+    plant = nominal.with_fault(**PLANTS[specs[0]["plant"]])
+    t0 = time.perf_counter()
+    sims = simulate_amb_loops(
+        plant, rngs=[*seeds, *(_twin_rng(r) for r in seeds)], **_sim_options(specs[0])
     )
+    share = (time.perf_counter() - t0) / len(specs)
+    k = len(specs)
+    out = []
+    for i, spec in enumerate(specs):
+        d, twin = sims[i], sims[k + i]
+        sims[i] = sims[k + i] = None  # the record's memory goes with its fits
+        out.append(_fit_record(spec, d, twin, share))
+    return out
 
 
 def one_record(spec: dict[str, Any]) -> dict[str, Any]:
-    """Simulate one record and fit it by every method (module-level: pickled).
+    """One record (and its twin) simulated and fitted by every method: :func:`records`."""
+    return records([spec])[0]
 
-    ``out["stages"]`` holds where the record's time went [s]: the simulation,
-    each method, ML from the truth and the antithetic twin (simulation + ML)."""
-    label = zlib.crc32(spec["label"].encode())
-    rng = int(np.random.SeedSequence([spec["seed"], label, spec["run"]]).generate_state(1)[0])
-    t0 = time.perf_counter()
-    d = _simulate(spec, rng)
-    stages = {"simulate": time.perf_counter() - t0}
+
+def _fit_record(spec: dict[str, Any], d: Any, twin: Any, sim_s: float) -> dict[str, Any]:
+    """Fit one record by every method, ML also from the truth and on its twin.
+
+    ``out["stages"]`` holds where the record's time went [s]: the simulation
+    (its share of the batch, twin included), each method, ML from the truth and
+    the twin's ML."""
+    stages = {"simulate": sim_s}
     truth = _truth(d)
     out: dict[str, Any] = {"truth": truth, "stages": stages}
     iv = None
@@ -257,7 +308,7 @@ def one_record(spec: dict[str, Any]) -> dict[str, Any]:
         }
         stages[name] = time.perf_counter() - t0
         if name == "ML":
-            out[name].update(_ml_extras(d, res, out[name], truth, spec, rng, stages))
+            out[name].update(_ml_extras(d, res, out[name], truth, twin, stages))
     return out
 
 
@@ -266,8 +317,7 @@ def _ml_extras(
     res: Any,
     row: dict[str, Any],
     truth: dict[str, float],
-    spec: dict[str, Any],
-    rng: int,
+    twin: Any,
     stages: dict[str, float],
 ) -> dict[str, Any]:
     """ML from the truth (same optimum?), restarts, and the antithetic twin's estimate."""
@@ -291,50 +341,73 @@ def _ml_extras(
     stages["ML from the truth"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     try:
-        twin = _mirror(d, spec, rng)
-        stages["twin simulate"] = time.perf_counter() - t0
-        tw = fit_ml(twin)
+        tw = fit_ml(_check_twin(d, twin))
         if tw.extras["converged"]:
             x["twin_est"] = {k: tw.parameters[k] for k in REPORTED}
         else:  # a twin that did not converge is left out of the bias, counted
             x["twin_error"] = "did not converge"
     except Exception as exc:  # the pair is left out of the antithetic bias
         x["twin_error"] = str(exc)[:200]
-    stages["twin ML"] = time.perf_counter() - t0 - stages.get("twin simulate", 0.0)
+    stages["twin ML"] = time.perf_counter() - t0
     return x
 
 
-def _map_until(specs: list[dict[str, Any]], workers: int, budget_s: float) -> list[Any]:
-    """``one_record`` over ``specs`` on ``workers`` processes within ``budget_s``.
+#: Records simulated together on the nonlinear plant (each with its twin, so the
+#: batch is twice this): the vectorised loop's per-sample overhead (~45 us) is
+#: paid once per batch, ~0.8 us a sample per record on top (docs/control-and-
+#: simulation.md). At most :data:`BATCH_SAMPLES` samples of records a batch:
+#: ~170 bytes a record-sample while it is simulated (measured peak RSS: 2.4 GB
+#: for 8 records of 1e6 + twins, fits included), so 10 records of 1e6 ~3 GB,
+#: inside run_all's 8 GB address-space limit per worker; and at most
+#: :data:`BATCH_MAX` records (4 batches of a 100-record point). The linear
+#: plant, vectorised in time already, runs a record and its twin per batch.
+BATCH_SAMPLES, BATCH_MAX = 10_000_000, 25
 
-    ``workers`` records are kept in flight; a new one is started only while the
-    time spent plus the slowest record so far (times the records still to run
-    per worker) fits the budget, so a point ends near its budget instead of
-    overrunning it by the records in flight (measured: a 240 s budget at N = 1e6
-    took 492 s when all records were queued at once, load 12-20)."""
+
+def batch_size(plant: str, n: int) -> int:
+    """Records per batch (:data:`BATCH_SAMPLES`)."""
+    if plant != "nonlinear":
+        return 1
+    return max(1, min(BATCH_MAX, BATCH_SAMPLES // int(n)))
+
+
+def _map_until(specs: list[dict[str, Any]], workers: int, budget_s: float) -> list[Any]:
+    """:func:`records` over batches of ``specs`` on ``workers`` processes within ``budget_s``.
+
+    ``workers`` batches (:func:`batch_size` records each) are kept in flight; a
+    new one is started only while the time spent plus the slowest batch so far
+    fits the budget, and made smaller when only a few records' time (at the
+    slowest record rate seen) is left, so a point ends near its budget instead
+    of overrunning it by the records in flight (measured: a 240 s budget at N =
+    1e6 took 492 s when all records were queued at once, load 12-20). A batch's
+    cost is all its records', its simulation included."""
     results: list[Any] = [None] * len(specs)
+    size = batch_size(specs[0]["plant"], specs[0]["n"]) if specs else 1
     t0 = time.perf_counter()
-    slowest = 0.0
+    per_record = 0.0  # the slowest seconds per record of a finished batch
     with one_blas_thread():
         ctx = multiprocessing.get_context(start_method())
         with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
-            running: dict[Any, tuple[int, float]] = {}
+            running: dict[Any, tuple[int, int, float]] = {}
             nxt = 0
             while nxt < len(specs) or running:
-                while (
-                    nxt < len(specs)
-                    and len(running) < workers
-                    and time.perf_counter() - t0 + slowest <= budget_s
-                ):
-                    running[pool.submit(one_record, specs[nxt])] = (nxt, time.perf_counter())
-                    nxt += 1
+                while nxt < len(specs) and len(running) < workers:
+                    left = budget_s - (time.perf_counter() - t0)
+                    k = min(size, len(specs) - nxt)
+                    if per_record > 0:
+                        k = min(k, int(left // per_record))
+                    if k < 1 or left <= 0:
+                        break
+                    f = pool.submit(records, specs[nxt : nxt + k])
+                    running[f] = (nxt, k, time.perf_counter())
+                    nxt += k
                 if not running:
                     break
                 done, _ = wait(running, return_when=FIRST_COMPLETED)
                 for f in done:
-                    i, started = running.pop(f)
-                    slowest = max(slowest, time.perf_counter() - started)
-                    results[i] = f.result()
+                    i, k, started = running.pop(f)
+                    per_record = max(per_record, (time.perf_counter() - started) / k)
+                    results[i : i + k] = f.result()
     return [r for r in results if r is not None]
 
 
@@ -797,13 +870,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--workers", type=int, default=None)
     ap.add_argument("--seed", type=int, default=2026)
     ap.add_argument("--quick", action="store_true", help="20 records at N = 1e4 only")
-    ap.add_argument("--large", action="store_true", help="the points make bench leaves out")
+    ap.add_argument("--n", type=int, default=None, help="only the plan's points at this N")
     ap.add_argument("--no-timing", action="store_true", help="leave out the 1e5 time ratio")
     ap.add_argument("--json", default=None, help="write the results here")
     ap.add_argument("--markdown", default=None, help="write the markdown section here")
     a = ap.parse_args(argv)
     res = run(
-        QUICK_PLAN if a.quick else LARGE_PLAN if a.large else PLAN,
+        QUICK_PLAN if a.quick else tuple(p for p in PLAN if a.n in (None, p[2])),
         workers=a.workers,
         seed=a.seed,
         timing=not (a.quick or a.no_timing),

@@ -6,7 +6,7 @@ Modules defining ``SCENARIO`` are the scenarios of ``maglevid simulate``.
 
 from __future__ import annotations
 
-from maglevid.simulate.amb import simulate_amb_loop
+from maglevid.simulate.amb import simulate_amb_loop, simulate_amb_loops
 from maglevid.simulate.excitation import make_excitation
 from maglevid.simulate.kernel import simulate_lti
 from maglevid.simulate.loop import (
@@ -22,6 +22,7 @@ __all__ = [
     "make_excitation",
     "replay_feedback",
     "simulate_amb_loop",
+    "simulate_amb_loops",
     "simulate_linear_loop",
     "simulate_lti",
 ]

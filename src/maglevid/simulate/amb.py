@@ -35,6 +35,7 @@ diagnostic setting where the fault is unknown.
 from __future__ import annotations
 
 import argparse
+import inspect
 import logging
 import math
 from collections.abc import Callable, Iterable, Sequence
@@ -68,6 +69,7 @@ from maglevid.physics.amb import (
     linearized_v,
     settled_operating_point,
 )
+from maglevid.simulate._amb_batch import simulate_nonlinear_batch
 from maglevid.simulate.excitation import EXCITATION_KINDS, make_excitation
 from maglevid.simulate.loop import closed_loop_system, simulate_linear_loop
 
@@ -92,6 +94,7 @@ __all__ = [
     "parse_fault",
     "run_scenario",
     "simulate_amb_loop",
+    "simulate_amb_loops",
 ]
 
 logger = logging.getLogger(__name__)
@@ -299,6 +302,44 @@ def _rk4_stepper(p: AMBParameters, h: float) -> Callable[..., tuple[float, float
     return step
 
 
+def _loop_product(observer: Observer, controller: IntegralStateFeedback) -> np.ndarray:
+    """The observer and controller of one sample as one matrix ``M``.
+
+    With ``q = [x̂(k); e(k-1); y(k); r(k)]``::
+
+        e(k)    = e(k-1) - E y(k)                                        eq. (39)/(43)
+        u_f(k)  = -F x̂ + F_e e(k-1) - F_e E y(k)                         eq. (42)
+        x̂(k+1) = (Abar - B F) x̂ + B F_e e(k-1) - (B F_e E + G) y + B r   eq. (43)
+
+    and ``[x̂(k+1); e(k); u_f(k)] = M q``.
+    """
+    Abar, Bo, G = observer.A_bar, observer.B, observer.G
+    F, Fe, E = controller.F, controller.Fe, controller.E
+    nx, ne = Abar.shape[0], E.shape[0]
+    Z = np.zeros
+    return np.block(
+        [
+            [Abar - Bo @ F, Bo @ Fe, -Bo @ Fe @ E - G, Bo],
+            [Z((ne, nx)), np.eye(ne), -E, Z((ne, 2))],
+            [-F, Fe, -Fe @ E, Z((2, 2))],
+        ]
+    )
+
+
+def _first_state(
+    eq: dict[str, Any],
+    controller: IntegralStateFeedback,
+    i0: float,
+    gains: Sequence[float],
+    v0: np.ndarray,
+) -> np.ndarray:
+    """``[x̂(0); e(-1)]`` at the rest point ``eq``: ``e(-1) := e(0) + E y(0)`` gives ``e(0)``."""
+    gx, gi1, gi2 = (float(g) for g in gains)
+    x, I1, I2 = float(eq["x"]), float(eq["I1"]), float(eq["I2"])
+    y0 = np.array([gx * x, gi1 * (I1 - i0), gi2 * (I2 - i0)]) + v0
+    return np.concatenate([eq["x_hat"], np.asarray(eq["e"]) + controller.E @ y0])
+
+
 def _simulate_nonlinear(
     plant: AMBParameters,
     nominal: AMBParameters,
@@ -323,29 +364,13 @@ def _simulate_nonlinear(
     N = r.shape[0]
     i0, x0 = nominal.i0, plant.x0
     ub1, ub2 = (float(b) for b in bias_voltages(nominal))
-    Abar, Bo, G = observer.A_bar, observer.B, observer.G
-    F, Fe, E = controller.F, controller.Fe, controller.E
-    nx, ne = Abar.shape[0], E.shape[0]
-    # The observer/controller in one product per sample. With q = [x̂(k); e(k-1); y(k); r(k)]:
-    #   e(k)    = e(k-1) - E y(k)                                     eq. (39)/(43)
-    #   u_f(k)  = -F x̂ + F_e e(k-1) - F_e E y(k)                      eq. (42)
-    #   x̂(k+1) = (Abar - B F) x̂ + B F_e e(k-1) - (B F_e E + G) y + B r   eq. (43)
-    # and [x̂(k+1); e(k); u_f(k)] = M q. For k = 0, e(-1) := e(0) + E y(0) gives e(0).
-    Z = np.zeros
-    M = np.block(
-        [
-            [Abar - Bo @ F, Bo @ Fe, -Bo @ Fe @ E - G, Bo],
-            [Z((ne, nx)), np.eye(ne), -E, Z((ne, 2))],
-            [-F, Fe, -Fe @ E, Z((2, 2))],
-        ]
-    )
+    M = _loop_product(observer, controller)
     step = _rk4_stepper(plant, dt / substeps)
     Y = np.empty((N, 3))
     UF = np.empty((N, 2))
     x, dx, I1, I2 = float(eq["x"]), 0.0, float(eq["I1"]), float(eq["I2"])
-    y0 = np.array([gx * x, gi1 * (I1 - i0), gi2 * (I2 - i0)]) + v[0]
-    state = np.concatenate([eq["x_hat"], np.asarray(eq["e"]) + E @ y0]).tolist()
-    ns = nx + ne
+    state = _first_state(eq, controller, nominal.i0, gains, v[0]).tolist()
+    ns = observer.nx + controller.ne
     chunk = 2000
     starts: Iterable[int] = range(0, N, chunk)
     if progress is not None:
@@ -585,45 +610,171 @@ def simulate_amb_loop(
     >>> d.y.shape, d.u.shape, d.loop["observer"]["type"]
     ((500, 3), (500, 2), 'deadbeat')
     """
+    s = _setup(dict(locals()))  # every argument, by name
+    r, v, force, meta = _draw(s, rng)
+    if plant_model == "linear":
+        y, u_f, u = _run_linear(s.bearing, r, v, kernel, meta)
+    else:
+        y, u_f, u = _run_nonlinear(s.bearing, r, v, force, s.substeps, progress, meta)
+    return _record(s, r, y, u_f, u, meta)
+
+
+def simulate_amb_loops(
+    plant: AMBParameters, *, rngs: Sequence[Any], **options: Any
+) -> list[ClosedLoopData]:
+    """Many records of one bearing in one loop: ``simulate_amb_loop`` for each of ``rngs``.
+
+    Record ``b`` is exactly (bit for bit, tested) what
+    ``simulate_amb_loop(plant, rng=rngs[b], **options)`` returns: each record
+    draws its excitation, noise and force from its own ``rngs[b]`` in the same
+    order. On the nonlinear plant the ``B = len(rngs)`` loops run together
+    (:mod:`maglevid.simulate._amb_batch`: the per-sample Python overhead is
+    paid once for all records): ~35-45 us a sample for the whole batch plus ~1 us
+    per record (CPU, load 2-3; ``docs/control-and-simulation.md``), so it pays from
+    ``B`` of about 6 on. The linear plant, already vectorised in time
+    (:func:`~maglevid.simulate.kernel.simulate_lti`), runs record by record.
+
+    Parameters
+    ----------
+    plant : AMBParameters
+        The real bearing, the same for every record.
+    rngs : sequence
+        One ``rng`` per record (a Generator, a non-negative int seed, or None
+        for a fresh recorded seed), as ``simulate_amb_loop``'s ``rng``.
+    **options
+        Any other keyword of :func:`simulate_amb_loop` except ``rng`` and
+        ``progress``.
+
+    Returns
+    -------
+    list of ClosedLoopData
+        One record per entry of ``rngs``, in order.
+
+    Raises
+    ------
+    DataError
+        An unknown option, ``rng`` or ``progress`` among ``options``, no
+        ``rngs``, or any argument ``simulate_amb_loop`` refuses.
+    DesignError, ModelError
+        As :func:`simulate_amb_loop`; a rotor reaching the pole face names
+        the record.
+
+    Examples
+    --------
+    >>> from maglevid.physics.amb import AMBParameters
+    >>> p = AMBParameters.nominal()
+    >>> a, b = simulate_amb_loops(p, rngs=[1, 2], n_samples=300, force_std=0.0)
+    >>> bool((a.y == simulate_amb_loop(p, rng=1, n_samples=300, force_std=0.0).y).all())
+    True
+    """
+    kernel = _batch_options(options)
+    rngs = list(rngs) if isinstance(rngs, Sequence) and not isinstance(rngs, str) else None
+    if not rngs:
+        raise DataError("`rngs` must be a non-empty sequence of rngs (one per record)")
+    bound = inspect.signature(simulate_amb_loop).bind(plant, **options)
+    bound.apply_defaults()
+    s = _setup(bound.arguments)
+    drawn = [_draw(s, rng) for rng in rngs]
+    if s.plant_model == "linear":
+        runs = [_run_linear(s.bearing, r, v, kernel, meta) for r, v, _, meta in drawn]
+    else:
+        runs = _run_nonlinear_batch(s, drawn)
+    return [
+        _record(s, r, y, u_f, u, meta)
+        for (r, _, _, meta), (y, u_f, u) in zip(drawn, runs, strict=True)
+    ]
+
+
+def _batch_options(options: dict[str, Any]) -> str:
+    """Refuse what :func:`simulate_amb_loops` cannot take; pop and return ``kernel``."""
+    keywords = set(inspect.signature(simulate_amb_loop).parameters) - {"plant"}
+    bad = sorted(set(options) - (keywords - {"rng", "progress"}))
+    if bad:
+        raise DataError(
+            f"simulate_amb_loops got {bad}: the records' rngs go in `rngs`; other options are "
+            "simulate_amb_loop's keywords except rng and progress"
+        )
+    return str(options.pop("kernel", "auto"))
+
+
+@dataclass(frozen=True)
+class _Setup:
+    """What every record of one call shares: the checked arguments and the loop."""
+
+    bearing: _Bearing
+    cond: float
+    plant_model: str
+    n_samples: int
+    excitation_std: Any
+    excitation: str
+    noise: np.ndarray
+    force_std: float
+    substeps: int
+    observer_model: str
+
+
+def _setup(args: dict[str, Any]) -> _Setup:
+    """The arguments of :func:`simulate_amb_loop` (all of them, by name) checked, the
+    controller and observer built."""
+    plant, plant_model, excitation = args["plant"], args["plant_model"], args["excitation"]
     nominal, dt, n_samples, substeps = _check_arguments(
-        plant, nominal, dt, n_samples, plant_model, excitation, substeps
-    )
-    gains = _sensor_gains(sensor_gains)
+        plant, args["nominal"], args["dt"], args["n_samples"], plant_model, excitation,
+        args["substeps"],
+    )  # fmt: skip
+    gains = _sensor_gains(args["sensor_gains"])
     _check_bias_current(plant, nominal, plant_model)
-    noise = _noise_std(noise_std)
-    fstd = _force_std(force_std, plant_model)
-    gen, seed = _make_rng(rng)
+    noise = _noise_std(args["noise_std"])
+    fstd = _force_std(args["force_std"], plant_model)
+    observer_model = args["observer_model"]
     controller, observer = _controller_observer(
-        plant, nominal, dt, controller, observer, observer_model
+        plant, nominal, dt, args["controller"], args["observer"], observer_model
     )
     cond = _loop_condition(observer, controller)
+    bearing = _Bearing(plant, nominal, controller, observer, dt, gains)
+    return _Setup(
+        bearing, cond, plant_model, n_samples, args["excitation_std"], excitation, noise, fstd,
+        substeps, observer_model,
+    )  # fmt: skip
 
-    r = make_excitation(n_samples, 2, std=excitation_std, kind=excitation, rng=gen)  # eq. (16)
+
+def _draw(s: _Setup, rng: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, dict[str, Any]]:
+    """One record's excitation, noise and force (in that order from ``rng``), and its metadata."""
+    gen, seed = _make_rng(rng)
+    n, noise, fstd = s.n_samples, s.noise, s.force_std
+    r = make_excitation(n, 2, std=s.excitation_std, kind=s.excitation, rng=gen)  # eq. (16)
     # Noise drawn after the excitation, so r does not depend on noise_std.
-    v = gen.standard_normal((n_samples, 3)) * noise if np.any(noise) else np.zeros((n_samples, 3))
-    force = gen.standard_normal(n_samples) * fstd if fstd > 0 else None  # after the noise
-
+    v = gen.standard_normal((n, 3)) * noise if np.any(noise) else np.zeros((n, 3))
+    force = gen.standard_normal(n) * fstd if fstd > 0 else None  # after the noise
+    plant = s.bearing.plant
     meta = {
         "simulated": True, "truth": plant.to_dict(), "truth_v": plant.v().tolist(),
-        "seed": seed, "plant_model": plant_model,
-        "excitation": {"kind": excitation, "std": np.broadcast_to(excitation_std, (2,)).tolist()},
-        "noise_std": noise.tolist(), "force_std": fstd, "observer_model": observer_model,
-        "sensor_gains": dict(zip(SENSOR_GAINS, gains, strict=True)),
+        "seed": seed, "plant_model": s.plant_model,
+        "excitation": {
+            "kind": s.excitation, "std": np.broadcast_to(s.excitation_std, (2,)).tolist()
+        },
+        "noise_std": noise.tolist(), "force_std": fstd, "observer_model": s.observer_model,
+        "sensor_gains": dict(zip(SENSOR_GAINS, s.bearing.gains, strict=True)),
     }  # fmt: skip
-    bearing = _Bearing(plant, nominal, controller, observer, dt, gains)
-    if plant_model == "linear":
-        y, u_f, u = _run_linear(bearing, r, v, kernel, meta)
-    else:
-        y, u_f, u = _run_nonlinear(bearing, r, v, force, substeps, progress, meta)
+    return r, v, force, meta
+
+
+def _record(
+    s: _Setup,
+    r: np.ndarray,
+    y: np.ndarray,
+    u_f: np.ndarray,
+    u: np.ndarray,
+    meta: dict[str, Any],
+) -> ClosedLoopData:
     return ClosedLoopData(
         y=y,
-        dt=dt,
+        dt=s.bearing.dt,
         u=u,
         r=r,
         u_f=u_f,
         names={"y": OUTPUT_NAMES, "u": INPUT_NAMES, "r": ("r1", "r2"), "u_f": ("uf1", "uf2")},
         units={"y": ("m", "A", "A"), "u": ("V", "V"), "r": ("V", "V"), "u_f": ("V", "V")},
-        loop=_loop_record(bearing, cond),
+        loop=_loop_record(s.bearing, s.cond),
         metadata=meta,
     )
 
@@ -764,16 +915,13 @@ def _run_nonlinear(
     meta: dict[str, Any],
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The bearing of eq. (1) from the point it settles at under the nominal bias voltages."""
-    plant, nominal, controller, observer, dt = b.plant, b.nominal, b.controller, b.observer, b.dt
-    eq = nonlinear_equilibrium(plant, nominal, observer, controller)
-    _check_settled_loop(eq, observer, controller, dt, b.gains)
-    _check_current_gains_at_rest(eq, nominal.i0, b.gains)
+    eq = _settle(b)
     y, u_f = _simulate_nonlinear(
-        plant,
-        nominal,
-        observer,
-        controller,
-        dt=dt,
+        b.plant,
+        b.nominal,
+        b.observer,
+        b.controller,
+        dt=b.dt,
         r=r,
         v=v,
         substeps=substeps,
@@ -782,6 +930,55 @@ def _run_nonlinear(
         force=force,
         gains=b.gains,
     )
+    _nonlinear_meta(eq, substeps, meta)
+    return y, u_f, u_f + r
+
+
+def _run_nonlinear_batch(
+    s: _Setup, drawn: list[tuple[np.ndarray, Any, np.ndarray | None, dict[str, Any]]]
+) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """:func:`_run_nonlinear` for every drawn record at once (:mod:`._amb_batch`)."""
+    b = s.bearing
+    eq = _settle(b)
+    state0 = np.stack(
+        [_first_state(eq, b.controller, b.nominal.i0, b.gains, v[0]) for _, v, _, _ in drawn]
+    )
+    r = np.stack([d[0] for d in drawn])
+    v = np.stack([d[1] for d in drawn])
+    zeros = np.zeros(s.n_samples)
+    force = np.stack([zeros if d[2] is None else d[2] for d in drawn])
+    drawn[:] = [(d[0], None, None, d[3]) for d in drawn]  # the noise and force stacked: freed
+    y, u_f = simulate_nonlinear_batch(
+        b.plant,
+        M=_loop_product(b.observer, b.controller),
+        state0=state0,
+        start=(float(eq["x"]), float(eq["I1"]), float(eq["I2"])),
+        i0=b.nominal.i0,
+        u_bias=tuple(float(u) for u in bias_voltages(b.nominal)),  # type: ignore[arg-type]
+        dt=b.dt,
+        r=r,
+        v=v,
+        force=force,
+        substeps=s.substeps,
+        gains=b.gains,
+    )
+    del r, v, force
+    out = []
+    for i, (ri, _, _, meta) in enumerate(drawn):
+        _nonlinear_meta(eq, s.substeps, meta)
+        out.append((y[i], u_f[i], u_f[i] + ri))
+    return out
+
+
+def _settle(b: _Bearing) -> dict[str, Any]:
+    """The rest point of the nonlinear loop, checked (stable, sensor gains allowed there)."""
+    eq = nonlinear_equilibrium(b.plant, b.nominal, b.observer, b.controller)
+    _check_settled_loop(eq, b.observer, b.controller, b.dt, b.gains)
+    _check_current_gains_at_rest(eq, b.nominal.i0, b.gains)
+    return eq
+
+
+def _nonlinear_meta(eq: dict[str, Any], substeps: int, meta: dict[str, Any]) -> None:
     meta["substeps"] = substeps
     meta["operating_point_true"] = {
         k: (np.asarray(val).tolist() if isinstance(val, np.ndarray) else val)
@@ -791,7 +988,6 @@ def _run_nonlinear(
         "x_hat": np.asarray(eq["x_hat"]).tolist(),
         "e": np.asarray(eq["e"]).tolist(),
     }
-    return y, u_f, u_f + r
 
 
 def _loop_record(b: _Bearing, cond: float) -> dict[str, Any]:
