@@ -118,6 +118,8 @@ _CCA_FLOOR = 1e-8
 #: Samples per chunk of the in-memory pass over the lagged products (rounded to a
 #: whole number of the accumulator's groups); docs/subspace.md, "Speed of SSARX".
 _PASS_CHUNK = 1 << 18
+#: Records longer than this feed the lag pass with u and y apart (``update_split``).
+_SPLIT_MIN = 1 << 18
 #: The automatic past keeps at least this many Hankel rows per column.
 _ROWS_PER_COLUMN = 5
 
@@ -1011,19 +1013,22 @@ def _fit_in_memory(algorithm: str, y: Any, u: Any, kw: dict[str, Any]) -> Identi
     acc = _LagGram(nu + ny, lags)
     # Chunks of a whole number of the accumulator's groups of ``lags`` samples: a
     # chunk's starts then fill whole groups (two GEMMs each), none is left to the
-    # one-product-per-lag remainder, and few chunks (~2.6e5 samples, 10 MB of
-    # interleaved copy) pay a junction each: 10 % less than 65536-sample chunks at
-    # 1e6 and 119 lags. (``update_split``, MOESP's route, saves the interleaved copy,
-    # ~6 % more at 1e6, but its fold costs ~7 ms at every N: 20 % of a fit at 1e4.)
+    # one-product-per-lag remainder, and few chunks (~2.6e5 samples) pay a junction
+    # each: 10 % less than 65536-sample chunks at 1e6 and 119 lags. Above
+    # ``_SPLIT_MIN`` samples u and y go in apart (``update_split``, MOESP's route: no
+    # interleaved copy, 6 % less again at 1e6); below, its fold (~7 ms at 119 lags,
+    # 20 % of a fit at 1e4) costs more than it saves. The same sums to rounding.
     step = lags * max(1, _PASS_CHUNK // lags)
-    shift = None
+    shift = np.zeros(nu + ny)
+    if opt.remove_mean:  # the first chunk's mean: centring the Gram without cancellation
+        shift = np.concatenate([u[:step], y[:step]], axis=1).mean(axis=0)
     for t0 in range(0, N, step):  # the same accumulator a stream would use
-        z = np.concatenate([u[t0 : t0 + step], y[t0 : t0 + step]], axis=1)
-        if shift is None:
-            shift = z.mean(axis=0) if opt.remove_mean else np.zeros(nu + ny)
-        z -= shift
-        acc.update(z)
-    assert shift is not None
+        if N > _SPLIT_MIN:
+            acc.update_split(u[t0 : t0 + step] - shift[:nu], y[t0 : t0 + step] - shift[nu:])
+        else:
+            z = np.concatenate([u[t0 : t0 + step], y[t0 : t0 + step]], axis=1)
+            z -= shift
+            acc.update(z)
     return _fit(acc, nu, ny, opt, p_top, shift, (y, u))
 
 

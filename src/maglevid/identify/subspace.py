@@ -384,28 +384,31 @@ def _arx_horizon(st: _Stats, p_max: int, feedthrough: bool) -> tuple[int, np.nda
     nu, ny, m = st.nu, st.ny, st.m
     w = p_max + 1
     lead = st.F[: w * m]
-    tri = lead.shape[1] == w * m and not np.any(np.triu(lead, 1))
-    if not tri:
-        perm: list[int] = []
-        for t in range(w):
-            u_t = list(st.u_rows(t, t + 1))
-            y_t = list(st.y_rows(t, t + 1))
-            perm += (u_t + y_t) if feedthrough else (y_t + u_t)
-        L = lower_factor(st.F[np.array(perm)])
     aic = np.full(p_max + 1, np.inf)
-    for p in range(1, p_max + 1):
-        start = p * m + (nu if feedthrough else 0)
-        if tri:
-            # F already lower triangular in the time-major order [u, y] (a Cholesky
-            # factor, as pbsid's): the residual of y(t+p) given z(t..t+p-1) (and u(t+p))
-            # is in the y rows of the diagonal block p (their y columns): the same
-            # Sigma_p as the reordered factor's, without factorising.
-            Ly = lead[p * m + nu : (p + 1) * m, start : (p + 1) * m]
-        else:
-            Ly = L[start : start + ny, start:]
+    p = np.arange(1, p_max + 1)
+    penalty = 2.0 * (p * m * ny + (nu * ny if feedthrough else 0))
+    if lead.shape[1] == w * m and not np.any(np.triu(lead, 1)):
+        # F already lower triangular in the time-major order [u, y] (a Cholesky
+        # factor, as pbsid's): the residual of y(t+p) given z(t..t+p-1) (and u(t+p))
+        # is in the y rows of the diagonal block p (their y columns): the same
+        # Sigma_p as the reordered factor's, all p at once, without factorising.
+        blocks = lead.reshape(w, m, w, m)[p, nu:, p, (nu if feedthrough else 0) :]
+        ev = np.linalg.eigvalsh(blocks @ blocks.transpose(0, 2, 1))
+        logdet = np.sum(np.log(np.maximum(ev, _ARX_VAR_FLOOR)), axis=1)
+        aic[1:] = st.j * logdet + penalty
+        return int(np.argmin(aic)), aic
+    perm: list[int] = []
+    for t in range(w):
+        u_t = list(st.u_rows(t, t + 1))
+        y_t = list(st.y_rows(t, t + 1))
+        perm += (u_t + y_t) if feedthrough else (y_t + u_t)
+    L = lower_factor(st.F[np.array(perm)])
+    for k in range(1, p_max + 1):
+        start = k * m + (nu if feedthrough else 0)
+        Ly = L[start : start + ny, start:]
         ev = np.linalg.eigvalsh(Ly @ Ly.T) if Ly.shape[1] else np.zeros(ny)
         logdet = float(np.sum(np.log(np.maximum(ev, _ARX_VAR_FLOOR))))
-        aic[p] = st.j * logdet + 2.0 * (p * m * ny + (nu * ny if feedthrough else 0))
+        aic[k] = st.j * logdet + penalty[k - 1]
     return int(np.argmin(aic)), aic
 
 
