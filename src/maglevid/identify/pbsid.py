@@ -116,7 +116,8 @@ _CHOL_SPAN = 1e6
 #: CCA weighting needs the corrected future's covariance resolved to this ratio.
 _CCA_FLOOR = 1e-8
 #: Samples per chunk of the in-memory pass over the lagged products (rounded to a
-#: whole number of the accumulator's groups); docs/subspace.md, "Speed of SSARX".
+#: whole number of the accumulator's groups); docs/subspace.md, "Speed of the
+#: transform path".
 _PASS_CHUNK = 1 << 18
 #: Records longer than this feed the lag pass with u and y apart (``update_split``).
 _SPLIT_MIN = 1 << 18
