@@ -387,9 +387,11 @@ def _arx_horizon(st: _Stats, p_max: int, feedthrough: bool) -> tuple[int, np.nda
     aic = np.full(p_max + 1, np.inf)
     p = np.arange(1, p_max + 1)
     penalty = 2.0 * (p * m * ny + (nu * ny if feedthrough else 0))
-    if lead.shape[1] == w * m and not np.any(np.triu(lead, 1)):
-        # F already lower triangular in the time-major order [u, y] (a Cholesky
-        # factor, as pbsid's): the residual of y(t+p) given z(t..t+p-1) (and u(t+p))
+    tri = lead.shape[1] == w * m and not np.any(np.triu(lead, 1))
+    if tri and np.all(np.diagonal(lead) > 0.0):
+        # F already lower triangular in the time-major order [u, y] with a positive
+        # diagonal (a Cholesky factor, as pbsid's; the earlier rows then span exactly
+        # the earlier columns): the residual of y(t+p) given z(t..t+p-1) (and u(t+p))
         # is in the y rows of the diagonal block p (their y columns): the same
         # Sigma_p as the reordered factor's, all p at once, without factorising.
         blocks = lead.reshape(w, m, w, m)[p, nu:, p, (nu if feedthrough else 0) :]
