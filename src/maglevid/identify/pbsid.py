@@ -1019,7 +1019,7 @@ def _fit_in_memory(algorithm: str, y: Any, u: Any, kw: dict[str, Any]) -> Identi
     # ``_SPLIT_MIN`` samples u and y go in apart (``update_split``, MOESP's route: no
     # interleaved copy, 6 % less again at 1e6); below, its fold (~7 ms at 119 lags,
     # 20 % of a fit at 1e4) costs more than it saves. The same sums to rounding.
-    step = lags * max(1, _PASS_CHUNK // lags)
+    step = max(lags, 1) * max(1, _PASS_CHUNK // max(lags, 1))
     shift = np.zeros(nu + ny)
     if opt.remove_mean:  # the first chunk's mean: centring the Gram without cancellation
         shift = np.concatenate([u[:step], y[:step]], axis=1).mean(axis=0)
