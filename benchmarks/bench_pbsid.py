@@ -4,6 +4,10 @@ Run from the repository root::
 
     OPENBLAS_NUM_THREADS=1 PYTHONPATH=src python -m benchmarks.bench_pbsid
     OPENBLAS_NUM_THREADS=1 PYTHONPATH=src python -m benchmarks.bench_pbsid --sizes 1e4 1e5
+    OPENBLAS_NUM_THREADS=1 PYTHONPATH=src python -m benchmarks.bench_pbsid --parsim-k-scaling 2e5
+
+(the last: PARSIM-K's time and peak memory alone, one process per N; the
+stored ``PARSIM_K_MEASURED`` say why it is not run above ``PEER_MAX_N``).
 
 Three plants, so that the method is not tied to one:
 
