@@ -4,6 +4,10 @@ Run from the repository root::
 
     OPENBLAS_NUM_THREADS=1 PYTHONPATH=src python -m benchmarks.bench_pbsid
     OPENBLAS_NUM_THREADS=1 PYTHONPATH=src python -m benchmarks.bench_pbsid --sizes 1e4 1e5
+    OPENBLAS_NUM_THREADS=1 PYTHONPATH=src python -m benchmarks.bench_pbsid --parsim-k-scaling 2e5
+
+(the last: PARSIM-K's time and peak memory alone, one process per N; the
+stored ``PARSIM_K_MEASURED`` say why it is not run above ``PEER_MAX_N``).
 
 Three plants, so that the method is not tied to one:
 
@@ -45,6 +49,7 @@ goes to stderr, the Markdown to stdout (``--out`` writes it to a file too).
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import statistics
 import sys
@@ -81,6 +86,18 @@ TRANSFORM = {
 }
 #: PARSIM-K takes ~6 s at 1e4 and ~45 s at 1e5 (BENCHMARKS.md): not run above this.
 PEER_MAX_N = 100_000
+#: SIPPY PARSIM-K (sippy_unipi 1.0.1, horizon 40, order 4) on the issue record,
+#: measured by ``python -m benchmarks.bench_pbsid --parsim-k-scaling 1e4 1e5 2e5 3e5``
+#: (one process per N, one BLAS thread, 2-core machine with 24 GiB shared by five
+#: users): ``(N, seconds, peak resident GB, load average)``. Issue 16, fifth session.
+PARSIM_K_MEASURED = (
+    (10_000, 5.5, 0.30, 0.6),
+    (100_000, 50.0, 1.32, 1.7),
+    (200_000, 86.8, 2.46, 1.9),
+    (300_000, 237.8, 3.59, 4.4),
+)
+#: Memory one peer run may take on this machine (of 24 GiB shared by five users).
+PEER_MEMORY_GB = 8.0
 
 
 def _median_time(fn: Callable[..., Any], *args: Any, **kw: Any) -> tuple[float, Any]:
@@ -93,6 +110,58 @@ def _median_time(fn: Callable[..., Any], *args: Any, **kw: Any) -> tuple[float, 
             out = fn(*args, **kw)
             times.append(time.perf_counter() - t0)
     return statistics.median(times), out
+
+
+# ------------------------------------------------------- PARSIM-K at large N
+def parsim_k_projection(n: int) -> tuple[float, float]:
+    """``(peak GB, seconds)`` of PARSIM-K at ``n`` samples, extrapolated linearly.
+
+    Peak memory: a least-squares line through :data:`PARSIM_K_MEASURED` (it is
+    linear in N: 1.13-1.16 GB per 1e5 samples between the points). Time: the
+    least per-sample cost measured (the quietest runs) times ``n``, a lower bound.
+    """
+    N = np.array([r[0] for r in PARSIM_K_MEASURED], dtype=float)
+    gb = np.array([r[2] for r in PARSIM_K_MEASURED])
+    slope, icpt = np.polyfit(N, gb, 1)
+    per_sample = min(r[1] / r[0] for r in PARSIM_K_MEASURED[1:])  # 1e4 is fixed cost
+    return float(slope * n + icpt), float(per_sample * n)
+
+
+def parsim_k_verdict(n: int) -> str:
+    """Why PARSIM-K is not run at ``n`` (> PEER_MAX_N): its measured footprint."""
+    gb, sec = parsim_k_projection(n)
+    big = PARSIM_K_MEASURED[-1]
+    why = (
+        f"over the {PEER_MEMORY_GB:.0f} GB a peer may take here"
+        if gb > PEER_MEMORY_GB
+        else "within memory; not run to keep the section's time"
+    )
+    return (
+        f"not measured: PARSIM-K's peak memory grows linearly, {big[2]:.2f} GB and "
+        f"{big[1]:.0f} s at N = {big[0]:.0e} (load {big[3]:.1f}); ~{gb:.1f} GB and "
+        f">= {sec / 60:.0f} min projected at N = {n:.0e}, {why}"
+    )
+
+
+def measure_parsim_k(n: int, case: str = "issue") -> dict[str, Any]:
+    """Time and peak resident memory of one PARSIM-K fit at ``n``, in a fresh process."""
+    import subprocess
+
+    code = (
+        "import json, resource, time, numpy as np\n"
+        "from benchmarks.bench_amb_speed import bearing_case\n"
+        "from benchmarks.peers import sippy\n"
+        f"d, _ = bearing_case({int(n)}, case={case!r})\n"
+        "t0 = time.perf_counter()\n"
+        "sippy.identify(np.asarray(d.y), np.asarray(d.u), 4, 40, method='PARSIM-K')\n"
+        "t = time.perf_counter() - t0\n"
+        "gb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6\n"  # kB (Linux)
+        "print(json.dumps({'N': d.n_samples, 'time_s': t, 'peak_gb': gb}))\n"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True
+    ).stdout
+    return {**json.loads(out.splitlines()[-1]), "load": os.getloadavg()[0]}
 
 
 # ------------------------------------------------------------------ bearing
@@ -131,7 +200,7 @@ def _bearing_tools() -> dict[str, Callable[[Any], tuple[Any, Any] | str]]:
         from benchmarks.peers import PeerMissing, sippy
 
         if d.n_samples > PEER_MAX_N:
-            return f"not run above N = {PEER_MAX_N:.0e} (minutes)"
+            return parsim_k_verdict(d.n_samples)
         try:
             res = sippy.identify(np.asarray(d.y), np.asarray(d.u), 4, 40, method="PARSIM-K")
         except PeerMissing as exc:
@@ -397,6 +466,7 @@ def markdown_section(results: dict[str, Any]) -> list[str]:
                 f"{'-' if ratio is None else f'{ratio:.2f}'} | "
                 f"{_e(r['pole_error'])} | {_e(r['v_error'])} |"
             )
+    out += _parsim_k_lines()
     out += [
         "",
         "Generic MIMO closed loop (`example_unstable_mimo`, e 0.3 rms, r 1 rms, order 3):",
@@ -441,6 +511,22 @@ def markdown_section(results: dict[str, Any]) -> list[str]:
     return out
 
 
+def _parsim_k_lines() -> list[str]:
+    """Why PARSIM-K has no row above PEER_MAX_N: its measured footprint (stored)."""
+    gb, sec = parsim_k_projection(1_000_000)
+    pts = "; ".join(
+        f"{n:.0e}: {t:.0f} s, {m:.2f} GB (load {ld:.1f})" for n, t, m, ld in PARSIM_K_MEASURED
+    )
+    return [
+        "",
+        f"SIPPY PARSIM-K above N = {PEER_MAX_N:.0e} (`--parsim-k-scaling`, issue record, "
+        f"one process per N, peak resident memory): {pts}. Memory is linear in N, so "
+        f"N = 1e6 would need ~{gb:.1f} GB (and >= {sec / 60:.0f} min): over the "
+        f"{PEER_MEMORY_GB:.0f} GB one peer may take on this 24 GiB, 2-core machine "
+        "shared by five users. The 1e6 speed ratio to PARSIM-K stays not measured.",
+    ]
+
+
 def targets(results: dict[str, Any], judge: Any) -> None:
     """The issue-16 verdicts through ``judge.add(target, measured_text, met)`` (run_all).
 
@@ -474,12 +560,15 @@ def _time_checks(rows: list[dict[str, Any]], get: Any, tool: str, label: str, ju
     median time of the same record.
     """
     checks: dict[str, list[tuple[str, bool]]] = {"peer": [], "moesp": []}
+    unmeasured: list[str] = []  # PARSIM-K not run (its footprint: parsim_k_verdict)
     for r in (r for r in rows if r["tool"] == tool):
         where = f"{r['case']} {r['N']:.0e}"
         pk = get(r["case"], r["N"], "SIPPY PARSIM-K")
         if pk is not None:
             speed = pk["time_s"] / r["time_s"]
             checks["peer"].append((f"{where}: {speed:.0f}x", speed >= 50.0))
+        elif r["N"] > PEER_MAX_N:
+            unmeasured.append(where)
         ratio = r.get("moesp_ratio")
         if ratio is None:
             mo = get(r["case"], r["N"], MOESP_TOOL)
@@ -493,6 +582,12 @@ def _time_checks(rows: list[dict[str, Any]], get: Any, tool: str, label: str, ju
             judge.add(target, "no measurement on this run", None)
             continue
         text = "; ".join(t for t, _ in checks[key])
+        if key == "peer" and unmeasured:
+            gb, _ = parsim_k_projection(max(r["N"] for r in rows))
+            text += (
+                f"; not measured at {', '.join(unmeasured)} (PARSIM-K ~{gb:.0f} GB "
+                f"projected, over the {PEER_MEMORY_GB:.0f} GB limit)"
+            )
         judge.add(target, text, all(ok for _, ok in checks[key]))
 
 
@@ -563,7 +658,21 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--sizes", nargs="+", type=float, default=list(SIZES))
     ap.add_argument("--quick", action="store_true", help="N = 1e4 only")
     ap.add_argument("--out", help="write the markdown section here")
+    ap.add_argument(
+        "--parsim-k-scaling",
+        nargs="+",
+        type=float,
+        metavar="N",
+        help="only measure PARSIM-K's time and peak memory at these N (PARSIM_K_MEASURED)",
+    )
     args = ap.parse_args(argv)
+    if args.parsim_k_scaling:
+        for n in args.parsim_k_scaling:
+            r = measure_parsim_k(int(n))
+            print(
+                f"({r['N']}, {r['time_s']:.1f}, {r['peak_gb']:.2f}, {r['load']:.1f}),", flush=True
+            )
+        return 0
     res = run(tuple(int(n) for n in ([1e4] if args.quick else args.sizes)))
     text = "\n".join(markdown_section(res)) + "\n"
     if args.out:

@@ -403,3 +403,44 @@ def test_unpivoted_factor_equals_the_pivoted_one(bearing, monkeypatch):
         for name in [f"v{i}" for i in range(1, 10)]:
             assert a.parameters[name] == pytest.approx(b.parameters[name], rel=1e-8)
         np.testing.assert_allclose(a.extras["kalman_gain"], b.extras["kalman_gain"], rtol=1e-6)
+
+
+@pytest.mark.parametrize("feedthrough", [False, True])
+def test_varx_aic_from_the_triangular_factor_equals_the_reordered_one(bearing, feedthrough):
+    # Reference: _arx_horizon's general route (QR of the rows reordered [y, u] per
+    # time), taken for the same factor rotated by an orthogonal Q (F -> F Q changes
+    # no Gram, so no AIC). The Cholesky factor's diagonal blocks give the same
+    # residual covariances without the QR: equal to rounding (rtol 1e-10).
+    from maglevid.identify import pbsid as P
+    from maglevid.identify.subspace import _arx_horizon
+
+    acc = P._LagGram(5, 30)
+    acc.update(np.concatenate([bearing.u, bearing.y], axis=1)[:8000])
+    st = P._window_stats(acc, 2, 3, 31, np.zeros(5), True)
+    assert not np.any(np.triu(st.F, 1))  # the fast route is the one taken
+    Q = np.linalg.qr(np.random.default_rng(0).standard_normal(st.F.shape))[0]
+    p_fast, aic_fast = _arx_horizon(st, 30, feedthrough)
+    p_ref, aic_ref = _arx_horizon(dataclasses.replace(st, F=st.F @ Q), 30, feedthrough)
+    assert p_fast == p_ref
+    np.testing.assert_allclose(aic_fast[1:], aic_ref[1:], rtol=1e-10)
+
+
+def test_split_lag_pass_equals_the_interleaved_one(bearing, monkeypatch):
+    # Records above _SPLIT_MIN feed u and y apart (update_split); the same lagged
+    # products summed in another order: every estimate equal to rounding (rtol 1e-9,
+    # measured 1e-12). Forced here on the 2e4-sample record.
+    from maglevid.identify import pbsid as P
+
+    kw = dict(order=4, dt=bearing.dt, coordinates="physical", physical_fit="transform")
+    ref = [fit(bearing.y, bearing.u, **kw) for fit in (fit_pbsid, fit_ssarx)]
+    monkeypatch.setattr(P, "_SPLIT_MIN", 0)
+    monkeypatch.setattr(P, "_PASS_CHUNK", 3000)  # several chunks and junctions
+    y, u = np.array(bearing.y), np.array(bearing.u)  # writable: the fit reads them in place
+    got = [fit(y, u, **kw) for fit in (fit_pbsid, fit_ssarx)]
+    np.testing.assert_array_equal(y, bearing.y)  # the user's arrays are not modified
+    np.testing.assert_array_equal(u, bearing.u)
+    for a, b in zip(got, ref, strict=True):
+        for name in [f"v{i}" for i in range(1, 10)]:
+            assert a.parameters[name] == pytest.approx(b.parameters[name], rel=1e-9)
+        np.testing.assert_allclose(a.residuals, b.residuals, atol=1e-9 * np.abs(b.residuals).max())
+        assert a.fit["one_step_fit_percent"] == pytest.approx(b.fit["one_step_fit_percent"])

@@ -158,6 +158,12 @@ def test_predictor_residuals_match_the_sample_by_sample_loop(n_samples, chunk, m
         ref[t] = y[t] - C @ x - D @ u[t]
         x = (A - K @ C) @ x + (B - K @ D) @ u[t] + K @ y[t]
     np.testing.assert_allclose(e, ref, rtol=0, atol=1e-12 * np.abs(ref).max())
+    # ``mean`` subtracts per chunk what a centred copy of the record subtracts first:
+    # the same elementwise differences, the same products (bitwise equal).
+    mu, my = np.array([3.0, -1.0]), np.array([0.5, 2.0])
+    got = ss._predictor_residuals(StateSpace(A, B, C, D, 1.0), K, y, u, (mu, my))
+    want = ss._predictor_residuals(StateSpace(A, B, C, D, 1.0), K, y - my, u - mu)
+    np.testing.assert_array_equal(got, want)
 
 
 def test_riccati_doubling_matches_scipy_or_declines():
