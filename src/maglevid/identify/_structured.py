@@ -52,8 +52,9 @@ START_SAMPLES = 8
 _GAIN_TOL = 1e-3
 #: Floor of the weighting's innovation covariance (channels scaled to unit RMS).
 _RE_FLOOR = 1e-12
-#: Gauss-Newton steps per weighting round at most: on high-SNR records the
-#: steps crawl along a valley (K against v5/v7); 20 keep the fit near 1-3 s.
+#: Gauss-Newton steps per weighting round at most (6-16 in all are taken on the
+#: bench's records since the start term's Jacobian is analytic; its forward
+#: differences made the steps crawl on high-SNR records, 40 at N = 1e5).
 _MAX_ITER = 20
 
 
