@@ -280,12 +280,12 @@ def test_markov_toeplitz_is_the_block_lower_triangular_definition(i):
 
 
 @pytest.mark.parametrize(("p", "m", "nu"), [(1, 2, 1), (4, 5, 2), (19, 5, 2), (7, 3, 0)])
-def test_split_order_flat_index_is_the_ix_gather(p, m, nu):
-    # The cached flat index of the fold takes X[k][:, k] (numpy's np.ix_ gather).
-    from maglevid.identify._hankel import _split_order
+def test_split_layout_interleave_is_the_ix_gather(p, m, nu):
+    # The fold's block copies take X[k][:, k] (numpy's np.ix_ gather): the same numbers.
+    from maglevid.identify._hankel import _interleave, _split_order
 
-    k, flat = _split_order(p, m, nu)
+    k = _split_order(p, m, nu)
     assert sorted(k.tolist()) == list(range(p * m))  # a permutation of the columns
     X = np.random.default_rng(p).standard_normal((p * m, p * m))
-    assert np.array_equal(np.take(X, flat).reshape(p * m, p * m), X[np.ix_(k, k)])
-    assert not k.flags.writeable and not flat.flags.writeable
+    assert np.array_equal(_interleave(X, p, m, nu), X[np.ix_(k, k)])
+    assert not k.flags.writeable

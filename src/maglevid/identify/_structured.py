@@ -40,7 +40,6 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg as sla
 
-from maglevid.identify.cramer_rao import NoiseModel, amb_linear_gaussian_model
 from maglevid.physics.amb import C_AMB, amb_matrices
 
 __all__ = ["START_SAMPLES", "StructuredFit", "fit_bearing_structure"]
@@ -53,8 +52,9 @@ START_SAMPLES = 8
 _GAIN_TOL = 1e-3
 #: Floor of the weighting's innovation covariance (channels scaled to unit RMS).
 _RE_FLOOR = 1e-12
-#: Gauss-Newton steps per weighting round at most: on high-SNR records the
-#: steps crawl along a valley (K against v5/v7); 20 keep the fit near 1-3 s.
+#: Gauss-Newton steps per weighting round at most (6-16 in all are taken on the
+#: bench's records since the start term's Jacobian is analytic; its forward
+#: differences made the steps crawl on high-SNR records, 40 at N = 1e5).
 _MAX_ITER = 20
 
 
@@ -73,9 +73,32 @@ class StructuredFit:
 
 
 def _zoh(v: np.ndarray, dt: float) -> tuple[np.ndarray, ...]:
-    """``A_d, B_d`` of eq. (4) + ZOH and their derivatives in v (cramer_rao's public model)."""
-    g = amb_linear_gaussian_model(v, dt, NoiseModel(sensor_std=(1.0, 1.0, 1.0)))
-    return g.A, g.B, g.dA[:9], g.dB[:9]
+    """``A_d, B_d`` of eq. (4) + ZOH and their derivatives in v1..v9.
+
+    Each derivative is the Frechet derivative of ``expm`` along the direction of one
+    ``v_i`` (eq. (4) is linear in v): the upper-right block of the exponential of
+    ``[[M, E_i], [0, M]]`` (Van Loan 1978), all nine by one stacked ``expm``
+    (nine ``expm_frechet`` calls were a sixth of a Gauss-Newton step).
+    """
+    Ac, Bc = amb_matrices(v)
+    dAc, dBc = _directions()
+    n, m = Bc.shape
+    k = n + m
+    X = np.zeros((9, 2 * k, 2 * k))
+    X[:, :n, :n] = X[:, k : k + n, k : k + n] = Ac * dt
+    X[:, :n, n:k] = X[:, k : k + n, k + n :] = Bc * dt
+    X[:, :n, k : k + n] = dAc * dt
+    X[:, :n, k + n :] = dBc * dt
+    E = sla.expm(X)
+    return E[0, :n, :n], E[0, :n, n:k], E[:, :n, k : k + n], E[:, :n, k + n :]
+
+
+@functools.lru_cache(maxsize=1)
+def _directions() -> tuple[np.ndarray, np.ndarray]:
+    """``dA_c/dv_i``, ``dB_c/dv_i`` (9, 4, 4), (9, 4, 2): eq. (4) is linear in v."""
+    A0 = amb_matrices(np.zeros(9))[0]  # the constant entry dx/dt
+    dA, dB = zip(*(amb_matrices(e) for e in np.eye(9)), strict=True)
+    return np.array(dA) - A0, np.array(dB)
 
 
 def _plant(v: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
@@ -88,11 +111,21 @@ def _plant(v: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _markov(Abar: np.ndarray, Btil: np.ndarray, P: int) -> np.ndarray:
-    """``M_k = Abar^{k-1} Btil``, k = 1..P, stacked (P, n, m)."""
-    M = np.empty((P, *Btil.shape))
-    M[0] = Btil
-    for k in range(1, P):
-        M[k] = Abar @ M[k - 1]
+    """``M_k = Abar^{k-1} Btil``, k = 1..P, stacked (..., P, n, m), by doubling.
+
+    ``M_{L+1..2L} = Abar^L M_{1..L}``: ``log2 P`` stacked products instead of ``P``
+    small ones (a Python loop of 4 x 4 products was a third of a Gauss-Newton
+    step); ``Abar`` and ``Btil`` may carry leading stack axes.
+    """
+    M = np.empty((*Btil.shape[:-2], P, *Btil.shape[-2:]))
+    M[..., 0, :, :] = Btil
+    L, Ap = 1, Abar
+    while L < P:
+        n = min(L, P - L)
+        M[..., L : L + n, :, :] = Ap[..., None, :, :] @ M[..., :n, :, :]
+        L += n
+        if L < P:
+            Ap = Ap @ Ap
     return M
 
 
@@ -119,35 +152,83 @@ def _model(theta: np.ndarray, v0: np.ndarray, dt: float, sy: np.ndarray, su: np.
 
 
 def _predictor_blocks(Abar, Btil, dAbar, dBtil, Cs, P):  # type: ignore[no-untyped-def]
-    """``V`` (ny, P m; blocks oldest first) and ``dV`` (n_th, ny, P m)."""
+    """``V`` (ny, P m; blocks oldest first) and ``dV`` (n_th, ny, P m).
+
+    ``dM_k = d(Abar^{k-1} Btil)`` is the upper block of ``T^{k-1} [dBtil; Btil]``
+    with ``T = [[Abar, dAbar], [0, Abar]]`` (the derivative of a power as a
+    block-triangular power): one doubling sequence for all parameters.
+    """
+    n, n_th = Abar.shape[0], dAbar.shape[0]
     M = _markov(Abar, Btil, P)
-    dM = np.empty((dAbar.shape[0], *M.shape))
-    dM[:, 0] = dBtil
-    for k in range(1, P):  # d(Abar M_{k-1}) = dAbar M_{k-1} + Abar dM_{k-1}
-        dM[:, k] = dAbar @ M[k - 1] + np.einsum("ij,pjk->pik", Abar, dM[:, k - 1])
+    T = np.zeros((n_th, 2 * n, 2 * n))
+    T[:, :n, :n] = Abar
+    T[:, n:, n:] = Abar
+    T[:, :n, n:] = dAbar
+    B = np.concatenate([dBtil, np.broadcast_to(Btil, dBtil.shape)], axis=1)
+    dM = _markov(T, B, P)[:, :, :n, :]
     # block c (oldest first) is Xi_{P-c} = C M_{P-c}: reverse k
     V = np.einsum("ij,kjm->ikm", Cs, M[::-1]).reshape(Cs.shape[0], -1)
-    dV = np.einsum("ij,pkjm->pikm", Cs, dM[:, ::-1]).reshape(dM.shape[0], Cs.shape[0], -1)
+    dV = (Cs @ dM[:, ::-1]).transpose(0, 2, 1, 3).reshape(n_th, Cs.shape[0], -1)
     return V, dV
 
 
-def _state_map(Ad: np.ndarray, Bs: np.ndarray, Cs: np.ndarray, k: int) -> np.ndarray:
+def _state_map(
+    Ad: np.ndarray,
+    Bs: np.ndarray,
+    Cs: np.ndarray,
+    k: int,
+    dAd: np.ndarray | None = None,
+    dBs: np.ndarray | None = None,
+):  # type: ignore[no-untyped-def]
     """``M`` (4, 5 k): ``x(t) ~ M [z(t); ...; z(t+k-1)]`` by least squares on the plant (P14).
 
     ``y(t+i) = Cs Ad^i x(t) + sum_{l<i} Cs Ad^{i-1-l} Bs u(t+l)`` (noise left out):
-    ``x = Gamma_k^+ (Y_k - T_k U_k)``, scaled units, ``z = [u, y]``.
+    ``x = Gamma_k^+ (Y_k - T_k U_k)``, scaled units, ``z = [u, y]``. With ``dAd``,
+    ``dBs`` (n_d, ...) the derivatives of ``Ad``, ``Bs`` along n_d directions, also
+    ``dM`` (n_d, 4, 5 k), from those of ``Gamma_k`` and ``T_k`` and the derivative of
+    the pseudo-inverse of a full-column-rank matrix (Golub & Pereyra 1973, eq. (4.12)):
+    ``d(G^+) = -G^+ dG G^+ + (G^T G)^{-1} dG^T (I - G G^+)``.
     """
     CA = np.empty((k, *Cs.shape))  # Cs Ad^i, i = 0..k-1, by one product each
     CA[0] = Cs
     for i in range(1, k):
         CA[i] = CA[i - 1] @ Ad
     CAB = CA @ Bs  # Cs Ad^i Bs
-    S = np.zeros((3 * k, 5 * k))
+    S = _input_map(CAB, k)
+    S[:, np.arange(5 * k) % 5 >= 2] += np.eye(3 * k)  # the y(t+i) of Y_k
+    G = CA.reshape(-1, Ad.shape[0])
+    Gp = np.linalg.pinv(G)
+    if dAd is None:
+        return Gp @ S
+    assert dBs is not None
+    dCA = np.zeros((dAd.shape[0], *CA.shape))
+    for i in range(1, k):  # d(CA_{i-1} Ad) = dCA_{i-1} Ad + CA_{i-1} dAd
+        dCA[:, i] = dCA[:, i - 1] @ Ad + CA[i - 1] @ dAd
+    dCAB = dCA @ Bs + CA[None] @ dBs[:, None]
+    dG = dCA.reshape(dAd.shape[0], *G.shape)
+    dGp = -Gp @ dG @ Gp + (Gp @ Gp.T) @ dG.transpose(0, 2, 1) @ (np.eye(G.shape[0]) - G @ Gp)
+    return Gp @ S, dGp @ S + Gp @ _input_map(dCAB, k)
+
+
+def _input_map(CAB: np.ndarray, k: int) -> np.ndarray:
+    """``-T_k`` placed in the ``u`` columns of ``[z(t); ...; z(t+k-1)]``: (..., 3 k, 5 k)."""
+    S = np.zeros((*CAB.shape[:-3], 3 * k, 5 * k))
     for i in range(k):
-        S[3 * i : 3 * i + 3, 5 * i + 2 : 5 * i + 5] = np.eye(3)
         for l in range(i):
-            S[3 * i : 3 * i + 3, 5 * l : 5 * l + 2] -= CAB[i - 1 - l]
-    return np.linalg.pinv(CA.reshape(-1, Ad.shape[0])) @ S
+            S[..., 3 * i : 3 * i + 3, 5 * l : 5 * l + 2] -= CAB[..., i - 1 - l, :, :]
+    return S
+
+
+def _power_derivative(Abar: np.ndarray, dAbar: np.ndarray, P: int) -> np.ndarray:
+    """``d(Abar^P)`` along each of ``dAbar`` (n_d, n, n): the upper-right block of
+    ``[[Abar, dAbar_i], [0, Abar]]^P`` (Van Loan 1978's block-triangular trick for
+    the power's Frechet derivative), all directions by one stacked ``matrix_power``."""
+    n = Abar.shape[0]
+    T = np.zeros((dAbar.shape[0], 2 * n, 2 * n))
+    T[:, :n, :n] = Abar
+    T[:, n:, n:] = Abar
+    T[:, :n, n:] = dAbar
+    return np.linalg.matrix_power(T, P)[:, :n, n:]
 
 
 def fit_bearing_structure(
@@ -172,6 +253,7 @@ def fit_bearing_structure(
     """
     su, sy = scale[:2], scale[2:]
     P = Fz.shape[0] // 5
+    Fz, Fy = _trim(Fz, Fy)
     theta = np.concatenate([np.zeros(9), (K0 * sy[None, :]).ravel()])
     Cs = C_AMB / sy[:, None]
     k0 = min(initial_state, P)
@@ -180,6 +262,14 @@ def fit_bearing_structure(
         Ad, Bd = _plant(v0 * (1.0 + th[:9]), dt)
         Abar = Ad - th[9:].reshape(4, 3) @ Cs
         return Cs @ np.linalg.matrix_power(Abar, P) @ _state_map(Ad, Bd * su[None, :], Cs, k0)
+
+    def start_derivative(th, Abar, dAbar, dBtil):  # type: ignore[no-untyped-def]
+        # d(Cs Abar^P M) = Cs d(Abar^P) M + Cs Abar^P dM; M depends on v only
+        Ad, Bd = _plant(v0 * (1.0 + th[:9]), dt)
+        M, dM = _state_map(Ad, Bd * su[None, :], Cs, k0, dAbar[:9], dBtil[:9, :, :2])
+        out = Cs @ _power_derivative(Abar, dAbar, P) @ M
+        out[:9] += Cs @ np.linalg.matrix_power(Abar, P) @ dM
+        return out
 
     def residual(th: np.ndarray, jac: bool, W12: np.ndarray):  # type: ignore[no-untyped-def]
         if not jac:  # the trial steps: no derivatives (9 Frechet derivatives, P Markov steps)
@@ -195,14 +285,11 @@ def fit_bearing_structure(
         if k0:
             V[:, : 5 * k0] += start_term(th)
         R = W12 @ (Fy - V @ Fz)
-        if k0:  # the start term's derivative by forward differences (a 3 x 5 k0 block)
-            base = start_term(th)
-            for i in range(th.size):
-                h = 1e-7 * max(1.0, abs(th[i]))
-                t2 = th.copy()
-                t2[i] += h
-                dV[i, :, : 5 * k0] += (start_term(t2) - base) / h
-        J = -np.einsum("ij,pjk->pik", W12, dV @ Fz).reshape(th.size, -1).T
+        if k0:  # the start term's derivative, analytic (a 3 x 5 k0 block per parameter)
+            dV[:, :, : 5 * k0] += start_derivative(th, Abar, dAbar, dBtil)
+        # one GEMM of all 3 n_th rows (a stack of 3-row products ran at GEMV speed)
+        dVF = (dV.reshape(-1, dV.shape[2]) @ Fz).reshape(th.size, 3, -1)
+        J = -np.einsum("ij,pjk->pik", W12, dVF).reshape(th.size, -1).T
         return R, J
 
     E, _ = residual(theta, False, np.eye(3))  # prediction errors of the start (scaled)
@@ -219,6 +306,20 @@ def fit_bearing_structure(
     Re = (E @ E.T) * np.outer(sy, sy)
     cov = _covariance(residual, theta, E, j) * np.outer(v0, v0)
     return StructuredFit(v, Ks / sy[None, :], Ad, Bd, 0.5 * (Re + Re.T), iterations, k0, cov)
+
+
+def _trim(Fz: np.ndarray, Fy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``Fz``, ``Fy`` without the columns where both are zero (contiguous copies).
+
+    The data stage's Cholesky factor is lower triangular: the rows of the window
+    ``z(t-P..t-1), y(t)`` live in its first ``5 P + 5`` columns, and the fit (P11)
+    depends on the columns only through ``F F^T``. The Jacobian's product is
+    ``O(P m r)`` per parameter: on the (P16) window the factor has ``r`` up to 1.4x
+    ``5 P`` columns (the lags kept, not the window chosen).
+    """
+    nz = np.flatnonzero(np.any(Fz != 0.0, axis=0) | np.any(Fy != 0.0, axis=0))
+    c = int(nz[-1]) + 1 if nz.size else 0
+    return np.ascontiguousarray(Fz[:, :c]), np.ascontiguousarray(Fy[:, :c])
 
 
 def _covariance(residual, theta: np.ndarray, E: np.ndarray, j: int) -> np.ndarray:  # type: ignore[no-untyped-def]
