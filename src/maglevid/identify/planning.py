@@ -74,7 +74,7 @@ from maglevid.identify.cramer_rao import (
     plant_from_v,
     predictor_statistics,
 )
-from maglevid.identify.result import propagate_covariance
+from maglevid.identify.result import central_jacobian, propagate_covariance
 from maglevid.identify.uncertainty import operating_point
 from maglevid.physics.amb import AMBParameters
 
@@ -395,19 +395,10 @@ class DesignInformation:
 
 def _derived_jacobian(design: DesignInformation) -> np.ndarray:
     """d(v1..v9, physical parameters) / d(v1..v9) at the design's v (central differences)."""
-    v = np.asarray(design.v, float)
-
-    def derived(vv: np.ndarray) -> np.ndarray:
-        return np.asarray(derived_parameters(vv, m=design.m, i0=design.i0)[1], float)
-
-    cols = []
-    for i in range(9):
-        h = 1e-6 * abs(v[i])
-        vp, vm = v.copy(), v.copy()
-        vp[i] += h
-        vm[i] -= h
-        cols.append((derived(vp) - derived(vm)) / (2 * h))
-    return np.vstack([np.eye(9), np.column_stack(cols)])  # v itself: exactly
+    _, J = central_jacobian(
+        lambda vv: derived_parameters(vv, m=design.m, i0=design.i0)[1], np.asarray(design.v, float)
+    )
+    return np.vstack([np.eye(9), J])  # v itself: exactly
 
 
 def model_error_bias(

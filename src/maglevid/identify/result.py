@@ -17,7 +17,7 @@ from maglevid.jsonable import to_jsonable
 from maglevid.lti import StateSpace
 from maglevid.physics.units import PARAMETER_INFO, parameter_unit
 
-__all__ = ["RESULT_VERSION", "IdentificationResult", "propagate_covariance"]
+__all__ = ["RESULT_VERSION", "IdentificationResult", "central_jacobian", "propagate_covariance"]
 
 #: Version of the ``to_dict`` layout; bump on incompatible change.
 RESULT_VERSION = 1
@@ -261,13 +261,29 @@ def propagate_covariance(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Delta method: value and covariance of ``f(theta)`` given ``cov(theta)``.
 
-    The Jacobian is taken by central differences with steps scaled to each
+    The Jacobian is :func:`central_jacobian`'s, with steps scaled to each
     parameter (``rel_step * max(|theta_i|, sqrt(cov_ii), tiny)``).
+    """
+    f0, J = central_jacobian(f, theta, cov, rel_step=rel_step)
+    return f0, J @ cov @ J.T
+
+
+def central_jacobian(
+    f: Callable[[np.ndarray], np.ndarray],
+    theta: np.ndarray,
+    cov: np.ndarray | None = None,
+    *,
+    rel_step: float = 1e-6,
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(f(theta), d f / d theta)`` by central differences.
+
+    Step ``rel_step * max(|theta_i|, sqrt(cov_ii), tiny)`` per parameter
+    (without ``cov``: ``rel_step * |theta_i|``, tiny where it is zero).
     """
     theta = np.asarray(theta, dtype=float)
     f0 = np.asarray(f(theta), dtype=float)
     J = np.empty((f0.size, theta.size))
-    sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    sd = np.zeros(theta.size) if cov is None else np.sqrt(np.clip(np.diag(cov), 0.0, None))
     for i in range(theta.size):
         h = rel_step * max(abs(theta[i]), sd[i], 1e-300)
         tp, tm = theta.copy(), theta.copy()
@@ -276,4 +292,4 @@ def propagate_covariance(
         J[:, i] = (np.asarray(f(tp), dtype=float) - np.asarray(f(tm), dtype=float)).ravel() / (
             2 * h
         )
-    return f0, J @ cov @ J.T
+    return f0, J

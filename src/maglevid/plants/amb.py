@@ -44,6 +44,7 @@ from maglevid.diagnose.resolve import (
     unresolved_parameters,
 )
 from maglevid.exceptions import DataError, MaglevidError
+from maglevid.identify.result import central_jacobian
 from maglevid.jsonable import thaw
 from maglevid.lti import StateSpace
 from maglevid.physics.amb import V_NAMES, AMBParameters, amb_state_space, parameters_from_v
@@ -160,14 +161,9 @@ def estimate_model_error(data: ClosedLoopData, p: AMBParameters | None) -> float
 def _physical_model_errors(v: np.ndarray, eps: float, m: float, i0: float) -> dict[str, float]:
     """Model-error std of each physical parameter: eq. (4) inverted, J diag(eps v) J^T."""
     base = parameters_from_v(v, m=m, i0=i0)
-    J = np.empty((len(base), 9))
-    for i in range(9):
-        h = 1e-6 * abs(v[i])
-        vp, vm = v.copy(), v.copy()
-        vp[i] += h
-        vm[i] -= h
-        hi, lo = parameters_from_v(vp, m=m, i0=i0), parameters_from_v(vm, m=m, i0=i0)
-        J[:, i] = [(hi[k] - lo[k]) / (2 * h) for k in base]
+    _, J = central_jacobian(
+        lambda vv: np.array(list(parameters_from_v(vv, m=m, i0=i0).values())), v
+    )
     sd = np.sqrt(np.einsum("ij,j,ij->i", J, (eps * v) ** 2, J))
     out = dict(zip(base, sd.tolist()))
     out.update({k: float(eps * abs(vi)) for k, vi in zip(V_NAMES, v)})
