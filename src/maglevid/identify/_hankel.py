@@ -328,30 +328,41 @@ class _LagGram:
         """Samples needed for the edge formula (head and tail disjoint from the middle)."""
         return 2 * self.L + 1
 
-    def gram(self, w: int) -> np.ndarray:
-        """``H^T H`` (unnormalised) for windows of ``w <= L + 1`` samples, rows 0..N-w."""
+    def gram(self, w: int, blocks: int | None = None) -> np.ndarray:
+        """``H^T H`` (unnormalised) for windows of ``w <= L + 1`` samples, rows 0..N-w.
+
+        ``blocks``: only the leading ``blocks`` block rows and columns (the samples
+        ``z(0..blocks-1)`` of the window, still summed over the window's ``N - w + 1``
+        rows): the same numbers as ``gram(w)[:blocks m, :blocks m]``, at
+        ``(blocks / w)^2`` of the cost (the structured fit's window (P16) is shorter
+        than the lags kept; docs/subspace.md, "sixth session").
+        """
         L, m, N = self.L, self.m, self.n
         if not 1 <= w <= L + 1:
             raise ValueError(f"window {w} outside 1..{L + 1}")
+        k = w if blocks is None else blocks
+        if not 1 <= k <= w:
+            raise ValueError(f"blocks {k} outside 1..{w}")
         if N < self.min_samples():
             raise DataError(f"{N} samples are too few for lags up to {L}")
         head, tail = self.head, self.pending  # first L and last L samples
         S = self.S
-        G = np.empty((w * m, w * m))
+        G = np.empty((k * m, k * m))
         s0, s1 = G.strides
-        for tau in range(w):
-            # Blocks (a, a + tau), a < n = w - tau: S_tau less the head's sum_{s<a}
+        for tau in range(k):
+            # Blocks (a, a + tau), a < n = k - tau: S_tau less the head's sum_{s<a}
             # z(s) z(s+tau)^T, plus the tail's sum_{q=0}^{a+L-w} tail(q) tail(q+tau)^T
             # (tail(q) = z(N-L+q)); one lag at a time, so the temporaries are
             # (n, m, m) and stay in the cache (the (w, w, m, m) edge sums of all lags at
             # once were 0.6-2.4 s at w = 458, mostly memory traffic; the same sums).
-            n = w - tau
+            n = k - tau  # blocks (a, a + tau) with a + tau < k
             hc = np.zeros((n, m, m))
             Dh = np.einsum("si,sj->sij", head[: n - 1], head[tau : tau + n - 1])
             np.cumsum(Dh, 0, out=hc[1:])
-            tc = np.zeros((L - tau + 1, m, m))
-            np.cumsum(np.einsum("qi,qj->qij", tail[: L - tau], tail[tau:L]), 0, out=tc[1:])
-            blk = S[tau] - hc + tc[L - w + 1 : L - w + 1 + n]
+            q = L - w + n  # tail terms the last block needs (a cumulative sum: a prefix)
+            tc = np.zeros((q + 1, m, m))
+            np.cumsum(np.einsum("qi,qj->qij", tail[:q], tail[tau : tau + q]), 0, out=tc[1:])
+            blk = S[tau] - hc + tc[L - w + 1 :]
             # the block diagonal tau of G and its mirror, as strided views (no copies)
             up = as_strided(G[:, tau * m :], (n, m, m), (m * (s0 + s1), s0, s1))
             lo = as_strided(G[tau * m :], (n, m, m), (m * (s0 + s1), s1, s0))

@@ -46,8 +46,10 @@ Nothing here stabilises an estimate: an unstable plant gives an unstable model.
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -127,9 +129,21 @@ _ROWS_PER_COLUMN = 5
 
 # ----------------------------------------------------------------- data stage
 def _window_stats(
-    acc: _LagGram, nu: int, ny: int, w: int, shift: np.ndarray, center: bool
+    acc: _LagGram,
+    nu: int,
+    ny: int,
+    w: int,
+    shift: np.ndarray,
+    center: bool,
+    blocks: int | None = None,
+    prefix: np.ndarray | None = None,
 ) -> _Stats:
     """Scaled, normalised factor of the Hankel rows of window ``w`` (centred if asked).
+
+    ``blocks``: only the rows of ``z(0..blocks-1)`` (the Gram's leading block,
+    still over the window's ``N - w + 1`` Hankel rows): what the VARX, and
+    separately the structured fit's shorter window (P16), read. ``prefix``: a
+    factor of fewer leading rows of the same window, extended (:func:`_factor`).
 
     Centring: with ``s_a = sum_t z(t+a)`` the column sums of the Hankel rows, the
     Gram of the rows less their means is ``G - s s^T / j``; ``s_a`` is the total
@@ -137,7 +151,8 @@ def _window_stats(
     """
     N, m = acc.n, nu + ny
     j = N - w + 1
-    G = acc.gram(w)
+    k = w if blocks is None else blocks
+    G = acc.gram(w, k)
     mean = acc.moments.mean()
     var = acc.moments.sumsq / N - (mean**2 if center else 0.0)
     scale = np.sqrt(np.maximum(var, 0.0))
@@ -154,12 +169,12 @@ def _window_stats(
         head = np.cumsum(np.concatenate([np.zeros((1, m)), acc.head[: w - 1]]), axis=0)
         tail = acc.pending[::-1][: w - 1]  # newest first
         tcum = np.cumsum(np.concatenate([np.zeros((1, m)), tail]), axis=0)
-        s = np.concatenate([total - head[a] - tcum[w - 1 - a] for a in range(w)])
+        s = np.concatenate([total - head[a] - tcum[w - 1 - a] for a in range(k)])
         G -= np.outer(s, s) / j  # in place: each fresh (w m)^2 temporary is ~0.1 s of
-    d = np.tile(1.0 / scale, w)  # page faults at w m = 2290 (the same numbers)
+    d = np.tile(1.0 / scale, k)  # page faults at w m = 2290 (the same numbers)
     G *= d[:, None] * d[None, :]
     G /= j
-    F, rank = _factor(G)
+    F, rank = _factor(G, prefix)
     return _Stats(
         F=F,
         nu=nu,
@@ -174,7 +189,7 @@ def _window_stats(
     )
 
 
-def _factor(G: np.ndarray) -> tuple[np.ndarray, int]:
+def _factor(G: np.ndarray, prefix: np.ndarray | None = None) -> tuple[np.ndarray, int]:
     """``(F, rank)``, ``F F^T = G``: plain Cholesky (LAPACK ``dpotrf``) when ``G`` is
     well conditioned, else :func:`~maglevid.identify._hankel.factor_gram`'s pivoted one.
 
@@ -185,7 +200,25 @@ def _factor(G: np.ndarray) -> tuple[np.ndarray, int]:
     factorisations of rows of ``F``, unchanged by ``F -> F Q``. A noise-free
     (rank-deficient) or nearly so record -- the Cholesky diagonal spanning more
     than ``_CHOL_SPAN`` (condition above ~1e12) -- takes the pivoted factor and its rank.
+
+    ``prefix``: the Cholesky factor ``L11`` of ``G``'s leading rows (square, lower
+    triangular: this function's own on the same window), extended by the block
+    step ``L21 = G21 L11^{-T}``, ``L22 L22^T = G22 - L21 L21^T`` (the remaining work
+    of one factorisation: the VARX's rows are not factored twice); else, or when
+    the extension fails the rule above, the whole of ``G`` from the start.
     """
+    k1 = 0 if prefix is None else prefix.shape[0]
+    if k1 and prefix.shape == (k1, k1) and k1 < G.shape[0]:
+        L21 = sla.solve_triangular(prefix, G[k1:, :k1].T, lower=True, check_finite=False).T
+        S22 = G[k1:, k1:] - L21 @ L21.T
+        c22, info = lapack.dpotrf(S22, lower=1, clean=1, overwrite_a=1)
+        dg = np.abs(np.concatenate([np.diag(prefix), np.diag(c22)]))
+        if info == 0 and dg.min() > dg.max() / _CHOL_SPAN:
+            c = np.zeros_like(G)
+            c[:k1, :k1] = prefix
+            c[k1:, :k1] = L21
+            c[k1:, k1:] = c22
+            return c, G.shape[0]
     c, info = lapack.dpotrf(G, lower=1, clean=1, overwrite_a=0)
     if info == 0:
         dg = np.abs(np.diag(c))
@@ -627,7 +660,7 @@ def _coordinates(
     model: StateSpace,
     K: np.ndarray,
     Re: np.ndarray,
-    st_all: _Stats,
+    stats: Callable[[int], _Stats],
     opt: _Options,
     notes: list[str],
     extras: dict[str, Any],
@@ -638,7 +671,7 @@ def _coordinates(
     if opt.coordinates == "physical":
         model, continuous, K, v = _bearing_coordinates(model, K)
         if opt.physical_fit == "structured":
-            model, continuous, K, Re, v = _structured(model, K, Re, v, st_all, opt, notes, extras)
+            model, continuous, K, Re, v = _structured(model, K, Re, v, stats, opt, notes, extras)
         params.update(zip(V_NAMES, v.tolist()))
     else:
         try:
@@ -654,22 +687,29 @@ def _structured(
     K: np.ndarray,
     Re: np.ndarray,
     v: np.ndarray,
-    st_all: _Stats,
+    stats: Callable[[int], _Stats],
     opt: _Options,
     notes: list[str],
     extras: dict[str, Any],
 ) -> tuple[StateSpace, StateSpace, np.ndarray, np.ndarray, np.ndarray]:
-    """v1..v9, ``K`` and cov(v) by the structured weighted least-squares fit (P11)-(P16)."""
+    """v1..v9, ``K`` and cov(v) by the structured weighted least-squares fit (P11)-(P16).
+
+    ``stats(k)``: the data stage's factor of the rows of ``z(0..k-1)``; the fit
+    reads ``z(0..P)`` of the widest window's Hankel rows, factored here once ``P``
+    is known (the window (P16) is shorter than the lags kept: ~0.35 of the
+    Cholesky of all of them; docs/subspace.md, "sixth session").
+    """
     P = _structure_lags(opt)
     rho = float(np.max(np.abs(np.linalg.eigvals(model.A - K @ model.C))))
     if opt.structure_auto:
-        P = _structure_window(P, st_all.n_samples, rho)
+        P = _structure_window(P, stats(1).n_samples, rho)  # stats(1): the VARX's, no work
         if P == _structure_lags(opt) and rho >= _STRUCTURE_RHO:
             notes.append(
                 f"the transform's predictor has spectral radius {rho:.4f}: the structured "
                 f"fit's window {P} (the lags kept) leaves a truncation of {rho**P:.1e} "
                 "(pass structure_past for a longer one)"
             )
+    st_all = stats(P + 1)
     sf = fit_bearing_structure(
         st_all.F[st_all.y_rows(P, P + 1)],
         st_all.F[_z_rows(st_all, 0, P)],
@@ -791,12 +831,20 @@ def _fit(
     # one factor of the widest window the fit may use (the AIC's and the fit's Hankel
     # rows are the same, rows 0..N - W, as MOESP's)
     W = _check_window(acc.n, nu + ny, opt, p_top)
-    st_all = _window_stats(acc, nu, ny, W, shift, opt.remove_mean)
+    # the VARX reads the rows of its own window only; the structured fit factors the
+    # leading rows of its window (P16) itself, once it is chosen (_structured)
+    k_varx = min(W, _window(opt, p_top, _future(opt.algorithm, opt.future, p_top)))
+    leading = functools.partial(_window_stats, acc, nu, ny, W, shift, opt.remove_mean)
+    st_all = leading(k_varx)
+
+    def stats(k: int) -> _Stats:
+        return st_all if k <= k_varx else leading(k, st_all.F)
+
     p, f, past_rule = _choose_past(st_all, opt, p_top, notes, extras)
     st = replace(st_all, F=_leading(st_all.F, _window(opt, p, f) * st_all.m))  # z(0..w-1)
     system, s, n, gap = _identify_states(st, opt, p, f, notes)
     model, K, Re = _unscale(system, st.scale, nu, opt.dt)
-    model, continuous, K, Re, params = _coordinates(model, K, Re, st_all, opt, notes, extras)
+    model, continuous, K, Re, params = _coordinates(model, K, Re, stats, opt, notes, extras)
     rho = _stability_notes(model, K, notes)
     Re_s = Re / np.outer(st.scale[nu:], st.scale[nu:])
     fit, residuals = _fit_metrics(st, model, K, Re_s, p, opt.remove_mean, data, rho)
