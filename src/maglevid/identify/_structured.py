@@ -56,6 +56,8 @@ _RE_FLOOR = 1e-12
 #: bench's records since the start term's Jacobian is analytic; its forward
 #: differences made the steps crawl on high-SNR records, 40 at N = 1e5).
 _MAX_ITER = 20
+#: Halvings of a failed undamped Gauss-Newton step before Levenberg-Marquardt damping.
+_HALVINGS = 4
 
 
 @dataclass(frozen=True)
@@ -347,7 +349,12 @@ def _gauss_newton(residual, theta: np.ndarray, j: int, max_iter: int):  # type: 
     """Gauss-Newton by QR with column scaling; Levenberg-Marquardt damping when a step fails.
 
     Stops when a step lowers ``j J`` (twice the log-likelihood change) by less
-    than ``_GAIN_TOL``, or after ``max_iter`` steps.
+    than ``_GAIN_TOL``, or after ``max_iter`` steps. An undamped Gauss-Newton
+    step that raises the cost is first halved (up to ``_HALVINGS`` times: far
+    from the optimum the predictor's ``Abar^P`` makes the full step overshoot
+    along a good direction) before damping turns it towards the gradient: one
+    Jacobian fewer on some records, each worth ~1/13 of the fit (docs/subspace.md,
+    "sixth session").
     """
     R, J = residual(theta, True)
     cost = float(np.sum(R * R))
@@ -361,10 +368,14 @@ def _gauss_newton(residual, theta: np.ndarray, j: int, max_iter: int):  # type: 
                 k = Js.shape[1]
                 Js_l = np.vstack([Js, np.sqrt(lam) * np.eye(k)])
                 step = np.linalg.lstsq(Js_l, np.concatenate([r, np.zeros(k)]), rcond=None)[0]
-            else:
+                c_new = _cost(residual, theta + step / d)
+            else:  # undamped: the Gauss-Newton step, halved while it raises the cost
                 step = np.linalg.lstsq(Js, r, rcond=None)[0]
-            R_new, _ = residual(theta + step / d, False)
-            c_new = float(np.sum(R_new * R_new))
+                for h in range(_HALVINGS + 1):
+                    c_new = _cost(residual, theta + step / d)
+                    if c_new <= cost or h == _HALVINGS:
+                        break
+                    step = 0.5 * step
             if c_new <= cost or lam > 1e8:
                 break
             lam = 1e-4 if lam == 0 else lam * 10.0
@@ -377,3 +388,9 @@ def _gauss_newton(residual, theta: np.ndarray, j: int, max_iter: int):  # type: 
         if gain < _GAIN_TOL:
             break
     return theta, R, it
+
+
+def _cost(residual, theta: np.ndarray) -> float:  # type: ignore[no-untyped-def]
+    """Sum of squares of the weighted residual at ``theta`` (no derivatives)."""
+    R, _ = residual(theta, False)
+    return float(np.sum(R * R))

@@ -209,16 +209,17 @@ def _factor(G: np.ndarray, prefix: np.ndarray | None = None) -> tuple[np.ndarray
     """
     k1 = 0 if prefix is None else prefix.shape[0]
     if k1 and prefix.shape == (k1, k1) and k1 < G.shape[0]:
-        L21 = sla.solve_triangular(prefix, G[k1:, :k1].T, lower=True, check_finite=False).T
-        S22 = G[k1:, k1:] - L21 @ L21.T
+        # L21^T = L11^{-1} G12 (G symmetric: its upper block, a contiguous row slab)
+        L21t = sla.solve_triangular(prefix, G[:k1, k1:], lower=True, check_finite=False)
+        S22 = G[k1:, k1:] - L21t.T @ L21t
         c22, info = lapack.dpotrf(S22, lower=1, clean=1, overwrite_a=1)
         dg = np.abs(np.concatenate([np.diag(prefix), np.diag(c22)]))
         if info == 0 and dg.min() > dg.max() / _CHOL_SPAN:
-            c = np.zeros_like(G)
-            c[:k1, :k1] = prefix
-            c[k1:, :k1] = L21
-            c[k1:, k1:] = c22
-            return c, G.shape[0]
+            G[:k1, :k1] = prefix  # G is this function's own (the caller's scratch): in place
+            G[:k1, k1:] = 0.0
+            G[k1:, :k1] = L21t.T
+            G[k1:, k1:] = c22
+            return G, G.shape[0]
     c, info = lapack.dpotrf(G, lower=1, clean=1, overwrite_a=0)
     if info == 0:
         dg = np.abs(np.diag(c))
