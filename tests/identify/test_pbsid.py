@@ -552,3 +552,25 @@ def test_gauss_newton_halving_reaches_the_same_optimum(bearing, fit, monkeypatch
     assert np.max(np.abs(v[0] - v[1]) / se) < 0.02
     np.testing.assert_allclose(np.sqrt(np.diag(new.extras["structure_covariance"])), se, rtol=1e-2)
     assert new.extras["structure_iterations"] <= old.extras["structure_iterations"]
+
+
+@pytest.mark.parametrize("fit", [fit_pbsid, fit_ssarx])
+def test_structured_fit_with_fft_lag_products_equals_the_direct_sums(bearing, fit, monkeypatch):
+    # Reference: the direct lagged sums (the stream's route), forced by raising the
+    # FFT's threshold. The FFT's products equal them to ~1e-15 of the channels'
+    # energies (test_hankel_fft.py): v1..v9 and their standard errors equal to a
+    # small fraction of a standard error (measured ~1e-6 on the bench records at 1e4;
+    # asserted 1e-4), the same number of Gauss-Newton steps.
+    from maglevid.identify import pbsid as P
+
+    kw = dict(order=4, dt=bearing.dt, coordinates="physical")
+    new = fit(bearing.y, bearing.u, **kw)
+    assert new.options["structure_past"] >= P._FFT_MIN_LAGS  # the FFT route is taken
+    monkeypatch.setattr(P, "_FFT_MIN_LAGS", 10**9)
+    old = fit(bearing.y, bearing.u, **kw)
+    se = np.sqrt(np.diag(old.extras["structure_covariance"]))
+    v = [np.array([r.parameters[f"v{i}"] for i in range(1, 10)]) for r in (new, old)]
+    assert np.max(np.abs(v[0] - v[1]) / se) < 1e-4
+    se_new = np.sqrt(np.diag(new.extras["structure_covariance"]))
+    np.testing.assert_allclose(se_new, se, rtol=1e-4)
+    assert new.extras["structure_iterations"] == old.extras["structure_iterations"]

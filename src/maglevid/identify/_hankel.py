@@ -182,6 +182,26 @@ class _LagGram:
         self._moments.update(z)
         self._S_total = None
 
+    def load_fft(self, z: np.ndarray) -> None:
+        """The whole record at once, its lagged products by FFT (:func:`lag_products_fft`).
+
+        Only as the first and only update (nothing accumulated yet): the same head,
+        tail and channel sums as ``update(z)``, the ``S_tau`` equal to the direct
+        sums to rounding (relative to ``sqrt(S_ii(0) S_jj(0))``; docs/subspace.md,
+        "sixth session"). Faster for long windows: O(N log L m^2) instead of
+        O(N L m^2).
+        """
+        N, L = z.shape[0], self.L
+        if self.n or N < self.min_samples():
+            raise ValueError("load_fft takes a whole record of at least 2 L + 1 samples")
+        self.head = np.ascontiguousarray(z[:L])
+        self.pending = np.ascontiguousarray(z[N - L :])
+        self._moments.update(z)
+        S = lag_products_fft(z, L, N - L)
+        self._S = S
+        self._S_total = S.copy()
+        self._S_total.flags.writeable = False
+
     def update_split(self, u: np.ndarray, y: np.ndarray) -> None:
         """``update(np.concatenate([u, y], axis=1))`` without interleaving the chunk.
 
@@ -369,6 +389,49 @@ class _LagGram:
             lo[...] = blk
             up[...] = blk  # after the mirror: the diagonal blocks as computed
         return G
+
+
+#: Samples per FFT block of :func:`lag_products_fft` at least this many times the lags.
+_FFT_BLOCK_RATIO = 3
+#: Blocks transformed together (bounds the temporaries: ~50 MB at 4096-point blocks).
+_FFT_CHUNK = 128
+
+
+def lag_products_fft(z: np.ndarray, L: int, n_starts: int) -> np.ndarray:
+    """``S_tau = sum_{s < n_starts} z(s) z(s + tau)^T``, tau = 0..L, by blocked FFT.
+
+    Overlap-save cross-correlation: the starts in blocks of ``B`` samples, each
+    block ``X = z(s0..s0+B-1)`` and its continuation ``Y = z(s0..s0+B+L-1)``
+    zero-padded to ``nfft >= B + L`` points, so that the circular correlation
+    ``irfft(conj(X_f) Y_f)`` at lags 0..L has no wrapped terms. The cross-spectra
+    ``conj(X_f)^T Y_f`` (m x m per frequency) are summed over the blocks and
+    inverted once at the end: O(N m log nfft + N m^2) against the direct sums'
+    O(N L m^2). ``z`` needs ``n_starts + L`` rows.
+    """
+    N, m = z.shape
+    if n_starts + L > N:
+        raise ValueError(f"{n_starts} starts and {L} lags need {n_starts + L} samples, not {N}")
+    nfft = 1 << max(int(_FFT_BLOCK_RATIO * L + L - 1).bit_length(), 4)
+    B = nfft - L
+    z = np.ascontiguousarray(z, dtype=float)
+    nf = nfft // 2 + 1
+    Sf = np.zeros((nf, m, m), dtype=complex)
+    s0, s1 = z.strides
+    n_full = n_starts // B
+    for b0 in range(0, n_full, _FFT_CHUNK):
+        nb = min(_FFT_CHUNK, n_full - b0)
+        X = z[b0 * B : (b0 + nb) * B].reshape(nb, B, m)
+        Y = as_strided(z[b0 * B :], (nb, B + L, m), (B * s0, s0, s1), writeable=False)
+        Xf = np.fft.rfft(X, n=nfft, axis=1).transpose(1, 2, 0).conj()  # (nf, m, nb)
+        Yf = np.fft.rfft(Y, n=nfft, axis=1).transpose(1, 0, 2)  # (nf, nb, m)
+        Sf += Xf @ Yf
+    r = n_starts - n_full * B  # the last, partial block
+    if r:
+        a = n_full * B
+        Xf = np.fft.rfft(z[a : a + r], n=nfft, axis=0)
+        Yf = np.fft.rfft(z[a : a + r + L], n=nfft, axis=0)
+        Sf += Xf.conj()[:, :, None] * Yf[:, None, :]
+    return np.fft.irfft(Sf, n=nfft, axis=0)[: L + 1].copy()
 
 
 @functools.lru_cache(maxsize=8)

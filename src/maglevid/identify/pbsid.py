@@ -123,6 +123,10 @@ _CCA_FLOOR = 1e-8
 _PASS_CHUNK = 1 << 18
 #: Records longer than this feed the lag pass with u and y apart (``update_split``).
 _SPLIT_MIN = 1 << 18
+#: The in-memory structured fit's lagged products are taken by FFT
+#: (``_LagGram.load_fft``) from this many lags up: measured 7x (100 lags, N = 2e4)
+#: to 40x (305 lags, 1e4) faster than the direct sums, equal to 2e-15 relative.
+_FFT_MIN_LAGS = 100
 #: The automatic past keeps at least this many Hankel rows per column.
 _ROWS_PER_COLUMN = 5
 
@@ -1074,6 +1078,13 @@ def _fit_in_memory(algorithm: str, y: Any, u: Any, kw: dict[str, Any]) -> Identi
     shift = np.zeros(nu + ny)
     if opt.remove_mean:  # the first chunk's mean: centring the Gram without cancellation
         shift = np.concatenate([u[:step], y[:step]], axis=1).mean(axis=0)
+    if opt.physical_fit == "structured" and lags >= _FFT_MIN_LAGS:
+        # the structured fit's long window: its lagged products by blocked FFT, 10-40x
+        # faster than the direct sums at 100-460 lags (docs/subspace.md, "sixth session")
+        z = np.concatenate([u, y], axis=1)
+        z -= shift
+        acc.load_fft(z)
+        return _fit(acc, nu, ny, opt, p_top, shift, (y, u))
     for t0 in range(0, N, step):  # the same accumulator a stream would use
         if N > _SPLIT_MIN:
             acc.update_split(u[t0 : t0 + step] - shift[:nu], y[t0 : t0 + step] - shift[nu:])
