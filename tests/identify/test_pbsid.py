@@ -510,6 +510,18 @@ def test_factor_extension_equals_the_whole_factor(bearing):
     np.testing.assert_allclose(lead, whole[:150, :150], rtol=0, atol=1e-12 * np.abs(whole).max())
 
 
+def _assert_same_optimum(new, old, se_tol: float, steps: str) -> None:
+    """v1..v9 within ``se_tol`` standard errors of ``old``'s, the standard errors to
+    ``se_tol`` relative; Gauss-Newton steps ``"equal"`` or ``"no more"``."""
+    se = np.sqrt(np.diag(old.extras["structure_covariance"]))
+    v = [np.array([r.parameters[f"v{i}"] for i in range(1, 10)]) for r in (new, old)]
+    assert np.max(np.abs(v[0] - v[1]) / se) < se_tol
+    se_new = np.sqrt(np.diag(new.extras["structure_covariance"]))
+    np.testing.assert_allclose(se_new, se, rtol=se_tol)
+    it_new, it_old = new.extras["structure_iterations"], old.extras["structure_iterations"]
+    assert it_new == it_old if steps == "equal" else it_new <= it_old
+
+
 @pytest.mark.parametrize("fit", [fit_pbsid, fit_ssarx])
 def test_structured_fit_on_its_leading_rows_equals_the_whole_factor(bearing, fit, monkeypatch):
     # Reference: ab22305's data stage, one factor of every lag kept (the (P16) window
@@ -525,33 +537,24 @@ def test_structured_fit_on_its_leading_rows_equals_the_whole_factor(bearing, fit
     assert new.extras["structure_lags"] < P._structure_cap(bearing.n_samples)
     whole = P._window_stats
     monkeypatch.setattr(P, "_window_stats", lambda *a, **k: whole(*a[:6]))
-    old = fit(bearing.y, bearing.u, **kw)
-    se = np.sqrt(np.diag(old.extras["structure_covariance"]))
-    v = [np.array([r.parameters[f"v{i}"] for i in range(1, 10)]) for r in (new, old)]
-    assert np.max(np.abs(v[0] - v[1]) / se) < 1e-5
-    se_new = np.sqrt(np.diag(new.extras["structure_covariance"]))
-    np.testing.assert_allclose(se_new, se, rtol=1e-5)
-    assert new.extras["structure_iterations"] == old.extras["structure_iterations"]
+    _assert_same_optimum(new, fit(bearing.y, bearing.u, **kw), 1e-5, "equal")
 
 
 @pytest.mark.parametrize("fit", [fit_pbsid, fit_ssarx])
 def test_gauss_newton_halving_reaches_the_same_optimum(bearing, fit, monkeypatch):
     # Reference: the Levenberg-Marquardt loop without halvings (ab22305's). Both stop
     # when a step gains less than 1e-3 in j J (twice the log-likelihood), i.e. a
-    # few hundredths of a standard error from the optimum; measured 2.5e-5 - 5.4e-4
-    # standard errors apart on the bench records. Asserted 0.02 (the stop rule's
-    # reach), standard errors to 1 %, and never more Jacobians.
+    # few hundredths of a standard error from the optimum; measured 1e-6 - 5.4e-4
+    # standard errors apart on the bench records (but for SSARX on the paper-like
+    # record at 1e6, where halving reaches a better local minimum: docs/subspace.md,
+    # "sixth session"). Asserted 0.02 (the stop rule's reach), standard errors to
+    # 2 %, and never more Jacobians.
     from maglevid.identify import _structured as S
 
     kw = dict(order=4, dt=bearing.dt, coordinates="physical")
     new = fit(bearing.y, bearing.u, **kw)
     monkeypatch.setattr(S, "_HALVINGS", 0)
-    old = fit(bearing.y, bearing.u, **kw)
-    se = np.sqrt(np.diag(old.extras["structure_covariance"]))
-    v = [np.array([r.parameters[f"v{i}"] for i in range(1, 10)]) for r in (new, old)]
-    assert np.max(np.abs(v[0] - v[1]) / se) < 0.02
-    np.testing.assert_allclose(np.sqrt(np.diag(new.extras["structure_covariance"])), se, rtol=1e-2)
-    assert new.extras["structure_iterations"] <= old.extras["structure_iterations"]
+    _assert_same_optimum(new, fit(bearing.y, bearing.u, **kw), 0.02, "no more")
 
 
 @pytest.mark.parametrize("fit", [fit_pbsid, fit_ssarx])
@@ -567,10 +570,4 @@ def test_structured_fit_with_fft_lag_products_equals_the_direct_sums(bearing, fi
     new = fit(bearing.y, bearing.u, **kw)
     assert new.options["structure_past"] >= P._FFT_MIN_LAGS  # the FFT route is taken
     monkeypatch.setattr(P, "_FFT_MIN_LAGS", 10**9)
-    old = fit(bearing.y, bearing.u, **kw)
-    se = np.sqrt(np.diag(old.extras["structure_covariance"]))
-    v = [np.array([r.parameters[f"v{i}"] for i in range(1, 10)]) for r in (new, old)]
-    assert np.max(np.abs(v[0] - v[1]) / se) < 1e-4
-    se_new = np.sqrt(np.diag(new.extras["structure_covariance"]))
-    np.testing.assert_allclose(se_new, se, rtol=1e-4)
-    assert new.extras["structure_iterations"] == old.extras["structure_iterations"]
+    _assert_same_optimum(new, fit(bearing.y, bearing.u, **kw), 1e-4, "equal")
