@@ -273,6 +273,11 @@ def fit_bearing_structure(
         out[:9] += Cs @ np.linalg.matrix_power(Abar, P) @ dM
         return out
 
+    # The Jacobian's W-free part at the last point: each weighting round (P13) and the
+    # covariance (P15) start where the last round ended, with a new W only (J is
+    # linear in W^{1/2}): two of ~13 Jacobians, the same numbers bitwise.
+    last: dict[str, object] = {}
+
     def residual(th: np.ndarray, jac: bool, W12: np.ndarray):  # type: ignore[no-untyped-def]
         if not jac:  # the trial steps: no derivatives (9 Frechet derivatives, P Markov steps)
             Ad, Bd = _plant(v0 * (1.0 + th[:9]), dt)
@@ -282,16 +287,19 @@ def fit_bearing_structure(
             if k0:
                 V[:, : 5 * k0] += start_term(th)
             return W12 @ (Fy - V @ Fz), None
-        Abar, Btil, dAbar, dBtil, Cs_, *_ = _model(th, v0, dt, sy, su)
-        V, dV = _predictor_blocks(Abar, Btil, dAbar, dBtil, Cs_, P)
-        if k0:
-            V[:, : 5 * k0] += start_term(th)
-        R = W12 @ (Fy - V @ Fz)
-        if k0:  # the start term's derivative, analytic (a 3 x 5 k0 block per parameter)
-            dV[:, :, : 5 * k0] += start_derivative(th, Abar, dAbar, dBtil)
-        # one GEMM of all 3 n_th rows (a stack of 3-row products ran at GEMV speed)
-        dVF = (dV.reshape(-1, dV.shape[2]) @ Fz).reshape(th.size, 3, -1)
-        J = -np.einsum("ij,pjk->pik", W12, dVF).reshape(th.size, -1).T
+        key = th.tobytes()
+        if last.get("key") != key:  # the same point again (a new W): W-free parts kept
+            Abar, Btil, dAbar, dBtil, Cs_, *_ = _model(th, v0, dt, sy, su)
+            V, dV = _predictor_blocks(Abar, Btil, dAbar, dBtil, Cs_, P)
+            if k0:
+                V[:, : 5 * k0] += start_term(th)
+            if k0:  # the start term's derivative, analytic (a 3 x 5 k0 block per parameter)
+                dV[:, :, : 5 * k0] += start_derivative(th, Abar, dAbar, dBtil)
+            # one GEMM of all 3 n_th rows (a stack of 3-row products ran at GEMV speed)
+            dVF = (dV.reshape(-1, dV.shape[2]) @ Fz).reshape(th.size, 3, -1)
+            last.update(key=key, E=Fy - V @ Fz, dVF=dVF)
+        R = W12 @ last["E"]
+        J = -np.einsum("ij,pjk->pik", W12, last["dVF"]).reshape(th.size, -1).T
         return R, J
 
     E, _ = residual(theta, False, np.eye(3))  # prediction errors of the start (scaled)
