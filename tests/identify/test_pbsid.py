@@ -512,14 +512,15 @@ def test_factor_extension_equals_the_whole_factor(bearing):
 
 def _assert_same_optimum(new, old, se_tol: float, steps: str) -> None:
     """v1..v9 within ``se_tol`` standard errors of ``old``'s, the standard errors to
-    ``se_tol`` relative; Gauss-Newton steps ``"equal"`` or ``"no more"``."""
+    ``se_tol`` relative; Gauss-Newton steps ``"equal"``, ``"no more"`` or ``"any"``."""
     se = np.sqrt(np.diag(old.extras["structure_covariance"]))
     v = [np.array([r.parameters[f"v{i}"] for i in range(1, 10)]) for r in (new, old)]
     assert np.max(np.abs(v[0] - v[1]) / se) < se_tol
     se_new = np.sqrt(np.diag(new.extras["structure_covariance"]))
     np.testing.assert_allclose(se_new, se, rtol=se_tol)
     it_new, it_old = new.extras["structure_iterations"], old.extras["structure_iterations"]
-    assert it_new == it_old if steps == "equal" else it_new <= it_old
+    if steps != "any":
+        assert it_new == it_old if steps == "equal" else it_new <= it_old
 
 
 @pytest.mark.parametrize("fit", [fit_pbsid, fit_ssarx])
@@ -571,3 +572,36 @@ def test_structured_fit_with_fft_lag_products_equals_the_direct_sums(bearing, fi
     assert new.options["structure_past"] >= P._FFT_MIN_LAGS  # the FFT route is taken
     monkeypatch.setattr(P, "_FFT_MIN_LAGS", 10**9)
     _assert_same_optimum(new, fit(bearing.y, bearing.u, **kw), 1e-4, "equal")
+
+
+def test_secant_update_meets_the_secant_equation():
+    # Reference: Dennis, Gay & Welsch (1981), NL2SOL: the updated S is symmetric and
+    # maps the step to y# = (J1 - J0)^T r1 exactly (the secant equation; algebra).
+    from maglevid.identify._structured import _dgw
+
+    rng = np.random.default_rng(3)
+    J0, R0 = rng.standard_normal((40, 6)), rng.standard_normal((4, 10))
+    J1, R1 = J0 + 0.1 * rng.standard_normal((40, 6)), R0 + 0.1 * rng.standard_normal((4, 10))
+    s = np.linalg.lstsq(J0, -R0.ravel(), rcond=None)[0]
+    S = None
+    for _ in range(2):  # from 0, then from the first update (sized)
+        S = _dgw(S, s, J0, R0, J1, R1)
+        np.testing.assert_allclose(S, S.T, atol=1e-12)
+        np.testing.assert_allclose(S @ s, (J1 - J0).T @ R1.ravel(), rtol=1e-9, atol=1e-12)
+
+
+@pytest.mark.parametrize("fit", [fit_pbsid, fit_ssarx])
+def test_secant_second_order_term_reaches_the_same_optimum(bearing, fit, monkeypatch):
+    # Reference: the steps without S (Gauss-Newton with halvings). The same stop rule,
+    # so the same optimum to its reach: measured 8e-5 - 1.7e-3 standard errors apart
+    # on the bench records (1e4-1e6), the criterion never higher; asserted 0.02 and
+    # standard errors to 2 %.
+    from maglevid.identify import _structured as S
+
+    kw = dict(order=4, dt=bearing.dt, coordinates="physical")
+    new = fit(bearing.y, bearing.u, **kw)
+    monkeypatch.setattr(S, "_dgw", lambda *a: None)
+    old = fit(bearing.y, bearing.u, **kw)
+    _assert_same_optimum(new, old, 0.02, "any")
+    ld = [np.linalg.slogdet(r.extras["innovation_covariance"])[1] for r in (new, old)]
+    assert (ld[0] - ld[1]) * bearing.n_samples < 1e-2  # not a worse fit (a gain of 1e-3: stop)

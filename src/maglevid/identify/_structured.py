@@ -361,12 +361,19 @@ def _gauss_newton(residual, theta: np.ndarray, j: int, max_iter: int):  # type: 
     step that raises the cost is first halved (up to ``_HALVINGS`` times: far
     from the optimum the predictor's ``Abar^P`` makes the full step overshoot
     along a good direction) before damping turns it towards the gradient: one
-    Jacobian fewer on some records, each worth ~1/13 of the fit (docs/subspace.md,
-    "sixth session").
+    Jacobian fewer on some records, each worth ~1/13 of the fit. Near the optimum
+    the problem is a large-residual one (the true curvature along the step ~1.75x
+    ``J^T J``'s, so plain Gauss-Newton converges linearly): after each full step the
+    second-order term ``S`` is updated by the secant rule of NL2SOL (:func:`_dgw`)
+    and the next step solves ``(J^T J + S) s = -J^T r``; ``S`` is dropped after a
+    halved or damped step and whenever ``J^T J + S`` is not positive definite.
+    docs/subspace.md, "sixth session".
     """
     R, J = residual(theta, True)
     cost = float(np.sum(R * R))
     lam, it = 0.0, 0
+    Sq = None
+    h = 0
     for it in range(1, max_iter + 1):  # noqa: B007 - the count is returned
         d = np.linalg.norm(J, axis=0)
         d[d == 0] = 1.0
@@ -378,7 +385,10 @@ def _gauss_newton(residual, theta: np.ndarray, j: int, max_iter: int):  # type: 
                 step = np.linalg.lstsq(Js_l, np.concatenate([r, np.zeros(k)]), rcond=None)[0]
                 c_new = _cost(residual, theta + step / d)
             else:  # undamped: the Gauss-Newton step, halved while it raises the cost
-                step = np.linalg.lstsq(Js, r, rcond=None)[0]
+                step = _newton_step(Js, r, d, Sq)
+                if step is None:  # J^T J + S not positive definite: Gauss-Newton
+                    Sq = None
+                    step = np.linalg.lstsq(Js, r, rcond=None)[0]
                 for h in range(_HALVINGS + 1):
                     c_new = _cost(residual, theta + step / d)
                     if c_new <= cost or h == _HALVINGS:
@@ -390,9 +400,12 @@ def _gauss_newton(residual, theta: np.ndarray, j: int, max_iter: int):  # type: 
         if c_new > cost:
             break
         gain = (cost - c_new) * j
+        J0, R0, full = J, R, not lam and h == 0
         theta, cost = theta + step / d, c_new
         lam = 0.0 if lam <= 1e-3 else lam / 10.0
         R, J = residual(theta, True)
+        # the second-order term S by a secant update while the steps are full ones
+        Sq = _dgw(Sq, step / d, J0, R0, J, R) if full else None
         if gain < _GAIN_TOL:
             break
     return theta, R, it
@@ -402,3 +415,39 @@ def _cost(residual, theta: np.ndarray) -> float:  # type: ignore[no-untyped-def]
     """Sum of squares of the weighted residual at ``theta`` (no derivatives)."""
     R, _ = residual(theta, False)
     return float(np.sum(R * R))
+
+
+def _newton_step(Js: np.ndarray, r: np.ndarray, d: np.ndarray, Sq: np.ndarray | None):
+    """``(Js^T Js + D^-1 S D^-1)^{-1} Js^T r`` (scaled units), None when not positive
+    definite; the Gauss-Newton step by least squares when there is no ``S`` yet."""
+    if Sq is None:
+        return np.linalg.lstsq(Js, r, rcond=None)[0]
+    try:
+        cf = sla.cho_factor(Js.T @ Js + Sq / np.outer(d, d), lower=True)
+    except np.linalg.LinAlgError:
+        return None
+    return sla.cho_solve(cf, Js.T @ r)
+
+
+def _dgw(Sq, s, J0, R0, J1, R1):  # type: ignore[no-untyped-def]
+    """Dennis, Gay & Welsch (1981) secant update of the second-order term ``S`` (NL2SOL).
+
+    ``S`` approximates ``sum_i r_i Hess(r_i)``, which Gauss-Newton drops: with
+    ``y# = (J1 - J0)^T r1`` (what ``S`` must map the step ``s`` to) and ``y`` the
+    gradient's change, the symmetric rank-2 update of least change in the
+    ``y``-weighted norm, ``S`` first sized by ``min(1, |s'y#| / |s'Ss|)``. Starts
+    from 0 (``Sq`` None); left unchanged when ``s'y <= 0``.
+    """
+    if Sq is None:
+        Sq = np.zeros((s.size, s.size))
+    r1 = R1.ravel()
+    y = J1.T @ r1 - J0.T @ R0.ravel()
+    ys = J1.T @ r1 - J0.T @ r1
+    sy = float(s @ y)
+    if sy <= 0.0:
+        return Sq
+    sSs = float(s @ Sq @ s)
+    tau = min(1.0, abs(float(s @ ys)) / abs(sSs)) if sSs != 0.0 else 1.0
+    Sq = tau * Sq
+    z = ys - Sq @ s
+    return Sq + (np.outer(z, y) + np.outer(y, z)) / sy - float(z @ s) * np.outer(y, y) / sy**2
