@@ -35,6 +35,8 @@ from maglevid.diagnose.isolate import (
     IsolationResult,
     MeasuredOperatingPoint,
     isolate_fault,
+    model_error_term,
+    relative_excursion,
     v_with_sensor_gains,
 )
 from maglevid.diagnose.resolve import (
@@ -154,8 +156,7 @@ def estimate_model_error(data: ClosedLoopData, p: AMBParameters | None) -> float
     """
     if p is None or data.y.shape[1] != 3:
         return MODEL_ERROR_FLOOR
-    sd = np.std(data.y, axis=0) / np.array([p.x0, p.i0, p.i0])
-    return float(max(MODEL_ERROR_FLOOR, np.max(sd)))
+    return model_error_term(relative_excursion(data.y, p.x0, p.i0))
 
 
 def _physical_model_errors(v: np.ndarray, eps: float, m: float, i0: float) -> dict[str, float]:
