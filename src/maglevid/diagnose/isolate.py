@@ -193,12 +193,14 @@ def model_error_term(excursion: float) -> float:
     First order in the excursion ``e``, where the linear model's bias on the
     nonlinear bearing is measured at ``<= 2 e^2``
     (:func:`maglevid.identify.planning.model_error_of_excursion`, ~100x smaller
-    at 1 V). Kept on purpose (issue 13, h13diag): on a fault matrix of the
-    nonlinear bearing (benchmarks/measure_verdict_model_error.py;
-    docs/diagnosis.md, "Model error") ``max(0.1 %, 2 e^2)`` decided no fault
-    that this term leaves inconclusive, and turned a fault planted on its
-    tolerance into "within tolerance"; this term also holds the fit's
-    record-to-record part that the stated standard errors leave out.
+    at 1 V). Kept on purpose (issue 13, h13diag; docs/diagnosis.md, "Model
+    error"): on 147 records of the nonlinear bearing at the CLI defaults
+    (benchmarks/measure_verdict_model_error.py) ``max(0.1 %, 2 e^2)`` decided no
+    fault that this term leaves inconclusive and changed one verdict, a fault
+    planted on its tolerance, from inconclusive to "within tolerance"; and this
+    term also holds the fit's record-to-record part (~a/sqrt(N) against the
+    noise's ~1/(a sqrt(N))), measured below 1 % of the variance only up to 1 V,
+    while the advice proposes levels up to the amplifiers' limit.
     """
     if not (np.isfinite(excursion) and excursion >= 0):
         raise DataError(f"`excursion` must be finite and >= 0; got {excursion!r}")

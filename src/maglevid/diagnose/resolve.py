@@ -61,6 +61,16 @@ coils* (:data:`maglevid.identify.planning.DEFAULT_SPLITS`; the information of
 independent excitations adds, ``I_v = a1^2 I_1 + a2^2 I_2 + I_e``) that needs the
 shortest record. The baseline's covariance is added unscaled:
 ``var(n) = 1 / (g^T (kappa I_v(n)^-1 + S_b + diag((eps v)^2))^-1 g)``.
+
+``eps`` at a planned level is the isolation's own term
+(:func:`~maglevid.diagnose.isolate.model_error_term`) of the excursion that
+record would have (the recording's, scaled by the design's prediction), so the
+advice promises the interval the diagnosis of the advised record will state.
+When no record within the limits resolves a cause, the advice says why: the
+model error at its smallest over the levels (and the baseline) leaves a
+half-width ``w`` wider than the one that decides it; it names the tolerances an
+interval of half-width ``w`` about the estimate would decide
+(``>= |c| + w`` or ``<= |c| - w``).
 """
 
 from __future__ import annotations
