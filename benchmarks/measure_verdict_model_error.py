@@ -72,8 +72,12 @@ def term_law(data: Any, p: Any) -> float:
 TERMS = {"excursion": term_excursion, "law": term_law}
 
 
-def run_record(name: str | None, factor: float, seed: int) -> dict[str, Any]:
-    opts = simulator_options(record_s=2.0, noise_std=DEFAULT_NOISE_STD)
+def run_record(
+    name: str | None, factor: float, seed: int, record_s: float = 2.0, level: float | None = None
+) -> dict[str, Any]:
+    opts = simulator_options(record_s=record_s, noise_std=DEFAULT_NOISE_STD)
+    if level is not None:
+        opts["excitation_std"] = level
     fault = {} if name is None else {name: factor}
     plant, gains = NOMINAL, None
     if name in SENSOR:
@@ -111,13 +115,19 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--healthy", type=int, default=10)
     ap.add_argument("--out", default=None)
+    ap.add_argument("--record-s", type=float, default=2.0)
+    ap.add_argument("--level", type=float, default=None, help="excitation [V rms]; default 1")
+    ap.add_argument("--faults", default=None, help="e.g. R1=1.2,K1=0.8 (default: FAULTS)")
     args = ap.parse_args(argv)
     t0, load0 = time.perf_counter(), os.getloadavg()
+    faults = FAULTS
+    if args.faults:
+        faults = tuple((k, float(v)) for k, v in (f.split("=") for f in args.faults.split(",")))
     cases = [
-        (n, f, 700 + 10 * j + s) for j, (n, f) in enumerate(FAULTS) for s in range(args.seeds)
+        (n, f, 700 + 10 * j + s) for j, (n, f) in enumerate(faults) for s in range(args.seeds)
     ]
     cases += [(None, 1.0, 900 + s) for s in range(args.healthy)]
-    rows = [run_record(*c) for c in cases]
+    rows = [run_record(*c, record_s=args.record_s, level=args.level) for c in cases]
     print(f"{len(rows)} records, {time.perf_counter() - t0:.0f} s, load {load0} -> "
           f"{os.getloadavg()}")  # fmt: skip
     for label in dict.fromkeys(json.dumps(r["fault"]) for r in rows):
