@@ -1,7 +1,8 @@
 """The model error the verdict counts is the one the inconclusive verdict's advice counts.
 
 Issue 13 (h13diag). One function, :func:`maglevid.diagnose.isolate.model_error_term`,
-sets the isolation's relative model error of each v_i from the loop's excursion;
+sets the isolation's relative model error of each v_i from the loop's excursion
+(the planner's measured law ``2 e^2``, floored at 0.1 %);
 the verdict (plants/amb.py ``estimate_model_error``) and the Cramér-Rao advice
 (resolve.py, at the excursion a planned record would have) both call it, so the
 advice promises the interval the diagnosis of the advised record states
@@ -31,9 +32,11 @@ from maglevid.simulate.amb import DEFAULT_FORCE_STD, DEFAULT_NOISE_STD
 NOMINAL = AMBParameters.nominal()
 
 
-def test_model_error_term_is_the_excursion_floored():
+def test_model_error_term_is_the_measured_law_floored():
+    """max(0.1 %, 2 e^2): planning.MODEL_ERROR_GAIN = 2 (the measured law)."""
     assert model_error_term(0.0) == MODEL_ERROR_FLOOR
-    assert model_error_term(4e-3) == 4e-3
+    assert model_error_term(4e-3) == MODEL_ERROR_FLOOR  # 2 x 0.004^2 = 3.2e-5 < floor
+    assert model_error_term(0.03) == pytest.approx(2 * 0.03**2, rel=1e-12)
     with pytest.raises(DataError):
         model_error_term(float("nan"))
     with pytest.raises(DataError):

@@ -182,29 +182,42 @@ def relative_excursion(y: Any, x0: float, i0: float) -> float:
 
 
 def model_error_term(excursion: float) -> float:
-    """The relative model error of each v_i the isolation counts: ``max(0.1 %, e)``.
+    """The relative model error of each v_i the isolation counts: ``max(0.1 %, 2 e^2)``.
 
-    One function for the verdict (the isolation's covariance, through
+    ``e`` is the loop's largest relative excursion (:func:`relative_excursion`);
+    ``2 e^2`` is the measured bias of the linear model on the nonlinear bearing
+    (:func:`maglevid.identify.planning.model_error_of_excursion`, the planner's
+    law, not a second copy), floored at :data:`MODEL_ERROR_FLOOR`. One function
+    for the verdict (the isolation's covariance, through
     :func:`maglevid.plants.amb.estimate_model_error`) and for the inconclusive
-    verdict's advice (:mod:`maglevid.diagnose.resolve`, at the excursion a planned
-    record would have), so that the advice promises the interval the diagnosis
-    of the advised record will state.
+    verdict's advice (:mod:`maglevid.diagnose.resolve`, at the excursion a
+    planned record would have), so that the advice promises the interval the
+    diagnosis of the advised record states.
 
-    First order in the excursion ``e``, where the linear model's bias on the
-    nonlinear bearing is measured at ``<= 2 e^2``
-    (:func:`maglevid.identify.planning.model_error_of_excursion`, ~100x smaller
-    at 1 V). Kept on purpose (issue 13, h13diag; docs/diagnosis.md, "Model
-    error"): on 147 records of the nonlinear bearing at the CLI defaults
-    (benchmarks/measure_verdict_model_error.py) ``max(0.1 %, 2 e^2)`` decided no
-    fault that this term leaves inconclusive and changed one verdict, a fault
-    planted on its tolerance, from inconclusive to "within tolerance"; and this
-    term also holds the fit's record-to-record part (~a/sqrt(N) against the
-    noise's ~1/(a sqrt(N))), measured below 1 % of the variance only up to 1 V,
-    while the advice proposes levels up to the amplifiers' limit.
+    Until issue 13 (h13diag) the term was ``max(0.1 %, e)``, first order in
+    ``e`` and ~100x the measured bias at 1 V. Measured on the nonlinear bearing
+    at the CLI defaults (benchmarks/measure_verdict_model_error.py,
+    docs/diagnosis.md "Model error"): at 1 V (147 records) the same verdicts
+    but one (a fault planted on its tolerance: inconclusive -> within
+    tolerance), the planted cause's rms z 0.52 -> 0.70; at 4 V, the
+    amplifiers' limit the advice may propose (26 records), every healthy
+    record "inconclusive" before and "no significant change" now, the faults
+    alike, rms z 0.06 -> 0.49. The fit's record-to-record part (~a/sqrt(N),
+    which the stated standard errors leave out) is covered at both levels:
+    |z| > 1.96 on 3 of 137 faulty records.
+
+    Examples
+    --------
+    >>> model_error_term(0.004)  # 1 V on the default bearing: the floor
+    0.001
+    >>> round(model_error_term(0.03), 6)  # 3 % excursion: 2 x 0.03^2
+    0.0018
     """
+    from maglevid.identify.planning import model_error_of_excursion
+
     if not (np.isfinite(excursion) and excursion >= 0):
         raise DataError(f"`excursion` must be finite and >= 0; got {excursion!r}")
-    return max(MODEL_ERROR_FLOOR, float(excursion))
+    return max(MODEL_ERROR_FLOOR, model_error_of_excursion(float(excursion)))
 
 
 @dataclass(frozen=True)

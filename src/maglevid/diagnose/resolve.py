@@ -279,9 +279,9 @@ class Unresolved:
             f"the model error alone leaves ±{w:.2g} % however long the record and however "
             f"low the level (the diagnosis's model error at its smallest, "
             f"{100 * (self.model_error_min or 0):.2g} % of each v_i: max("
-            f"{100 * MODEL_ERROR_FLOOR:.2g} %, the loop's relative excursion)), more than the "
-            f"±{self.target_percent:.2g} % that decides it, so no record resolves it: "
-            f"{wider} would be decided"
+            f"{100 * MODEL_ERROR_FLOOR:.2g} %, 2 e^2), e the loop's relative excursion), "
+            f"more than the ±{self.target_percent:.2g} % that decides it, so no record "
+            f"resolves it: {wider} would be decided"
         )
 
     def to_dict(self) -> dict[str, Any]:
@@ -623,8 +623,13 @@ class _ExcitationGrid:
             )
             return math.inf if n is None else 10**n  # PLAN_MAX_SAMPLES at most
 
+        # Never shorter than the recording: a level that would resolve it in fewer
+        # samples is proposed at the recording's length (the lowest such level wins
+        # the tie), since a shorter record may fail the quality checks and the fit.
         seconds = {
-            c: min((samples(inv1, eps) * self.design.dt, a) for a, inv1, eps in rows)
+            c: min(
+                (max(samples(inv1, eps), n_samples) * self.design.dt, a) for a, inv1, eps in rows
+            )
             for c, rows in self.levels.items()
         }
         now = samples(self._inverse(self.exc_now), self.eps(self.exc_now))
