@@ -106,3 +106,15 @@ def test_a_plan_shorter_than_the_record_proposes_no_more_seconds():
     )  # fmt: skip
     assert "more of the same excitation" not in u.advice()
     assert "1 s in all at 1 V rms" in u.advice()
+
+
+def test_a_plan_at_the_recordings_length_is_one_clause():
+    """The shortest plan is never below the recording's length; when it is that
+    length its level is the refined "raise it to" level and is said once."""
+    u = Unresolved(
+        parameter="x0", tolerance_percent=5.0, half_width_percent=0.17, length_factor=3.9,
+        more_seconds=5.8, excitation_factor=2.03, excitation_rms=2.03,
+        plan_seconds=2.0, plan_excitation=2.03, estimate_percent=4.9, needed_percent=0.11,
+    )  # fmt: skip
+    text = u.advice()
+    assert "raise it to 2.03 V rms at this length" in text and " in all at " not in text

@@ -234,7 +234,8 @@ class Unresolved:
             )
         if self.excitation_rms is not None and math.isfinite(self.excitation_factor):
             parts.append(f"raise it to {self.excitation_rms:.3g} V rms at this length")
-        if self.plan_seconds is not None and math.isfinite(self.plan_seconds):
+        same = self.plan_excitation == self.excitation_rms  # "raise it" says it already
+        if self.plan_seconds is not None and math.isfinite(self.plan_seconds) and not same:
             parts.append(
                 f"{format_seconds(self.plan_seconds)} in all at {self.plan_excitation:.3g} V rms"
                 " (the best level within the amplifier and displacement limits)"
@@ -493,6 +494,9 @@ def with_cramer_rao_plan(
         other = best != present and need.seconds[best][0] < need.seconds[present][0]
         exc = need.excitation_for_length
         k = need.samples_now / n_samples
+        seconds, level = need.seconds[present]
+        if exc is not None and seconds <= n_samples * design.dt * (1 + 1e-9):
+            level = exc  # the shortest is this length: its level refined, one clause
         out.append(
             replace(
                 u,
@@ -502,8 +506,8 @@ def with_cramer_rao_plan(
                 excitation_factor=(math.inf if exc is None else exc / excitation_std)
                 if excitation_std > 0
                 else u.excitation_factor,
-                plan_seconds=need.seconds[present][0],
-                plan_excitation=need.seconds[present][1],
+                plan_seconds=seconds,
+                plan_excitation=level,
                 plan_spectrum=best[0] if other else None,
                 plan_seconds_spectrum=need.seconds[best][0] if other else None,
                 plan_excitation_spectrum=need.seconds[best][1] if other else None,
