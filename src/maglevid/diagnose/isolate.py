@@ -51,7 +51,8 @@ of the nonlinear magnet has ``S`` ~ 0 but ``v`` still departs from the
 linearisation by a fraction of the excursion. Every test therefore uses
 ``S + S_b + diag((epsilon v_b)^2)`` with the relative model error
 ``epsilon`` (estimated by the caller from the recording, see
-:func:`maglevid.diagnose.pipeline.diagnose`).
+:func:`maglevid.diagnose.pipeline.diagnose`: :func:`model_error_term` of the
+loop's relative excursion, the measured ``2 e^2`` floored at 0.1 %).
 Pairs of simultaneous faults (7 dof) are tried when no single hypothesis fits.
 A hypothesis is accepted when its p-value exceeds ``alpha``; among accepted
 ones the smallest chi-square wins, and hypotheses within a chi-square
