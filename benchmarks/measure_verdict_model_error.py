@@ -70,9 +70,15 @@ TERMS = {"excursion": term_excursion, "law": amb_kind.estimate_model_error}
 
 
 def run_record(
-    name: str | None, factor: float, seed: int, record_s: float = 2.0, level: float | None = None
+    name: str | None,
+    factor: float,
+    seed: int,
+    record_s: float = 2.0,
+    level: float | None = None,
+    noise_scale: float = 1.0,
 ) -> dict[str, Any]:
-    opts = simulator_options(record_s=record_s, noise_std=DEFAULT_NOISE_STD)
+    noise = tuple(noise_scale * s for s in DEFAULT_NOISE_STD)
+    opts = simulator_options(record_s=record_s, noise_std=noise)
     if level is not None:
         opts["excitation_std"] = level
     fault = {} if name is None else {name: factor}
@@ -113,6 +119,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--healthy", type=int, default=10)
     ap.add_argument("--out", default=None)
     ap.add_argument("--record-s", type=float, default=2.0)
+    ap.add_argument("--noise-scale", type=float, default=1.0, help="x the CLI default noise")
     ap.add_argument("--level", type=float, default=None, help="excitation [V rms]; default 1")
     ap.add_argument("--faults", default=None, help="e.g. R1=1.2,K1=0.8 (default: FAULTS)")
     args = ap.parse_args(argv)
@@ -124,7 +131,10 @@ def main(argv: list[str] | None = None) -> int:
         (n, f, 700 + 10 * j + s) for j, (n, f) in enumerate(faults) for s in range(args.seeds)
     ]
     cases += [(None, 1.0, 900 + s) for s in range(args.healthy)]
-    rows = [run_record(*c, record_s=args.record_s, level=args.level) for c in cases]
+    rows = [
+        run_record(*c, record_s=args.record_s, level=args.level, noise_scale=args.noise_scale)
+        for c in cases
+    ]
     print(f"{len(rows)} records, {time.perf_counter() - t0:.0f} s, load {load0} -> "
           f"{os.getloadavg()}")  # fmt: skip
     for label in dict.fromkeys(json.dumps(r["fault"]) for r in rows):
