@@ -18,7 +18,12 @@ Run from the repository root (about 7 min at load 3-4; the second ~2 min)::
 
     PYTHONPATH=src python -m benchmarks.measure_verdict_model_error --seeds 6 --healthy 20
     PYTHONPATH=src python -m benchmarks.measure_verdict_model_error --seeds 4 --healthy 6 \
-        --level 4 --faults R1=1.2,K1=0.8,kw1=0.8,m=1.1,R1=1.05
+        --level 4 --faults R1=1.2,K1=0.8,kw1=0.8,m=1.1,R1=1.05      # also --noise-scale 0.3
+    PYTHONPATH=src python -m benchmarks.measure_verdict_model_error --seeds 2 --healthy 6 \
+        --method physical
+
+Results: docs/diagnosis.md, "The verdict's model-error term and the advice's are
+one function".
 """
 
 from __future__ import annotations
@@ -76,6 +81,7 @@ def run_record(
     record_s: float = 2.0,
     level: float | None = None,
     noise_scale: float = 1.0,
+    method: str | None = None,
 ) -> dict[str, Any]:
     noise = tuple(noise_scale * s for s in DEFAULT_NOISE_STD)
     opts = simulator_options(record_s=record_s, noise_std=noise)
@@ -94,7 +100,7 @@ def run_record(
         return {**row, "lost": str(exc)[:120]}
     for key, term in TERMS.items():
         amb_kind.estimate_model_error = term
-        d = diagnose(data, baseline="nominal")
+        d = diagnose(data, baseline="nominal", **({"method": method} if method else {}))
         best = d.isolation.best.parameters if d.isolation is not None else ()
         planted = [
             h for h in (d.isolation.singles if d.isolation else ()) if h.parameters == (name,)
@@ -120,6 +126,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", default=None)
     ap.add_argument("--record-s", type=float, default=2.0)
     ap.add_argument("--noise-scale", type=float, default=1.0, help="x the CLI default noise")
+    ap.add_argument("--method", default=None, help="identification method (default: ml)")
     ap.add_argument("--level", type=float, default=None, help="excitation [V rms]; default 1")
     ap.add_argument("--faults", default=None, help="e.g. R1=1.2,K1=0.8 (default: FAULTS)")
     args = ap.parse_args(argv)
@@ -132,7 +139,13 @@ def main(argv: list[str] | None = None) -> int:
     ]
     cases += [(None, 1.0, 900 + s) for s in range(args.healthy)]
     rows = [
-        run_record(*c, record_s=args.record_s, level=args.level, noise_scale=args.noise_scale)
+        run_record(
+            *c,
+            record_s=args.record_s,
+            level=args.level,
+            noise_scale=args.noise_scale,
+            method=args.method,
+        )
         for c in cases
     ]
     print(f"{len(rows)} records, {time.perf_counter() - t0:.0f} s, load {load0} -> "
