@@ -45,25 +45,29 @@ def test_the_verdict_cites_the_plan(advice):
     assert u["more_seconds"] > 0
 
 
-@pytest.mark.parametrize("seed", [11, 12])
-def test_following_the_plan_gives_the_promised_interval(advice, seed):
-    """A record at the planned level and length (independent seed): R1's 95 %
-    half-width within the one the plan promised (the estimate's distance from the
-    tolerance, 2.4 %; the model error's growth with the excursion is taken
-    proportional, a little pessimistic), and not far inside it (the plan is not
-    wildly conservative). Whether the new interval then clears the boundary
-    depends on where the new estimate falls (the truth, +20 %, is 3 % beyond it),
-    so only the cause is asserted."""
+def test_following_the_plan_gives_the_promised_interval(advice):
+    """Records at the planned level and length (independent seeds): R1's 95 %
+    half-width about the one the plan promised (the estimate's distance from the
+    tolerance, 2.9 %). Since the model error is the measured 2 e^2 (h13diag) the
+    plan's level at this length (1.63 V rms, 2000 samples) sits exactly where the
+    expected half-width reaches it, no longer with the old term's pessimism, so
+    one record's stated half-width scatters about it (measured on these seeds:
+    0.72-1.12 of it): the mean of four within 0.7-1.05 of it and each below
+    1.25 of it. Whether the new interval then clears the boundary depends on
+    where the new estimate falls, so only the cause is asserted."""
     u, _ = advice
     need = u["needed_percent"] / 100
-    n = max(2000, round(u["plan_seconds"] / 1e-4))
-    rec = simulate_amb_loop(FAULTY, rng=seed, n_samples=n, excitation_std=u["plan_excitation"],
-                            **LOOP)  # fmt: skip
-    d = diagnose(rec, baseline="nominal", method="ml", tolerances=TOL)
-    h = next(x for x in d.isolation.singles if x.parameters == ("R1",))
-    half = 1.96 * h.factor_std_errors[0]
-    assert 0.7 * need < half <= need, half
-    assert d.isolation.best.parameters == ("R1",)
+    n = round(u["plan_seconds"] / 1e-4)
+    assert n == 2000  # never shorter than the recording (resolve._ExcitationGrid.needs)
+    ratios = []
+    for seed in (11, 12, 13, 14):
+        rec = simulate_amb_loop(FAULTY, rng=seed, n_samples=n,
+                                excitation_std=u["plan_excitation"], **LOOP)  # fmt: skip
+        d = diagnose(rec, baseline="nominal", method="ml", tolerances=TOL)
+        h = next(x for x in d.isolation.singles if x.parameters == ("R1",))
+        ratios.append(1.96 * h.factor_std_errors[0] / need)
+        assert d.isolation.best.parameters == ("R1",)
+    assert 0.7 < np.mean(ratios) <= 1.05 and max(ratios) < 1.25, ratios
 
 
 def test_without_a_logged_excitation_the_scaling_rule_stays_with_the_reason(advice):
@@ -170,7 +174,9 @@ def test_the_cramer_rao_plan_with_a_baseline_needs_var_over_tol2_minus_var_b(adv
     (pe,), _ = plan_unresolved(
         _r1(unresolved_parameters(iso0, TOL, duration_s=0.2)), iso0, rec, fit, tolerances=TOL
     )
-    assert pb.plan_seconds > 1.2 * pe.plan_seconds
+    # (At the present level: the shortest plan at the best level is at least the
+    # recording's 0.2 s since h13diag, and both reach it.)
+    assert pb.length_factor > 1.2 * pe.length_factor
 
 
 def test_an_uncertain_baseline_is_named_not_planned(advice):

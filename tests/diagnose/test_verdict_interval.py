@@ -173,7 +173,11 @@ def test_cli_straddling_record_is_inconclusive_with_a_plan(cli_default):
     )
     assert lo < 5.0 < hi  # the interval straddles the tolerance
     assert r1["needed_percent"] == pytest.approx(5.0 - r1["estimate_percent"])
-    assert r1["plan_seconds"] > 0.25 and "Cramér-Rao plan" in out["verdict"]
+    assert "Cramér-Rao plan" in out["verdict"]
+    # The record is 0.25 s at 1 V rms. Since the model error is the measured 2 e^2
+    # (h13diag; it was e, growing first order with the level) a higher level may
+    # resolve it in a shorter record: then the plan's level is above the present one.
+    assert r1["plan_seconds"] > 0.25 or r1["plan_excitation"] > 1.0, r1
 
 
 def test_cli_amplifier_limits_reach_the_plan(straddling_record, cli_default):

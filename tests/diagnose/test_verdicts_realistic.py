@@ -110,8 +110,16 @@ def test_readme_walkthrough_default_noise_is_inconclusive(seed):
     # The verdict names a record length (since the straddling rule its headline is the
     # cause furthest from deciding, seed 3 Ls1 -3.8 % ± 4.6 %: "21.1 min in all at
     # 0.242 V rms", the same excitation alone never deciding it with its model error).
-    assert "s more of the same excitation" in d.verdict or " in all at " in d.verdict
+    # Since h13diag (model error 2 e^2, floored at 0.1 %) the headline may be a cause
+    # whose estimate sits closer to its tolerance than the floor lets any record
+    # decide (seed 1: R2 +5.1 % against 5 %); the advice then says so and names the
+    # tolerance that would be decided. R1's own advice names a record.
+    assert any(
+        k in d.verdict
+        for k in ("s more of the same excitation", " in all at ", "no record resolves it")
+    )
     r1 = next(u for u in d.resolution if u["parameter"] == "R1")
+    assert "s more of the same excitation" in r1["advice"] or " in all at " in r1["advice"]
     # Where R1's interval straddles the tolerance the half-width that decides it is its
     # estimate's distance from 5 % (seed 3: +32 % ± 28 % needs ±27 %); where it lies
     # wholly beyond while "nothing changed" is kept (seed 5: +45 %), the tolerance.

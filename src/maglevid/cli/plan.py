@@ -175,7 +175,25 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         )
     out = plan.to_dict()
     out["source"] = source
+    from maglevid.diagnose.isolate import SENSOR_GAINS
+
+    if args.recording is None and any(k in SENSOR_GAINS for k, _ in args.fault):
+        out["note"] = SENSOR_GAIN_NOTE
     return out
+
+
+#: What the values of a sensor-gain plan are. Derivation (docs/gosiewski.md,
+#: "Experiment planning"): the loop sees z = diag(gx, gx, gi1, gi2) x, so v2 ->
+#: v2 gx/gi1, v4 -> v4 gi1/gx, v8 -> v8 gi1 (coil 2 alike) and eq. (4) inverted
+#: with the true m and i0 gives ki_j' = m v2' = ki_j gx/gi_j, L_j' = ki_j'/v4' =
+#: L_j (gx/gi_j)^2, R_j' = v5 L_j', kw_j' = v8' L_j' = kw_j gx^2/gi_j and
+#: x0' = (ki1' + ki2') i0 / (m v1).
+SENSOR_GAIN_NOTE = (
+    "values are the bearing as the loop and the identification see it through the "
+    "sensor gains (gi_j: coil j's current-sensor gain, not the amplifier's kw_j): "
+    "ki_j gx/gi_j, L_j and R_j x (gx/gi_j)^2, kw_j gx^2/gi_j, "
+    "x0 gx (ki1/gi1 + ki2/gi2)/(ki1 + ki2)"
+)
 
 
 def _faulty_plant(nominal: Any, faults: dict[str, float]) -> Any:
@@ -296,6 +314,8 @@ def format_text(result: dict[str, Any]) -> str:
         + " at the present excitation"
     )
     lines.append(r["sentence"])
+    if r.get("note"):
+        lines.append("note: " + r["note"])
     return "\n".join(lines)
 
 

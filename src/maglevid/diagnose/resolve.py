@@ -61,6 +61,16 @@ coils* (:data:`maglevid.identify.planning.DEFAULT_SPLITS`; the information of
 independent excitations adds, ``I_v = a1^2 I_1 + a2^2 I_2 + I_e``) that needs the
 shortest record. The baseline's covariance is added unscaled:
 ``var(n) = 1 / (g^T (kappa I_v(n)^-1 + S_b + diag((eps v)^2))^-1 g)``.
+
+``eps`` at a planned level is the isolation's own term
+(:func:`~maglevid.diagnose.isolate.model_error_term`) of the excursion that
+record would have (the recording's, scaled by the design's prediction), so the
+advice promises the interval the diagnosis of the advised record will state.
+When no record within the limits resolves a cause, the advice says why: the
+model error at its smallest over the levels (and the baseline) leaves a
+half-width ``w`` wider than the one that decides it; it names the tolerances an
+interval of half-width ``w`` about the estimate would decide
+(``>= |c| + w`` or ``<= |c| - w``).
 """
 
 from __future__ import annotations
@@ -74,9 +84,18 @@ import numpy as np
 from scipy import special
 
 from maglevid.diagnose.compare import DEFAULT_TOLERANCE
-from maglevid.diagnose.isolate import MODEL_ERROR_FLOOR, FaultHypothesis, IsolationResult
+from maglevid.diagnose.isolate import (
+    MODEL_ERROR_FLOOR,
+    FaultHypothesis,
+    IsolationResult,
+    model_error_term,
+    relative_excursion,
+)
 from maglevid.diagnose.isolate import _std_error as isolate_std_error
 from maglevid.exceptions import DataError
+
+#: The longest record the plan searches [samples] (``smallest_satisfying`` up to 1e12).
+PLAN_MAX_SAMPLES = 1e12
 
 __all__ = [
     "Unresolved",
@@ -122,6 +141,12 @@ class Unresolved:
     #: The amplifiers' limit [V rms, the smaller input's] the scaling rule's
     #: "raise the excitation" must respect (None: not stated).
     amplifier_limit: float | None = None
+    #: From the Cramér-Rao plan: the 95 % half-width [%] that the model error
+    #: (at its floor, the smallest it gets at any level) and the baseline leave
+    #: however long the record (None: no plan).
+    model_error_percent: float | None = None
+    #: That smallest model error of each v_i [relative] (None: no plan).
+    model_error_min: float | None = None
 
     @property
     def target_percent(self) -> float:
@@ -203,13 +228,14 @@ class Unresolved:
         from maglevid.identify.planning import describe_excitation, format_seconds, spectrum_label
 
         parts = []
-        if math.isfinite(self.more_seconds):
+        if math.isfinite(self.more_seconds) and self.more_seconds > 0:
             parts.append(
                 f"record about {format_seconds(self.more_seconds)} more of the same excitation"
             )
         if self.excitation_rms is not None and math.isfinite(self.excitation_factor):
             parts.append(f"raise it to {self.excitation_rms:.3g} V rms at this length")
-        if self.plan_seconds is not None and math.isfinite(self.plan_seconds):
+        same = self.plan_excitation == self.excitation_rms  # "raise it" says it already
+        if self.plan_seconds is not None and math.isfinite(self.plan_seconds) and not same:
             parts.append(
                 f"{format_seconds(self.plan_seconds)} in all at {self.plan_excitation:.3g} V rms"
                 " (the best level within the amplifier and displacement limits)"
@@ -227,14 +253,37 @@ class Unresolved:
                 "it; re-record the baseline or widen the tolerance"
             )
         if not parts:
-            return (
-                "no record of this kind resolves it at any level within the limits "
-                "(the model error grows with the excitation; use a wider tolerance)"
-            )
+            return self._no_record_advice()
         out = ", or ".join(parts) + " (Cramér-Rao plan)"
         if self.baseline_percent is not None:
             out += f"; the baseline's own ±{self.baseline_percent:.2g} % is counted"
         return out
+
+    def _no_record_advice(self) -> str:
+        """Why no record within the limits resolves it, and which tolerance would be decided."""
+        w = self.model_error_percent
+        if w is None or self.estimate_percent is None:
+            return (
+                "no record of this kind resolves it at any level within the limits "
+                "(use a wider tolerance)"
+            )
+        c = abs(self.estimate_percent)
+        if w < self.target_percent:  # the floor leaves room: the record would be too long
+            return (
+                f"it needs more than {PLAN_MAX_SAMPLES:.0e} samples at every level within the "
+                "amplifier and displacement limits (use a wider tolerance)"
+            )
+        wider = f"a tolerance of at least ±{c + w:.3g} %"
+        if c - w > 0:
+            wider += f" (or at most ±{c - w:.3g} %)"
+        return (
+            f"the model error alone leaves ±{w:.2g} % however long the record and however "
+            f"low the level (the diagnosis's model error at its smallest, "
+            f"{100 * (self.model_error_min or 0):.2g} % of each v_i: max("
+            f"{100 * MODEL_ERROR_FLOOR:.2g} %, 2 e^2), e the loop's relative excursion), "
+            f"more than the ±{self.target_percent:.2g} % that decides it, so no record "
+            f"resolves it: {wider} would be decided"
+        )
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
@@ -389,6 +438,7 @@ def with_cramer_rao_plan(
     max_displacement: float | None = None,
     baseline_covariance: Any = None,
     splits: Any = None,
+    excursion: float | None = None,
 ) -> list[Unresolved]:
     """``unresolved`` with the advice of the Cramér-Rao plan (module notes).
 
@@ -411,6 +461,12 @@ def with_cramer_rao_plan(
     splits : sequence of float, optional
         Candidate shares of the excitation on input 1
         (default :data:`~maglevid.identify.planning.DEFAULT_SPLITS`).
+    excursion : float, optional
+        The recording's largest relative excursion
+        (:func:`~maglevid.diagnose.isolate.relative_excursion`); the model error
+        of a planned record is :func:`~maglevid.diagnose.isolate.model_error_term`
+        of it scaled by the design's excursion at the planned level. None: the
+        isolation's ``model_error`` stands in for it (equal above the floor).
     """
     from maglevid.identify import planning
 
@@ -421,7 +477,8 @@ def with_cramer_rao_plan(
     z = float(special.ndtri(0.5 + level / 2))
     singles = {h.parameters[0]: h for h in iso.singles if h.sensitivity}
     S_b = None if baseline_covariance is None else np.asarray(baseline_covariance, float)
-    grid = _ExcitationGrid(design, amp, disp, excitation_std, iso.model_error, splits, S_b)
+    e_now = iso.model_error if excursion is None else excursion
+    grid = _ExcitationGrid(design, amp, disp, excitation_std, e_now, splits, S_b)
     out = []
     for u in unresolved:
         h = singles.get(u.parameter) if len(u.hypothesis) <= 1 else None  # a pair: scaling rule
@@ -437,6 +494,9 @@ def with_cramer_rao_plan(
         other = best != present and need.seconds[best][0] < need.seconds[present][0]
         exc = need.excitation_for_length
         k = need.samples_now / n_samples
+        seconds, level = need.seconds[present]
+        if exc is not None and seconds <= n_samples * design.dt * (1 + 1e-9):
+            level = exc  # the shortest is this length: its level refined, one clause
         out.append(
             replace(
                 u,
@@ -446,12 +506,14 @@ def with_cramer_rao_plan(
                 excitation_factor=(math.inf if exc is None else exc / excitation_std)
                 if excitation_std > 0
                 else u.excitation_factor,
-                plan_seconds=need.seconds[present][0],
-                plan_excitation=need.seconds[present][1],
+                plan_seconds=seconds,
+                plan_excitation=level,
                 plan_spectrum=best[0] if other else None,
                 plan_seconds_spectrum=need.seconds[best][0] if other else None,
                 plan_excitation_spectrum=need.seconds[best][1] if other else None,
                 plan_share=best[1] if other else None,
+                model_error_percent=100 * z * need.floor_std,
+                model_error_min=need.eps_min,
             )
         )
     return out
@@ -463,16 +525,22 @@ class _Need:
     seconds: dict[tuple[str, float], tuple[float, float]]
     excitation_for_length: float | None  # present spectrum, present length [V rms]
     samples_now: float  # record length needed at the present excitation [samples]
+    floor_std: float  # what no record shrinks: model error at its smallest and baseline [relative]
+    eps_min: float  # the smallest model error of each v_i at any level [relative]
 
 
 class _ExcitationGrid:
     """Per-sample information and model error over excitation levels, spectra and splits.
 
-    The model error of the isolation (``iso.model_error``, relative to each
-    v_i) grows with the loop's excursion; it is scaled with the excursion the
-    design predicts at each level, never below the diagnosis's floor. A level
-    that raises the floor above the tolerance is not a way forward, so the
-    shortest record is sought over a grid of levels up to each candidate's
+    The model error of each v_i at a level is the measured law of the
+    linearisation's bias (:func:`maglevid.identify.planning.model_error_of_excursion`,
+    ``2 e^2`` of v_i, ``e`` the excursion the design predicts at that level),
+    never below the diagnosis's floor (:data:`~maglevid.diagnose.isolate.MODEL_ERROR_FLOOR`).
+    Not the isolation's own term of the present record (``max(floor, e)``): that
+    one is first order in ``e``, ~100x the measured bias at 1 V, and would promise
+    that a lower level helps where it does not (docs/diagnosis.md, "Model error").
+    A level that raises the bias above the tolerance is not a way forward, so
+    the shortest record is sought over a grid of levels up to each candidate's
     amplifier/displacement limit, not only at the limit.
     """
 
@@ -484,15 +552,14 @@ class _ExcitationGrid:
         amp: Any,
         disp: float,
         excitation_std: float,
-        model_error: float,
+        excursion: float,
         splits: tuple[float, ...],
         baseline_covariance: np.ndarray | None,
     ) -> None:
         self.design = design
-        self.floor = MODEL_ERROR_FLOOR
-        self.eps_now = max(model_error, MODEL_ERROR_FLOOR)
         self.exc_now = excitation_std
-        self.excursion_now = design.excursion(excitation_std)
+        self.excursion_now = excursion
+        self.excursion_design_now = design.excursion(excitation_std)
         self.S_b = np.zeros((9, 9)) if baseline_covariance is None else baseline_covariance
         self.v2 = np.square(np.asarray(design.v, float))
         # (spectrum, share) -> [(level, inverse information per sample, model error)]
@@ -512,8 +579,13 @@ class _ExcitationGrid:
         return np.linalg.pinv(info)
 
     def eps(self, a: float, spectrum: str | None = None, share: float = 0.5) -> float:
-        ratio = self.design.excursion(a, spectrum, share) / self.excursion_now
-        return max(self.floor, self.eps_now * ratio)
+        """The isolation's model error of each v_i for a record at level ``a``.
+
+        :func:`~maglevid.diagnose.isolate.model_error_term` of the excursion that
+        record would have: the recording's own, scaled by the design's prediction.
+        """
+        ratio = self.design.excursion(a, spectrum, share) / self.excursion_design_now
+        return model_error_term(self.excursion_now * ratio)
 
     def _var(self, g: np.ndarray, cov_n: np.ndarray, eps: float) -> float:
         """Variance of the log-factor under ``cov_n + S_b + diag((eps v)^2)``."""
@@ -548,12 +620,20 @@ class _ExcitationGrid:
 
         def samples(inv1: np.ndarray, eps: float) -> float:
             n = smallest_satisfying(
-                lambda ln: self._var(g, kappa * inv1 / 10**ln, eps) <= t2, 0.0, 12.0, xtol=1e-3
+                lambda ln: self._var(g, kappa * inv1 / 10**ln, eps) <= t2,
+                0.0,
+                math.log10(PLAN_MAX_SAMPLES),
+                xtol=1e-3,
             )
-            return math.inf if n is None else 10**n
+            return math.inf if n is None else 10**n  # PLAN_MAX_SAMPLES at most
 
+        # Never shorter than the recording: a level that would resolve it in fewer
+        # samples is proposed at the recording's length (the lowest such level wins
+        # the tie), since a shorter record may fail the quality checks and the fit.
         seconds = {
-            c: min((samples(inv1, eps) * self.design.dt, a) for a, inv1, eps in rows)
+            c: min(
+                (max(samples(inv1, eps), n_samples) * self.design.dt, a) for a, inv1, eps in rows
+            )
             for c, rows in self.levels.items()
         }
         now = samples(self._inverse(self.exc_now), self.eps(self.exc_now))
@@ -568,7 +648,9 @@ class _ExcitationGrid:
         if first is not None:
             lo = max([a for a in levels if a < first], default=0.0)
             first = smallest_satisfying(resolved_at, lo, first, xtol=1e-3 * first)
-        return _Need(seconds=seconds, excitation_for_length=first, samples_now=now)
+        eps_min = min([self.eps(0.0), *(e for rows in self.levels.values() for *_, e in rows)])
+        floor_std = f * math.sqrt(self._var(g, np.zeros((9, 9)), eps_min))
+        return _Need(seconds, first, now, floor_std, eps_min)
 
 
 def plan_unresolved(
@@ -605,6 +687,7 @@ def plan_unresolved(
             n_simulate=10_000,
         )
         exc = float(np.mean(np.std(np.asarray(data.r), axis=0)))
+        e_now = relative_excursion(data.y, design.gap, design.i0) if design.i0 else None
         planned = with_cramer_rao_plan(
             unresolved,
             iso,
@@ -615,6 +698,7 @@ def plan_unresolved(
             level=level,
             baseline_covariance=baseline_covariance,
             max_excitation_std=max_excitation_std,
+            excursion=e_now,
         )
     except (MaglevidError, ArithmeticError, np.linalg.LinAlgError) as exc:
         # The scaling rule's advice stays: its "raise the excitation" within the

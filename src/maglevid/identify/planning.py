@@ -100,6 +100,7 @@ __all__ = [
     "limit_share",
     "model_error_bias",
     "model_error_level",
+    "model_error_of_excursion",
     "noise_of_result",
     "plan_experiment",
     "plan_for_recording",
@@ -439,8 +440,26 @@ def model_error_bias(
     True
     """
     e = design.excursion(excitation_std, spectrum, share)
-    b_v = MODEL_ERROR_GAIN * e * e * np.abs(np.asarray(design.v, float))
+    b_v = model_error_of_excursion(e) * np.abs(np.asarray(design.v, float))
     return np.abs(_derived_jacobian(design)) @ b_v
+
+
+def model_error_of_excursion(excursion: float) -> float:
+    """The linearisation's relative model-error bias of each v_i: ``MODEL_ERROR_GAIN e^2``.
+
+    ``e`` is the loop's largest relative excursion (``max(std x / x0, std i_c / i0)``,
+    :meth:`DesignInformation.excursion` for a design, the recording's own for a
+    diagnosis). The one place the measured law is written (:data:`MODEL_ERROR_GAIN`);
+    the planner and the diagnosis's advice both read it here.
+
+    Examples
+    --------
+    >>> model_error_of_excursion(0.004)  # 1 V on the default bearing: 3.2e-5 of v_i
+    3.2e-05
+    """
+    if not (math.isfinite(excursion) and excursion >= 0):
+        raise DataError(f"`excursion` must be finite and >= 0; got {excursion!r}")
+    return MODEL_ERROR_GAIN * excursion * excursion
 
 
 def model_error_level(

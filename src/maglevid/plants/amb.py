@@ -35,6 +35,8 @@ from maglevid.diagnose.isolate import (
     IsolationResult,
     MeasuredOperatingPoint,
     isolate_fault,
+    model_error_term,
+    relative_excursion,
     v_with_sensor_gains,
 )
 from maglevid.diagnose.resolve import (
@@ -146,16 +148,15 @@ def measured_operating_point(data: ClosedLoopData) -> MeasuredOperatingPoint | N
 def estimate_model_error(data: ClosedLoopData, p: AMBParameters | None) -> float:
     """Relative model error of each identified v_i for this recording.
 
-    The linearisation of eq. (1) misses terms of second order in the
-    excursions: relative to v they are of the order of the largest relative
-    excursion ``max(std x / x0, std i1 / i0, std i2 / i0)`` (measured: noise-free
-    nonlinear records at 0.3-0.4 % excursion give v within 0.15 % of the
-    linearisation at the settled point). Never below :data:`MODEL_ERROR_FLOOR`.
+    :func:`~maglevid.diagnose.isolate.model_error_term` of the largest relative
+    excursion ``e = max(std x / x0, std i1 / i0, std i2 / i0)``: the measured bias
+    of the linear model on the nonlinear bearing, ``2 e^2`` of each v_i, never below
+    :data:`MODEL_ERROR_FLOOR` (the advice of an inconclusive verdict counts the same
+    term; until issue 13, h13diag, it was ``max(floor, e)``).
     """
     if p is None or data.y.shape[1] != 3:
         return MODEL_ERROR_FLOOR
-    sd = np.std(data.y, axis=0) / np.array([p.x0, p.i0, p.i0])
-    return float(max(MODEL_ERROR_FLOOR, np.max(sd)))
+    return model_error_term(relative_excursion(data.y, p.x0, p.i0))
 
 
 def _physical_model_errors(v: np.ndarray, eps: float, m: float, i0: float) -> dict[str, float]:
