@@ -856,6 +856,56 @@ def _gain_over_iv(s: dict[str, Any], rec: str) -> tuple[str, Any]:
     return text, all(gg >= nn for gg, nn, _ in gains)
 
 
+def ml_calibration(
+    *,
+    plant: str,
+    level: str,
+    n: int,
+    runs: range,
+    seed: int = 2026,
+    **fit_options: Any,
+) -> dict[str, Any]:
+    """ML alone on a point's records, against its whole stated covariance (a diagnostic).
+
+    The records are the bench's own (:func:`_record_seed` of ``seed`` and the
+    run numbers ``runs``: ``range(100)`` at seed 2026 is the plan's draw,
+    ``range(100, 300)`` fresh ones), simulated one at a time without twins and
+    fitted by ``fit_ml(record, **fit_options)`` only (``force_std=0.0`` or
+    ``noise_std="metadata"`` isolate the nuisance parameters' part). Per record:
+    ``z = (v - v_true) / se`` and the whitened error ``q = e^T C^-1 e``, ``C``
+    ML's stated covariance of v1..v9 (chi-square with 9 degrees of freedom if
+    the intervals are honest). Returned with ``chi2_over_dof`` (mean q / 9,
+    standard error ``sqrt(2 / (9 runs))``): a calibration statistic that uses
+    the parameters' correlations, far less noisy than the pooled coverage,
+    whose 9 parameters move together (docs/gosiewski.md, "ML's coverage at
+    linear 3x noise")."""
+    label = point_label(plant, level, n)
+    noise = tuple(float(s) * NOISE_LEVELS[level] for s in DEFAULT_NOISE_STD)
+    exc = point_excitation_std(plant, level, n)
+    z, q = [], []
+    for i in runs:
+        spec = {"label": label, "plant": plant, "n": int(n), "noise": noise, "seed": seed}
+        spec |= {"run": i, "excitation_std": exc}
+        d = _simulate(spec, _record_seed(spec))
+        res = fit_ml(d, **fit_options)
+        truth = _truth(d)
+        e = np.array([res.parameters[k] - truth[k] for k in V_NAMES])
+        C = np.asarray(res.covariance)[:9, :9]
+        z.append(e / np.sqrt(np.diag(C)))
+        q.append(float(e @ np.linalg.solve(C, e)))
+    za, qa = np.array(z), np.array(q)
+    return {
+        "label": label,
+        "runs": [runs.start, runs.stop],
+        "z": za.tolist(),
+        "q": qa.tolist(),
+        "rms_z": np.sqrt(np.mean(za**2, axis=0)).tolist(),
+        "coverage": float(np.mean(np.abs(za) <= 1.959964)),
+        "chi2_over_dof": float(np.mean(qa) / 9),
+        "chi2_over_dof_se": float(np.sqrt(2.0 / 9.0 / len(qa))),
+    }
+
+
 try:  # run_all's section registry (benchmarks/sections.py)
     from benchmarks.sections import Section
 except ImportError:  # pragma: no cover - run as a script without the package
