@@ -312,6 +312,20 @@ def _fit_record(spec: dict[str, Any], d: Any, twin: Any, sim_s: float) -> dict[s
     return out
 
 
+def whitened_error(res: Any, v_true: np.ndarray) -> float:
+    """``e^T C^-1 e`` of ML's v1..v9 error ``e`` under its stated covariance ``C``.
+
+    Chi-square with 9 degrees of freedom where the intervals are honest, so its
+    mean over a point's records / 9 is 1 within ``sqrt(2 / (9 records))``: a
+    check of the intervals that uses the parameters' correlations. The pooled
+    coverage the bench judges is much noisier than its binomial error suggests,
+    because the 9 parameters' errors move together (at linear 3x 1e6 its
+    Monte Carlo sd is ~0.01 at 100 records; docs/gosiewski.md, "ML's coverage
+    at linear 3x noise")."""
+    e = np.array([res.parameters[k] for k in V_NAMES]) - v_true
+    return float(e @ np.linalg.solve(np.asarray(res.covariance)[:9, :9], e))
+
+
 def _ml_extras(
     d: Any,
     res: Any,
@@ -328,6 +342,7 @@ def _ml_extras(
     }
     vi = np.array([row["est"][k] for k in V_NAMES])
     se = np.array([row["se"][k] for k in V_NAMES])
+    x["chi2"] = whitened_error(res, np.array([truth[k] for k in V_NAMES]))
     t0 = time.perf_counter()
     try:
         rt = fit_ml(d, start=np.array([truth[k] for k in V_NAMES]))
@@ -541,6 +556,10 @@ def summarise(records: list[dict[str, Any]], crb: dict[str, float]) -> dict[str,
             row["iterations_median"] = float(np.median([r["ML"]["iterations"] for r in ok]))
             row["restarted_from_nominal"] = int(sum(r["ML"].get("restarted", False) for r in ok))
             row["twin_failures"] = int(sum("twin_error" in r["ML"] for r in ok))
+            q = [r["ML"]["chi2"] for r in ok if "chi2" in r["ML"]]
+            if q:  # reported, not judged (whitened_error)
+                row["chi2_over_dof"] = float(np.mean(q) / 9)
+                row["chi2_over_dof_se"] = float(np.sqrt(2.0 / 9.0 / len(q)))
         summ[name] = row
     both = [r for r in records if "time" in r.get("ML", {}) and "time" in r.get("IV", {})]
     if both:
@@ -686,6 +705,12 @@ def markdown_section(results: dict[str, Any]) -> list[str]:
             )
             + "; "
             f"antithetic twins left out (failed or not converged): {ml.get('twin_failures', 0)}."
+            + (
+                " ML's intervals, whitened (reported, not judged): mean e^T C^-1 e / 9 = "
+                f"{ml['chi2_over_dof']:.3f} ± {ml['chi2_over_dof_se']:.3f} (1 if honest)."
+                if "chi2_over_dof" in ml
+                else ""
+            )
         )
         if "stages_median_s" in s:
             L += [
@@ -888,11 +913,10 @@ def ml_calibration(
         spec |= {"run": i, "excitation_std": exc}
         d = _simulate(spec, _record_seed(spec))
         res = fit_ml(d, **fit_options)
-        truth = _truth(d)
-        e = np.array([res.parameters[k] - truth[k] for k in V_NAMES])
-        C = np.asarray(res.covariance)[:9, :9]
-        z.append(e / np.sqrt(np.diag(C)))
-        q.append(float(e @ np.linalg.solve(C, e)))
+        truth = np.array([_truth(d)[k] for k in V_NAMES])
+        se = res.std_errors()
+        z.append([(res.parameters[k] - t) / se[k] for k, t in zip(V_NAMES, truth)])
+        q.append(whitened_error(res, truth))
     za, qa = np.array(z), np.array(q)
     return {
         "label": label,

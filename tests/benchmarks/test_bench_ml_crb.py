@@ -221,3 +221,23 @@ def test_map_until_runs_batches_in_order_within_the_budget():
     want = bench.records(specs)
     assert [r["IV"]["est"] for r in got] == [r["IV"]["est"] for r in want]
     assert bench._map_until(specs, workers=1, budget_s=0.0) == []
+
+
+def test_whitened_error_is_reported_per_point_and_not_judged():
+    """ML's mean e^T C^-1 e / 9 (bench_ml_crb.whitened_error, issue 13's coverage
+    miss) is the records' mean over 9 with standard error sqrt(2 / (9 n)), it is
+    printed under the point, and the verdicts are the same with or without it."""
+    label = bench.point_label("linear", "3x", 10_000)
+    recs = _records(100, seed=3)
+    plain = _judged(label, recs)
+    q = np.random.default_rng(4).chisquare(9, size=100)
+    for r, qi in zip(recs, q):
+        r["ML"]["chi2"] = float(qi)
+    s = bench.summarise(recs, {k: 1.0 for k in bench.REPORTED})
+    assert s["ML"]["chi2_over_dof"] == pytest.approx(q.mean() / 9)
+    assert s["ML"]["chi2_over_dof_se"] == pytest.approx(np.sqrt(2 / 900))
+    pt = {"summary": s, "planned": 100, "plant": "linear", "load": 1.0}
+    pt["timing"] = {"budget_s": 1.0, "wall_s": 1.0, "workers": 1}
+    md = "\n".join(bench.markdown_section({"points": {label: pt}}))
+    assert f"e^T C^-1 e / 9 = {q.mean() / 9:.3f}" in md
+    assert _judged(label, recs).verdicts == plain.verdicts
