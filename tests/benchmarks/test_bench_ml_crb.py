@@ -16,6 +16,7 @@ from benchmarks.judge import MET, NOT_MEASURED, NOT_MET, Judge
 from benchmarks import bench_ml_crb as bench
 from maglevid.identify.ml import fit_ml
 from maglevid.physics.amb import V_NAMES
+from maglevid.simulate.amb import DEFAULT_NOISE_STD
 
 
 def _spec(n=2000, noise=(1e-7, 1e-4, 1e-4)):
@@ -241,3 +242,23 @@ def test_whitened_error_is_reported_per_point_and_not_judged():
     md = "\n".join(bench.markdown_section({"points": {label: pt}}))
     assert f"e^T C^-1 e / 9 = {q.mean() / 9:.3f}" in md
     assert _judged(label, recs).verdicts == plain.verdicts
+
+
+def test_ml_calibration_refits_the_benchs_own_records():
+    """benchmarks.bench_ml_crb.ml_calibration (the diagnostic used for the miss):
+    its records are the bench's (same seed -> same record as ``_simulate`` of
+    the spec the bench builds), z is ML's error in its standard errors, and the
+    whitened error q = e^T C^-1 e bounds every z_i^2 (Cauchy-Schwarz: no single
+    standardised coordinate exceeds the Mahalanobis norm)."""
+    out = bench.ml_calibration(plant="linear", level="3x", n=10_000, runs=range(2))
+    z, q = np.array(out["z"]), np.array(out["q"])
+    assert z.shape == (2, 9) and q.shape == (2,)
+    assert np.all(q >= np.max(z**2, axis=1) * (1 - 1e-9))
+    assert out["chi2_over_dof"] == pytest.approx(q.mean() / 9)
+    spec = {"label": bench.point_label("linear", "3x", 10_000), "plant": "linear", "n": 10_000}
+    spec |= {"noise": tuple(3.0 * s for s in DEFAULT_NOISE_STD), "seed": 2026, "run": 1}
+    d = bench._simulate(spec | {"excitation_std": 1.0}, bench._record_seed(spec))
+    res = fit_ml(d)
+    se = res.std_errors()
+    zz = [(res.parameters[k] - d.metadata["truth_v"][j]) / se[k] for j, k in enumerate(V_NAMES)]
+    np.testing.assert_allclose(z[1], zz, rtol=1e-9, atol=1e-12)
