@@ -64,7 +64,12 @@ from typing import Any
 import numpy as np
 
 from maglevid.experiments._parallel import one_blas_thread, start_method
-from maglevid.identify.cramer_rao import NoiseModel, derived_parameters
+from maglevid.identify.cramer_rao import (
+    NoiseModel,
+    amb_linear_gaussian_model,
+    derived_parameters,
+    predictor_statistics,
+)
 from maglevid.identify.ml import fit_ml
 from maglevid.identify.physical import fit_physical, to_physical_coordinates
 from maglevid.identify.planning import design_information, model_error_level
@@ -881,6 +886,32 @@ def _gain_over_iv(s: dict[str, Any], rec: str) -> tuple[str, Any]:
     return text, all(gg >= nn for gg, nn, _ in gains)
 
 
+def score_statistic(data: Any, noise: tuple[float, ...]) -> float:
+    """Rao's score statistic of v1..v9 at the truth of a linear-plant record.
+
+    The gradient and Fisher matrix of eq. (1) at the true v and sensor noise
+    levels, force variance 0 (:func:`~maglevid.identify.cramer_rao.predictor_statistics`:
+    the time-domain recursion, independent of ML's frequency-domain code), the
+    nuisance parameters (log s, offsets, initial state) eliminated:
+    ``g_eff^T I_eff^-1 g_eff``. Chi-square(9) iff the scores' variance is the
+    Fisher matrix (the information-matrix equality, which makes the inverse
+    Fisher matrix the estimator's covariance); no fit is involved."""
+    model = amb_linear_gaussian_model(
+        np.asarray(data.metadata["truth_v"], dtype=float),
+        data.dt,
+        NoiseModel(noise),
+        m=data.loop["operating_point"]["m"],
+        estimate_noise=True,
+        estimate_force=False,
+    )
+    st = predictor_statistics(model, np.asarray(data.y, float), np.asarray(data.u, float))
+    g, info = st.gradient, st.fisher
+    v, nu = slice(0, 9), slice(9, None)
+    g_eff = g[v] - info[v, nu] @ np.linalg.solve(info[nu, nu], g[nu])
+    i_eff = info[v, v] - info[v, nu] @ np.linalg.solve(info[nu, nu], info[nu, v])
+    return float(g_eff @ np.linalg.solve(i_eff, g_eff))
+
+
 def ml_calibration(
     *,
     plant: str,
@@ -888,6 +919,7 @@ def ml_calibration(
     n: int,
     runs: range,
     seed: int = 2026,
+    score: bool = False,
     **fit_options: Any,
 ) -> dict[str, Any]:
     """ML alone on a point's records, against its whole stated covariance (a diagnostic).
@@ -903,11 +935,12 @@ def ml_calibration(
     standard error ``sqrt(2 / (9 runs))``): a calibration statistic that uses
     the parameters' correlations, far less noisy than the pooled coverage,
     whose 9 parameters move together (docs/gosiewski.md, "ML's coverage at
-    linear 3x noise")."""
+    linear 3x noise"). ``score``: also :func:`score_statistic` at the truth
+    (``score_q``, ``score_over_dof``; linear plant only), no fit involved."""
     label = point_label(plant, level, n)
     noise = tuple(float(s) * NOISE_LEVELS[level] for s in DEFAULT_NOISE_STD)
     exc = point_excitation_std(plant, level, n)
-    z, q = [], []
+    z, q, sq = [], [], []
     for i in runs:
         spec = {"label": label, "plant": plant, "n": int(n), "noise": noise, "seed": seed}
         spec |= {"run": i, "excitation_std": exc}
@@ -917,8 +950,11 @@ def ml_calibration(
         se = res.std_errors()
         z.append([(res.parameters[k] - t) / se[k] for k, t in zip(V_NAMES, truth)])
         q.append(whitened_error(res, truth))
+        if score:
+            sq.append(score_statistic(d, noise))
     za, qa = np.array(z), np.array(q)
-    return {
+    extra = {"score_q": sq, "score_over_dof": float(np.mean(sq) / 9)} if score else {}
+    return extra | {
         "label": label,
         "runs": [runs.start, runs.stop],
         "z": za.tolist(),
