@@ -64,7 +64,12 @@ from typing import Any
 import numpy as np
 
 from maglevid.experiments._parallel import one_blas_thread, start_method
-from maglevid.identify.cramer_rao import NoiseModel, derived_parameters
+from maglevid.identify.cramer_rao import (
+    NoiseModel,
+    amb_linear_gaussian_model,
+    derived_parameters,
+    predictor_statistics,
+)
 from maglevid.identify.ml import fit_ml
 from maglevid.identify.physical import fit_physical, to_physical_coordinates
 from maglevid.identify.planning import design_information, model_error_level
@@ -312,6 +317,20 @@ def _fit_record(spec: dict[str, Any], d: Any, twin: Any, sim_s: float) -> dict[s
     return out
 
 
+def whitened_error(res: Any, v_true: np.ndarray) -> float:
+    """``e^T C^-1 e`` of ML's v1..v9 error ``e`` under its stated covariance ``C``.
+
+    Chi-square with 9 degrees of freedom where the intervals are honest, so its
+    mean over a point's records / 9 is 1 within ``sqrt(2 / (9 records))``: a
+    check of the intervals that uses the parameters' correlations. The pooled
+    coverage the bench judges is much noisier than its binomial error suggests,
+    because the 9 parameters' errors move together (at linear 3x 1e6 its
+    Monte Carlo sd is ~0.01 at 100 records; docs/gosiewski.md, "ML's coverage
+    at linear 3x noise")."""
+    e = np.array([res.parameters[k] for k in V_NAMES]) - v_true
+    return float(e @ np.linalg.solve(np.asarray(res.covariance)[:9, :9], e))
+
+
 def _ml_extras(
     d: Any,
     res: Any,
@@ -328,6 +347,7 @@ def _ml_extras(
     }
     vi = np.array([row["est"][k] for k in V_NAMES])
     se = np.array([row["se"][k] for k in V_NAMES])
+    x["chi2"] = whitened_error(res, np.array([truth[k] for k in V_NAMES]))
     t0 = time.perf_counter()
     try:
         rt = fit_ml(d, start=np.array([truth[k] for k in V_NAMES]))
@@ -541,6 +561,10 @@ def summarise(records: list[dict[str, Any]], crb: dict[str, float]) -> dict[str,
             row["iterations_median"] = float(np.median([r["ML"]["iterations"] for r in ok]))
             row["restarted_from_nominal"] = int(sum(r["ML"].get("restarted", False) for r in ok))
             row["twin_failures"] = int(sum("twin_error" in r["ML"] for r in ok))
+            q = [r["ML"]["chi2"] for r in ok if "chi2" in r["ML"]]
+            if q:  # reported, not judged (whitened_error)
+                row["chi2_over_dof"] = float(np.mean(q) / 9)
+                row["chi2_over_dof_se"] = float(np.sqrt(2.0 / 9.0 / len(q)))
         summ[name] = row
     both = [r for r in records if "time" in r.get("ML", {}) and "time" in r.get("IV", {})]
     if both:
@@ -686,6 +710,12 @@ def markdown_section(results: dict[str, Any]) -> list[str]:
             )
             + "; "
             f"antithetic twins left out (failed or not converged): {ml.get('twin_failures', 0)}."
+            + (
+                " ML's intervals, whitened (reported, not judged): mean e^T C^-1 e / 9 = "
+                f"{ml['chi2_over_dof']:.3f} ± {ml['chi2_over_dof_se']:.3f} (1 if honest)."
+                if "chi2_over_dof" in ml
+                else ""
+            )
         )
         if "stages_median_s" in s:
             L += [
@@ -854,6 +884,86 @@ def _gain_over_iv(s: dict[str, Any], rec: str) -> tuple[str, Any]:
         f"{s['IV']['parameters'][k]['std_over_crb']:.1f} / 1.3)), {rec}"
     )
     return text, all(gg >= nn for gg, nn, _ in gains)
+
+
+def score_statistic(data: Any, noise: tuple[float, ...]) -> float:
+    """Rao's score statistic of v1..v9 at the truth of a linear-plant record.
+
+    The gradient and Fisher matrix of eq. (1) at the true v and sensor noise
+    levels, force variance 0 (:func:`~maglevid.identify.cramer_rao.predictor_statistics`:
+    the time-domain recursion, independent of ML's frequency-domain code), the
+    nuisance parameters (log s, offsets, initial state) eliminated:
+    ``g_eff^T I_eff^-1 g_eff``. Chi-square(9) iff the scores' variance is the
+    Fisher matrix (the information-matrix equality, which makes the inverse
+    Fisher matrix the estimator's covariance); no fit is involved."""
+    model = amb_linear_gaussian_model(
+        np.asarray(data.metadata["truth_v"], dtype=float),
+        data.dt,
+        NoiseModel(noise),
+        m=data.loop["operating_point"]["m"],
+        estimate_noise=True,
+        estimate_force=False,
+    )
+    st = predictor_statistics(model, np.asarray(data.y, float), np.asarray(data.u, float))
+    g, info = st.gradient, st.fisher
+    v, nu = slice(0, 9), slice(9, None)
+    g_eff = g[v] - info[v, nu] @ np.linalg.solve(info[nu, nu], g[nu])
+    i_eff = info[v, v] - info[v, nu] @ np.linalg.solve(info[nu, nu], info[nu, v])
+    return float(g_eff @ np.linalg.solve(i_eff, g_eff))
+
+
+def ml_calibration(
+    *,
+    plant: str,
+    level: str,
+    n: int,
+    runs: range,
+    seed: int = 2026,
+    score: bool = False,
+    **fit_options: Any,
+) -> dict[str, Any]:
+    """ML alone on a point's records, against its whole stated covariance (a diagnostic).
+
+    The records are the bench's own (:func:`_record_seed` of ``seed`` and the
+    run numbers ``runs``: ``range(100)`` at seed 2026 is the plan's draw,
+    ``range(100, 300)`` fresh ones), simulated one at a time without twins and
+    fitted by ``fit_ml(record, **fit_options)`` only (``force_std=0.0`` or
+    ``noise_std="metadata"`` isolate the nuisance parameters' part). Per record:
+    ``z = (v - v_true) / se`` and the whitened error ``q = e^T C^-1 e``, ``C``
+    ML's stated covariance of v1..v9 (chi-square with 9 degrees of freedom if
+    the intervals are honest). Returned with ``chi2_over_dof`` (mean q / 9,
+    standard error ``sqrt(2 / (9 runs))``): a calibration statistic that uses
+    the parameters' correlations, far less noisy than the pooled coverage,
+    whose 9 parameters move together (docs/gosiewski.md, "ML's coverage at
+    linear 3x noise"). ``score``: also :func:`score_statistic` at the truth
+    (``score_q``, ``score_over_dof``; linear plant only), no fit involved."""
+    label = point_label(plant, level, n)
+    noise = tuple(float(s) * NOISE_LEVELS[level] for s in DEFAULT_NOISE_STD)
+    exc = point_excitation_std(plant, level, n)
+    z, q, sq = [], [], []
+    for i in runs:
+        spec = {"label": label, "plant": plant, "n": int(n), "noise": noise, "seed": seed}
+        spec |= {"run": i, "excitation_std": exc}
+        d = _simulate(spec, _record_seed(spec))
+        res = fit_ml(d, **fit_options)
+        truth = np.array([_truth(d)[k] for k in V_NAMES])
+        se = res.std_errors()
+        z.append([(res.parameters[k] - t) / se[k] for k, t in zip(V_NAMES, truth)])
+        q.append(whitened_error(res, truth))
+        if score:
+            sq.append(score_statistic(d, noise))
+    za, qa = np.array(z), np.array(q)
+    extra = {"score_q": sq, "score_over_dof": float(np.mean(sq) / 9)} if score else {}
+    return extra | {
+        "label": label,
+        "runs": [runs.start, runs.stop],
+        "z": za.tolist(),
+        "q": qa.tolist(),
+        "rms_z": np.sqrt(np.mean(za**2, axis=0)).tolist(),
+        "coverage": float(np.mean(np.abs(za) <= 1.959964)),
+        "chi2_over_dof": float(np.mean(qa) / 9),
+        "chi2_over_dof_se": float(np.sqrt(2.0 / 9.0 / len(qa))),
+    }
 
 
 try:  # run_all's section registry (benchmarks/sections.py)
