@@ -102,8 +102,14 @@ def test_diagnosis_frame(diagnosis):
     df = diagnosis.to_dataframe()
     assert df.loc["R1", "status"] == "changed"
     assert df.loc["R1", "unit"] == "Ω"
-    # R1 +20 % simulated: the interval of the change covers it.
-    assert df.loc["R1", "ci_low_percent"] < 20 < df.loc["R1", "ci_high_percent"]
+    # R1 +20 % simulated: the change is within 3 of its standard errors (the 95 %
+    # interval's half-width / 1.96). Not "inside the 95 % interval": one record misses
+    # that 1 time in 20 when the interval is honest, and this one (seed 1) is a
+    # 2.06-standard-error draw since the model-error term is the measured 2 e^2
+    # (issue 13; it was e). Measured on seeds 1-30 of this fixture: rms z of R1 1.03,
+    # 1 of 30 beyond 1.96 (the README's quiet sensors, nonlinear plant).
+    lo, hi = df.loc["R1", "ci_low_percent"], df.loc["R1", "ci_high_percent"]
+    assert abs((lo + hi) / 2 - 20) <= 3 * (hi - lo) / 2 / 1.959964
     assert set(df.index) == {c.name for c in diagnosis.changes}
 
 
