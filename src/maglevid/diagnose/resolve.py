@@ -447,7 +447,7 @@ def with_cramer_rao_plan(
     unresolved : list of Unresolved
         From :func:`unresolved_parameters`.
     iso : IsolationResult
-        The isolation they come from (its single-cause sensitivities and model error).
+        The isolation they come from (its single-cause sensitivities).
     design : maglevid.identify.planning.DesignInformation
         The loop around the estimated bearing
         (:func:`maglevid.identify.planning.design_for_recording`).
@@ -466,7 +466,7 @@ def with_cramer_rao_plan(
         (:func:`~maglevid.diagnose.isolate.relative_excursion`); the model error
         of a planned record is :func:`~maglevid.diagnose.isolate.model_error_term`
         of it scaled by the design's excursion at the planned level. None: the
-        isolation's ``model_error`` stands in for it (equal above the floor).
+        design's predicted excursion at ``excitation_std``.
     """
     from maglevid.identify import planning
 
@@ -477,7 +477,7 @@ def with_cramer_rao_plan(
     z = float(special.ndtri(0.5 + level / 2))
     singles = {h.parameters[0]: h for h in iso.singles if h.sensitivity}
     S_b = None if baseline_covariance is None else np.asarray(baseline_covariance, float)
-    e_now = iso.model_error if excursion is None else excursion
+    e_now = design.excursion(excitation_std) if excursion is None else excursion
     grid = _ExcitationGrid(design, amp, disp, excitation_std, e_now, splits, S_b)
     out = []
     for u in unresolved:
@@ -535,13 +535,13 @@ class _ExcitationGrid:
     The model error of each v_i at a level is the measured law of the
     linearisation's bias (:func:`maglevid.identify.planning.model_error_of_excursion`,
     ``2 e^2`` of v_i, ``e`` the excursion the design predicts at that level),
-    never below the diagnosis's floor (:data:`~maglevid.diagnose.isolate.MODEL_ERROR_FLOOR`).
-    Not the isolation's own term of the present record (``max(floor, e)``): that
-    one is first order in ``e``, ~100x the measured bias at 1 V, and would promise
-    that a lower level helps where it does not (docs/diagnosis.md, "Model error").
-    A level that raises the bias above the tolerance is not a way forward, so
-    the shortest record is sought over a grid of levels up to each candidate's
-    amplifier/displacement limit, not only at the limit.
+    never below the diagnosis's floor (:data:`~maglevid.diagnose.isolate.MODEL_ERROR_FLOOR`):
+    :func:`~maglevid.diagnose.isolate.model_error_term`, the same term the
+    isolation counts, so the advice promises the interval the advised record's
+    diagnosis states (docs/diagnosis.md, "Model error"). A level that raises the
+    bias above the tolerance is not a way forward, so the shortest record is
+    sought over a grid of levels up to each candidate's amplifier/displacement
+    limit, not only at the limit.
     """
 
     N_LEVELS = 24
