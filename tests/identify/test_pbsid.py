@@ -11,7 +11,6 @@ the case where open-loop subspace (MOESP) is biased.
 from __future__ import annotations
 
 import dataclasses
-import functools
 import json
 
 import numpy as np
@@ -451,26 +450,27 @@ def test_split_lag_pass_equals_the_interleaved_one(bearing, monkeypatch):
 def test_structured_jacobian_equals_central_differences(monkeypatch):
     # The Gauss-Newton Jacobian of (P11) with the start-state term (P14) is analytic:
     # d(Abar^P) by the block-triangular power, d(Gamma_k^+) by the pseudo-inverse's
-    # derivative, the ZOH's by Van Loan's block exponential. Reference: central
-    # differences of the residual, steps scaled to each column (truncation ~h^2,
-    # measured 1e-7-6e-7 relative on this record). The forward differences of 6769610
-    # (step 1e-7 on K entries of ~1e-7) were 0.7 % - 3000x off in the K columns here
-    # (measured), and Gauss-Newton crawled (40 steps at N = 1e5).
+    # derivative, the ZOH's by Van Loan's block exponential. The whitened residual is
+    # linear in the predictor's blocks V (J = -W^{1/2} dV Fz), so dV is what is
+    # checked. Reference: central differences of V, steps scaled to each column
+    # (truncation ~h^2, measured 1e-7-6e-7 relative on this record). The forward
+    # differences of 6769610 (step 1e-7 on K entries of ~1e-7) were 0.7 % - 3000x off
+    # in the K columns here (measured), and Gauss-Newton crawled (40 steps at N = 1e5).
     from maglevid.identify import _structured as S
 
     seen = {}
 
-    def spy(residual, theta, j, max_iter):
-        R, J = residual(theta, True)
-        d = np.linalg.norm(J, axis=0)
-        Jc = np.empty_like(J)
-        for i in range(theta.size):
-            e = np.zeros_like(theta)
-            e[i] = 1e-5 * np.linalg.norm(R) / d[i]
-            dR = residual(theta + e, False)[0] - residual(theta - e, False)[0]
-            Jc[:, i] = dR.ravel() / (2 * e[i])
-        seen.setdefault("err", np.linalg.norm(J - Jc, axis=0) / np.linalg.norm(Jc, axis=0))
-        return theta, R, 0
+    def spy(crit, p, W, j, max_iter):
+        dV = p.dV.reshape(p.theta.size, -1)
+        d = np.linalg.norm(dV, axis=1)
+        err = np.empty(p.theta.size)
+        for i in range(p.theta.size):
+            e = np.zeros_like(p.theta)
+            e[i] = 1e-5 * np.linalg.norm(p.V) / d[i]
+            dc = (crit.markov(p.theta + e) - crit.markov(p.theta - e)).ravel() / (2 * e[i])
+            err[i] = np.linalg.norm(dV[i] - dc) / np.linalg.norm(dc)
+        seen.setdefault("err", err)
+        return p, 0
 
     monkeypatch.setattr(S, "_gauss_newton", spy)
     # the bench's paper-like record at N = 1e4 (noise 1e-10 m, 3e-6 A; R1, kw1 +20 %):
@@ -492,24 +492,6 @@ def test_structured_jacobian_equals_central_differences(monkeypatch):
 
 
 # --------------------------------------------- the structured fit's time (sixth session)
-def test_factor_extension_equals_the_whole_factor(bearing):
-    # Reference: LAPACK's dpotrf of the whole (well conditioned) Gram. The Cholesky
-    # factor is unique, so the block extension of its leading rows' factor must equal
-    # it to rounding (measured ~1e-15 of the largest entry; asserted 1e-12).
-    from maglevid.identify import pbsid as P
-
-    acc = P._LagGram(5, 60)
-    acc.update(np.concatenate([bearing.u, bearing.y], axis=1))
-    st = functools.partial(P._window_stats, acc, 2, 3, 61, np.zeros(5), True)
-    whole = st().F
-    for k1 in (1, 21, 60):
-        ext = st(61, st(k1).F).F
-        assert not np.any(np.triu(ext, 1))
-        np.testing.assert_allclose(ext, whole, rtol=0, atol=1e-12 * np.abs(whole).max())
-    lead = st(30).F  # the leading rows alone: the whole factor's leading block
-    np.testing.assert_allclose(lead, whole[:150, :150], rtol=0, atol=1e-12 * np.abs(whole).max())
-
-
 def _assert_same_optimum(new, old, se_tol: float, steps: str) -> None:
     """v1..v9 within ``se_tol`` standard errors of ``old``'s, the standard errors to
     ``se_tol`` relative; Gauss-Newton steps ``"equal"``, ``"no more"`` or ``"any"``."""
@@ -524,21 +506,28 @@ def _assert_same_optimum(new, old, se_tol: float, steps: str) -> None:
 
 
 @pytest.mark.parametrize("fit", [fit_pbsid, fit_ssarx])
-def test_structured_fit_on_its_leading_rows_equals_the_whole_factor(bearing, fit, monkeypatch):
-    # Reference: ab22305's data stage, one factor of every lag kept (the (P16) window
-    # read off its leading rows), forced here by ignoring `blocks`. The sixth
-    # session factors the VARX's rows, then extends them to the window (P16) only:
-    # the same Gram rows, so the same optimum to rounding (measured <= 5e-7 of a
-    # standard error on the bench records; asserted 1e-5).
+def test_structured_fit_through_the_gram_operator_equals_the_dense_gram(bearing, fit, monkeypatch):
+    # Reference: the data stage's own factor F of the window's Gram (its Cholesky, as
+    # the sixth session's fit read it), products X (F F^T) formed densely. The seventh
+    # session reads the Gram only through FFT products (P18), equal to rounding
+    # (test_gram_operator.py), and evaluates cost differences instead of costs: the
+    # same optimum (measured <= 1e-6 of a standard error on the bench records at 1e4;
+    # asserted 1e-4), the same number of Gauss-Newton steps.
     from maglevid.identify import pbsid as P
 
     kw = dict(order=4, dt=bearing.dt, coordinates="physical")
     new = fit(bearing.y, bearing.u, **kw)
-    # the window (P16) is shorter than the lags kept: the leading rows' route is taken
-    assert new.extras["structure_lags"] < P._structure_cap(bearing.n_samples)
-    whole = P._window_stats
-    monkeypatch.setattr(P, "_window_stats", lambda *a, **k: whole(*a[:6]))
-    _assert_same_optimum(new, fit(bearing.y, bearing.u, **kw), 1e-5, "equal")
+
+    class Dense:
+        def __init__(self, wg, k):
+            st = P._window_stats(wg.acc, 2, 3, wg.w, np.zeros(5), wg.center, k)
+            self.G, self.k, self.j = st.F @ st.F.T, k, st.j
+
+        def __call__(self, X):
+            return X @ self.G
+
+    monkeypatch.setattr(P._WindowGram, "__call__", lambda wg, k: Dense(wg, k))
+    _assert_same_optimum(new, fit(bearing.y, bearing.u, **kw), 1e-4, "equal")
 
 
 @pytest.mark.parametrize("fit", [fit_pbsid, fit_ssarx])
@@ -577,17 +566,19 @@ def test_structured_fit_with_fft_lag_products_equals_the_direct_sums(bearing, fi
 def test_secant_update_meets_the_secant_equation():
     # Reference: Dennis, Gay & Welsch (1981), NL2SOL: the updated S is symmetric and
     # maps the step to y# = (J1 - J0)^T r1 exactly (the secant equation; algebra).
+    # The fit passes the products g = J^T R of both points and J0^T R1.
     from maglevid.identify._structured import _dgw
 
     rng = np.random.default_rng(3)
     J0, R0 = rng.standard_normal((40, 6)), rng.standard_normal((4, 10))
     J1, R1 = J0 + 0.1 * rng.standard_normal((40, 6)), R0 + 0.1 * rng.standard_normal((4, 10))
-    s = np.linalg.lstsq(J0, -R0.ravel(), rcond=None)[0]
+    r0, r1 = R0.ravel(), R1.ravel()
+    s = np.linalg.lstsq(J0, -r0, rcond=None)[0]
     S = None
     for _ in range(2):  # from 0, then from the first update (sized)
-        S = _dgw(S, s, J0, R0, J1, R1)
+        S = _dgw(S, s, J0.T @ r0, J1.T @ r1, J0.T @ r1)
         np.testing.assert_allclose(S, S.T, atol=1e-12)
-        np.testing.assert_allclose(S @ s, (J1 - J0).T @ R1.ravel(), rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(S @ s, (J1 - J0).T @ r1, rtol=1e-9, atol=1e-12)
 
 
 @pytest.mark.parametrize("fit", [fit_pbsid, fit_ssarx])

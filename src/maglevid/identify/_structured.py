@@ -15,8 +15,8 @@ over the Hankel rows (P11)::
 
     J(theta) = tr( W (Y - V(theta) Z_P) (Y - V(theta) Z_P)^T ) / j,  W = Re^{-1}
 
-which needs only the Gram matrix of the window (the factor ``F`` the data stage
-already holds): it is the VARX's least-squares criterion with the 21
+which needs only products with the Gram matrix of the window, taken by FFT
+without forming it (``_gram_operator``, (P18)): it is the VARX's least-squares criterion with the 21
 structured parameters in place of ``P (nu + ny) ny`` free ones, i.e. a
 weighted least-squares fit of the structured Markov parameters to the VARX's,
 with the VARX's own covariance ``(Z_P Z_P^T)^{-1} (x) Re`` as weight (P12).
@@ -28,8 +28,9 @@ the window's start is not left at 0: ``C Abar^P x_hat(t-P)`` is added, with
 ``x_hat`` the plant's least-squares state from the window's first
 ``START_SAMPLES`` samples (P14) -- on a high-SNR record the truncation term
 otherwise dominates the residual (the bearing's ``Abar`` has a pole at ~0.98).
-Levenberg-Marquardt with Marquardt's scaling; the start is the transform's
-estimate. Memory and time do not depend on ``N``.
+Gauss-Newton on the normal equations, Levenberg-Marquardt damping, cost
+differences evaluated without cancellation (:meth:`_Criterion.delta`); the start
+is the transform's estimate. Memory and time do not depend on ``N``.
 """
 
 from __future__ import annotations
@@ -233,9 +234,119 @@ def _power_derivative(Abar: np.ndarray, dAbar: np.ndarray, P: int) -> np.ndarray
     return np.linalg.matrix_power(T, P)[:, :n, n:]
 
 
+@dataclass(frozen=True)
+class _Point:
+    """The criterion's W-free parts at one ``theta`` (scaled units): what a new weighting,
+    the normal equations and the secant term read, without another product with ``G``."""
+
+    theta: np.ndarray
+    V: np.ndarray  # (3, 5P): the predictor's blocks, the start term (P14) included
+    dV: np.ndarray  # (n_th, 3, 5P): their derivatives
+    XGz: np.ndarray  # (3, 5P): ([-V, I] G)'s z columns, i.e. (Fz E^T)^T
+    Re: np.ndarray  # (3, 3): [-V, I] G [-V, I]^T, the prediction errors' covariance
+    Q: np.ndarray  # (n_th, 3, 5P): dV Gzz
+
+
+class _Criterion:
+    """(P11) through products with the window's Gram (P18): values, normal equations, steps.
+
+    ``gram(X)`` is ``X G`` for the scaled, normalised Gram of the window's ``P + 1``
+    samples (``_gram_operator.GramOperator``); the columns of sample ``P`` are
+    ``[u(P), y(P)]``, the predicted output's the last three.
+    """
+
+    def __init__(self, gram, v0, dt, su, sy, k0):  # type: ignore[no-untyped-def]
+        self.gram, self.v0, self.dt, self.su, self.sy = gram, v0, dt, su, sy
+        self.P = gram.k - 1
+        self.Cs = C_AMB / sy[:, None]
+        self.k0 = min(k0, self.P)
+
+    def _start_term(self, th: np.ndarray) -> np.ndarray:  # C Abar^P x_hat(t-P), (P14)
+        Ad, Bd = _plant(self.v0 * (1.0 + th[:9]), self.dt)
+        Abar = Ad - th[9:].reshape(4, 3) @ self.Cs
+        M = _state_map(Ad, Bd * self.su[None, :], self.Cs, self.k0)
+        return self.Cs @ np.linalg.matrix_power(Abar, self.P) @ M
+
+    def _start_derivative(self, th, Abar, dAbar, dBtil):  # type: ignore[no-untyped-def]
+        # d(Cs Abar^P M) = Cs d(Abar^P) M + Cs Abar^P dM; M depends on v only
+        Ad, Bd = _plant(self.v0 * (1.0 + th[:9]), self.dt)
+        Bs = Bd * self.su[None, :]
+        M, dM = _state_map(Ad, Bs, self.Cs, self.k0, dAbar[:9], dBtil[:9, :, :2])
+        out = self.Cs @ _power_derivative(Abar, dAbar, self.P) @ M
+        out[:9] += self.Cs @ np.linalg.matrix_power(Abar, self.P) @ dM
+        return out
+
+    def markov(self, th: np.ndarray) -> np.ndarray:
+        """``V(theta)`` (3, 5P), no derivatives (the trial steps)."""
+        Ad, Bd = _plant(self.v0 * (1.0 + th[:9]), self.dt)
+        Ks = th[9:].reshape(4, 3)
+        M = _markov(Ad - Ks @ self.Cs, np.concatenate([Bd * self.su[None, :], Ks], axis=1), self.P)
+        V = np.einsum("ij,kjm->ikm", self.Cs, M[::-1]).reshape(3, -1)
+        if self.k0:
+            V[:, : 5 * self.k0] += self._start_term(th)
+        return V
+
+    def point(self, th: np.ndarray) -> _Point:
+        """``V``, ``dV`` and their products with ``G``: one operator call of 66 rows."""
+        Abar, Btil, dAbar, dBtil, Cs, *_ = _model(th, self.v0, self.dt, self.sy, self.su)
+        V, dV = _predictor_blocks(Abar, Btil, dAbar, dBtil, Cs, self.P)
+        if self.k0:  # the start term and its derivative, analytic (a 3 x 5 k0 block each)
+            V[:, : 5 * self.k0] += self._start_term(th)
+            dV[:, :, : 5 * self.k0] += self._start_derivative(th, Abar, dAbar, dBtil)
+        n_th, c = th.size, 5 * self.P
+        rows = np.zeros((3 + 3 * n_th, c + 5))
+        rows[:3, :c] = -V
+        rows[:3, c + 2 :] = np.eye(3)
+        rows[3:, :c] = dV.reshape(-1, c)
+        XG = self.gram(rows)
+        Re = XG[:3] @ rows[:3].T
+        return _Point(th, V, dV, XG[:3, :c], 0.5 * (Re + Re.T), XG[3:, :c].reshape(n_th, 3, c))
+
+    def delta(self, p: _Point, th: np.ndarray, W: np.ndarray) -> float:
+        """``J(theta) - J(p.theta)`` under ``W``, cancellation-free.
+
+        With ``X = [-V, I]`` and ``dX = X(theta) - X(p)``: ``2 tr(W dX G X_p^T) +
+        tr(W dX G dX^T)`` -- the first term from ``p``'s product (whose true size is
+        that of the prediction errors), the second a quadratic form in the small
+        ``dV``; ``J`` itself (``tr(W X G X^T)``) would lose the ratio of the signal's
+        to the errors' energy (~1e6 on a high-SNR record) to rounding.
+        """
+        dV = self.markov(th) - p.V
+        rows = np.zeros((3, dV.shape[1] + 5))
+        rows[:, : dV.shape[1]] = dV
+        dG = self.gram(rows)[:, : dV.shape[1]]
+        WdV = W @ dV
+        return float(np.sum(WdV * (dG - 2.0 * p.XGz)))
+
+
+def _normal(p: _Point, W: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(J^T J, J^T R)`` of the whitened residual ``R = W^{1/2} (Fy - V Fz)`` at ``p``:
+    ``tr(W dV_i Gzz dV_k^T)`` and ``-tr(W dV_i (Fz E^T))``."""
+    WdV = np.einsum("ab,ibk->iak", W, p.dV).reshape(p.dV.shape[0], -1)
+    H = WdV @ p.Q.reshape(p.Q.shape[0], -1).T
+    return 0.5 * (H + H.T), -WdV @ p.XGz.ravel()
+
+
+def _cross(p0: _Point, p1: _Point, W: np.ndarray) -> np.ndarray:
+    """``J_0^T R_1``: the old point's Jacobian against the new residual (the secant term)."""
+    WdV = np.einsum("ab,ibk->iak", W, p0.dV).reshape(p0.dV.shape[0], -1)
+    return -WdV @ p1.XGz.ravel()
+
+
+def _weight(Re: np.ndarray) -> np.ndarray:
+    """``W = (Re + floor I)^{-1}``; a noise-free record's ``Re`` (rounding, maybe slightly
+    indefinite through ``G``) has its eigenvalues floored instead."""
+    Re = Re + _RE_FLOOR * np.eye(3)
+    try:
+        sla.cholesky(Re, lower=True)
+    except np.linalg.LinAlgError:
+        lam, U = np.linalg.eigh(Re)
+        Re = (U * np.maximum(lam, _RE_FLOOR)) @ U.T
+    return np.linalg.inv(Re)
+
+
 def fit_bearing_structure(
-    Fy: np.ndarray,
-    Fz: np.ndarray,
+    gram,  # type: ignore[no-untyped-def]
     *,
     v0: np.ndarray,
     K0: np.ndarray,
@@ -245,94 +356,31 @@ def fit_bearing_structure(
     max_iter: int = _MAX_ITER,
     initial_state: int = START_SAMPLES,
 ) -> StructuredFit:
-    """Weighted least-squares fit of v1..v9 and ``K`` to the window's Gram factor (P11)-(P13).
+    """Weighted least-squares fit of v1..v9 and ``K`` to the window's Gram (P11)-(P13), (P18).
 
-    ``Fy`` (ny, r) are the factor's rows of ``y(t)``, ``Fz`` (P m, r) those of
-    ``z(t-P..t-1)`` (oldest first), in the data stage's channel-scaled units
-    (``scale`` the ``[u, y]`` RMS); ``v0``, ``K0`` the start in physical units.
-    ``initial_state``: samples the window-start state is rebuilt from (P14), 0
-    to leave it at zero (the long windows of (P16)).
+    ``gram``: ``X -> X G`` for the Gram of the window's ``P + 1`` samples
+    ``z(t-P..t-1), [u(t), y(t)]`` (oldest first), in the data stage's channel-scaled,
+    normalised units (``scale`` the ``[u, y]`` RMS; ``gram.k = P + 1``); ``v0``, ``K0``
+    the start in physical units. ``initial_state``: samples the window-start state is
+    rebuilt from (P14), 0 to leave it at zero (the long windows of (P16)).
     """
     su, sy = scale[:2], scale[2:]
-    P = Fz.shape[0] // 5
-    Fz, Fy = _trim(Fz, Fy)
     theta = np.concatenate([np.zeros(9), (K0 * sy[None, :]).ravel()])
-    Cs = C_AMB / sy[:, None]
-    k0 = min(initial_state, P)
-
-    def start_term(th: np.ndarray) -> np.ndarray:  # C Abar^P x_hat(t-P), (P14)
-        Ad, Bd = _plant(v0 * (1.0 + th[:9]), dt)
-        Abar = Ad - th[9:].reshape(4, 3) @ Cs
-        return Cs @ np.linalg.matrix_power(Abar, P) @ _state_map(Ad, Bd * su[None, :], Cs, k0)
-
-    def start_derivative(th, Abar, dAbar, dBtil):  # type: ignore[no-untyped-def]
-        # d(Cs Abar^P M) = Cs d(Abar^P) M + Cs Abar^P dM; M depends on v only
-        Ad, Bd = _plant(v0 * (1.0 + th[:9]), dt)
-        M, dM = _state_map(Ad, Bd * su[None, :], Cs, k0, dAbar[:9], dBtil[:9, :, :2])
-        out = Cs @ _power_derivative(Abar, dAbar, P) @ M
-        out[:9] += Cs @ np.linalg.matrix_power(Abar, P) @ dM
-        return out
-
-    # The Jacobian's W-free part at the last point: each weighting round (P13) and the
-    # covariance (P15) start where the last round ended, with a new W only (J is
-    # linear in W^{1/2}): two of ~13 Jacobians, the same numbers bitwise.
-    last: dict[str, object] = {}
-
-    def residual(th: np.ndarray, jac: bool, W12: np.ndarray):  # type: ignore[no-untyped-def]
-        if not jac:  # the trial steps: no derivatives (9 Frechet derivatives, P Markov steps)
-            Ad, Bd = _plant(v0 * (1.0 + th[:9]), dt)
-            Ks = th[9:].reshape(4, 3)
-            M = _markov(Ad - Ks @ Cs, np.concatenate([Bd * su[None, :], Ks], axis=1), P)
-            V = np.einsum("ij,kjm->ikm", Cs, M[::-1]).reshape(Cs.shape[0], -1)
-            if k0:
-                V[:, : 5 * k0] += start_term(th)
-            return W12 @ (Fy - V @ Fz), None
-        key = th.tobytes()
-        if last.get("key") != key:  # the same point again (a new W): W-free parts kept
-            Abar, Btil, dAbar, dBtil, Cs_, *_ = _model(th, v0, dt, sy, su)
-            V, dV = _predictor_blocks(Abar, Btil, dAbar, dBtil, Cs_, P)
-            if k0:
-                V[:, : 5 * k0] += start_term(th)
-            if k0:  # the start term's derivative, analytic (a 3 x 5 k0 block per parameter)
-                dV[:, :, : 5 * k0] += start_derivative(th, Abar, dAbar, dBtil)
-            # one GEMM of all 3 n_th rows (a stack of 3-row products ran at GEMV speed)
-            dVF = (dV.reshape(-1, dV.shape[2]) @ Fz).reshape(th.size, 3, -1)
-            last.update(key=key, E=Fy - V @ Fz, dVF=dVF)
-        R = W12 @ last["E"]
-        J = -np.einsum("ij,pjk->pik", W12, last["dVF"]).reshape(th.size, -1).T
-        return R, J
-
-    E, _ = residual(theta, False, np.eye(3))  # prediction errors of the start (scaled)
+    crit = _Criterion(gram, v0, dt, su, sy, initial_state)
+    # (P13): W from the start's prediction errors, fit, W again, refit; each round
+    # starts where the last one ended (its W-free parts reused: one Jacobian fewer)
+    p = crit.point(theta)
     iterations = 0
-    for _ in range(2):  # (P13): W from the prediction errors, fit, W again, refit
-        # unit-RMS channels: the floor keeps W finite on noise-free records
-        Re = E @ E.T + _RE_FLOOR * np.eye(3)
-        W12 = np.linalg.inv(sla.cholesky(Re, lower=True))
-        weighted = functools.partial(residual, W12=W12)
-        theta, R, it = _gauss_newton(weighted, theta, j, max_iter)
+    for _ in range(2):
+        p, it = _gauss_newton(crit, p, _weight(p.Re), j, max_iter)
         iterations += it
-        E = np.linalg.solve(W12, R)  # unweighted again
-    _, _, _, _, _, v, Ad, Bd, Ks = _model(theta, v0, dt, sy, su)
-    Re = (E @ E.T) * np.outer(sy, sy)
-    cov = _covariance(residual, theta, E, j) * np.outer(v0, v0)
-    return StructuredFit(v, Ks / sy[None, :], Ad, Bd, 0.5 * (Re + Re.T), iterations, k0, cov)
+    _, _, _, _, _, v, Ad, Bd, Ks = _model(p.theta, v0, dt, sy, su)
+    Re = p.Re * np.outer(sy, sy)
+    cov = _covariance(p, j) * np.outer(v0, v0)
+    return StructuredFit(v, Ks / sy[None, :], Ad, Bd, Re, iterations, crit.k0, cov)
 
 
-def _trim(Fz: np.ndarray, Fy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``Fz``, ``Fy`` without the columns where both are zero (contiguous copies).
-
-    The data stage's Cholesky factor is lower triangular: the rows of the window
-    ``z(t-P..t-1), y(t)`` live in its first ``5 P + 5`` columns, and the fit (P11)
-    depends on the columns only through ``F F^T``. The Jacobian's product is
-    ``O(P m r)`` per parameter: on the (P16) window the factor has ``r`` up to 1.4x
-    ``5 P`` columns (the lags kept, not the window chosen).
-    """
-    nz = np.flatnonzero(np.any(Fz != 0.0, axis=0) | np.any(Fy != 0.0, axis=0))
-    c = int(nz[-1]) + 1 if nz.size else 0
-    return np.ascontiguousarray(Fz[:, :c]), np.ascontiguousarray(Fy[:, :c])
-
-
-def _covariance(residual, theta: np.ndarray, E: np.ndarray, j: int) -> np.ndarray:  # type: ignore[no-untyped-def]
+def _covariance(p: _Point, j: int) -> np.ndarray:
     """``cov(dv/v0)`` (9, 9), (P15): ``(J^T J)^{-1} / j`` with ``W = Re^{-1}`` at the optimum.
 
     (P11) is the weighted least-squares fit (P12) of the structured Markov
@@ -340,109 +388,109 @@ def _covariance(residual, theta: np.ndarray, E: np.ndarray, j: int) -> np.ndarra
     ``Sigma_varx^{-1} = j (G (x) Re^{-1})``: the sandwich
     ``(J' W J)^{-1} J' W Sigma W J (J' W J)^{-1}`` collapses to
     ``(J' Sigma^{-1} J)^{-1}``, here ``(J^T J)^{-1} / j`` with ``J`` the
-    Jacobian of the whitened residual of the normalised factor, ``W``
-    re-estimated at the optimum.
+    Jacobian of the whitened residual of the normalised Gram, ``W``
+    re-estimated at the optimum; inverted with the columns scaled to unit norm.
     """
-    Re = E @ E.T + _RE_FLOOR * np.eye(3)
-    W12 = np.linalg.inv(sla.cholesky(Re, lower=True))
-    _, J = residual(theta, True, W12)
-    d = np.linalg.norm(J, axis=0)
+    H, _ = _normal(p, _weight(p.Re))
+    d = np.sqrt(np.abs(np.diag(H)))
     d[d == 0] = 1.0
-    Rinv = np.linalg.inv(np.linalg.qr(J / d, mode="r"))  # (J^T J)^{-1} = R^{-1} R^{-T}, scaled
-    cov = (Rinv @ Rinv.T) / np.outer(d, d) / j
+    Hs = H / np.outer(d, d)
+    try:
+        Hinv = sla.cho_solve(sla.cho_factor(Hs, lower=True), np.eye(H.shape[0]))
+    except np.linalg.LinAlgError:  # not positive definite to rounding: the weak directions
+        Hinv = np.linalg.pinv(Hs, hermitian=True)
+    cov = Hinv / np.outer(d, d) / j
     return cov[:9, :9]
 
 
-def _gauss_newton(residual, theta: np.ndarray, j: int, max_iter: int):  # type: ignore[no-untyped-def]
-    """Gauss-Newton by QR with column scaling; Levenberg-Marquardt damping when a step fails.
+def _solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``A^{-1} b`` for the (scaled) normal equations: Cholesky, else least squares."""
+    try:
+        return sla.cho_solve(sla.cho_factor(A, lower=True), b)
+    except np.linalg.LinAlgError:
+        return np.linalg.lstsq(A, b, rcond=None)[0]
+
+
+def _gauss_newton(crit: _Criterion, p: _Point, W: np.ndarray, j: int, max_iter: int):  # type: ignore[no-untyped-def]
+    """Gauss-Newton on the normal equations with column scaling; Levenberg-Marquardt
+    damping when a step fails. Returns the last point and the steps taken.
 
     Stops when a step lowers ``j J`` (twice the log-likelihood change) by less
     than ``_GAIN_TOL``, or after ``max_iter`` steps. An undamped Gauss-Newton
     step that raises the cost is first halved (up to ``_HALVINGS`` times: far
     from the optimum the predictor's ``Abar^P`` makes the full step overshoot
-    along a good direction) before damping turns it towards the gradient: one
-    Jacobian fewer on some records, each worth ~1/13 of the fit. Near the optimum
-    the problem is a large-residual one (the true curvature along the step ~1.75x
-    ``J^T J``'s, so plain Gauss-Newton converges linearly): after each full step the
-    second-order term ``S`` is updated by the secant rule of NL2SOL (:func:`_dgw`)
-    and the next step solves ``(J^T J + S) s = -J^T r``; ``S`` is dropped after a
-    halved or damped step and whenever ``J^T J + S`` is not positive definite.
-    docs/subspace.md, "sixth session".
+    along a good direction) before damping turns it towards the gradient. Near the
+    optimum the problem is a large-residual one (the true curvature along the step
+    ~1.75x ``J^T J``'s, so plain Gauss-Newton converges linearly): after each full
+    step the second-order term ``S`` is updated by the secant rule of NL2SOL
+    (:func:`_dgw`) and the next step solves ``(J^T J + S) s = -J^T r``; ``S`` is
+    dropped after a halved or damped step and whenever ``J^T J + S`` is not positive
+    definite. docs/subspace.md, "sixth session" and "seventh session".
     """
-    R, J = residual(theta, True)
-    cost = float(np.sum(R * R))
-    lam, it = 0.0, 0
+    H, g = _normal(p, W)
+    lam, it, h = 0.0, 0, 0
     Sq = None
-    h = 0
     for it in range(1, max_iter + 1):  # noqa: B007 - the count is returned
-        d = np.linalg.norm(J, axis=0)
+        d = np.sqrt(np.abs(np.diag(H)))
         d[d == 0] = 1.0
-        Js, r = J / d, -R.ravel()
+        Hs, gs = H / np.outer(d, d), g / d
         while True:
             if lam:
-                k = Js.shape[1]
-                Js_l = np.vstack([Js, np.sqrt(lam) * np.eye(k)])
-                step = np.linalg.lstsq(Js_l, np.concatenate([r, np.zeros(k)]), rcond=None)[0]
-                c_new = _cost(residual, theta + step / d)
+                step = _solve(Hs + lam * np.eye(gs.size), -gs)
+                dc = crit.delta(p, p.theta + step / d, W)
             else:  # undamped: the Gauss-Newton step, halved while it raises the cost
-                step = _newton_step(Js, r, d, Sq)
+                step = _newton_step(Hs, gs, d, Sq)
                 if step is None:  # J^T J + S not positive definite: Gauss-Newton
                     Sq = None
-                    step = np.linalg.lstsq(Js, r, rcond=None)[0]
+                    step = _solve(Hs, -gs)
                 for h in range(_HALVINGS + 1):
-                    c_new = _cost(residual, theta + step / d)
-                    if c_new <= cost or h == _HALVINGS:
+                    dc = crit.delta(p, p.theta + step / d, W)
+                    if dc <= 0.0 or h == _HALVINGS:
                         break
                     step = 0.5 * step
-            if c_new <= cost or lam > 1e8:
+            if dc <= 0.0 or lam > 1e8:
                 break
             lam = 1e-4 if lam == 0 else lam * 10.0
-        if c_new > cost:
+        if not dc <= 0.0:  # (a NaN from an overflowing trial fails too)
             break
-        gain = (cost - c_new) * j
-        J0, R0, full = J, R, not lam and h == 0
-        theta, cost = theta + step / d, c_new
+        gain = -dc * j
+        p0, g0, full = p, g, not lam and h == 0
+        p = crit.point(p.theta + step / d)
         lam = 0.0 if lam <= 1e-3 else lam / 10.0
-        R, J = residual(theta, True)
+        H, g = _normal(p, W)
         # the second-order term S by a secant update while the steps are full ones
-        Sq = _dgw(Sq, step / d, J0, R0, J, R) if full else None
+        Sq = _dgw(Sq, step / d, g0, g, _cross(p0, p, W)) if full else None
         if gain < _GAIN_TOL:
             break
-    return theta, R, it
+    return p, it
 
 
-def _cost(residual, theta: np.ndarray) -> float:  # type: ignore[no-untyped-def]
-    """Sum of squares of the weighted residual at ``theta`` (no derivatives)."""
-    R, _ = residual(theta, False)
-    return float(np.sum(R * R))
-
-
-def _newton_step(Js: np.ndarray, r: np.ndarray, d: np.ndarray, Sq: np.ndarray | None):
-    """``(Js^T Js + D^-1 S D^-1)^{-1} Js^T r`` (scaled units), None when not positive
-    definite; the Gauss-Newton step by least squares when there is no ``S`` yet."""
+def _newton_step(Hs: np.ndarray, gs: np.ndarray, d: np.ndarray, Sq: np.ndarray | None):
+    """``-(Hs + D^-1 S D^-1)^{-1} gs`` (scaled units), None when not positive definite;
+    the Gauss-Newton step when there is no ``S`` yet."""
     if Sq is None:
-        return np.linalg.lstsq(Js, r, rcond=None)[0]
+        return _solve(Hs, -gs)
     try:
-        cf = sla.cho_factor(Js.T @ Js + Sq / np.outer(d, d), lower=True)
+        cf = sla.cho_factor(Hs + Sq / np.outer(d, d), lower=True)
     except np.linalg.LinAlgError:
         return None
-    return sla.cho_solve(cf, Js.T @ r)
+    return sla.cho_solve(cf, -gs)
 
 
-def _dgw(Sq, s, J0, R0, J1, R1):  # type: ignore[no-untyped-def]
+def _dgw(Sq, s, g0, g1, g01):  # type: ignore[no-untyped-def]
     """Dennis, Gay & Welsch (1981) secant update of the second-order term ``S`` (NL2SOL).
 
     ``S`` approximates ``sum_i r_i Hess(r_i)``, which Gauss-Newton drops: with
-    ``y# = (J1 - J0)^T r1`` (what ``S`` must map the step ``s`` to) and ``y`` the
-    gradient's change, the symmetric rank-2 update of least change in the
-    ``y``-weighted norm, ``S`` first sized by ``min(1, |s'y#| / |s'Ss|)``. Starts
-    from 0 (``Sq`` None); left unchanged when ``s'y <= 0``.
+    ``g = J^T R`` at the old (``g0``) and new (``g1``) points and ``g01 = J_0^T R_1``,
+    ``y# = g1 - g01 = (J1 - J0)^T r1`` (what ``S`` must map the step ``s`` to) and
+    ``y = g1 - g0`` the gradient's change, the symmetric rank-2 update of least change
+    in the ``y``-weighted norm, ``S`` first sized by ``min(1, |s'y#| / |s'Ss|)``.
+    Starts from 0 (``Sq`` None); left unchanged when ``s'y <= 0``.
     """
     if Sq is None:
         Sq = np.zeros((s.size, s.size))
-    r1 = R1.ravel()
-    y = J1.T @ r1 - J0.T @ R0.ravel()
-    ys = J1.T @ r1 - J0.T @ r1
+    y = g1 - g0
+    ys = g1 - g01
     sy = float(s @ y)
     if sy <= 0.0:
         return Sq

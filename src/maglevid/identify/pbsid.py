@@ -46,10 +46,8 @@ Nothing here stabilises an estimate: an unstable plant gives an unstable model.
 
 from __future__ import annotations
 
-import functools
 import logging
 import math
-from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -59,6 +57,7 @@ from scipy.linalg import lapack
 
 from maglevid._validation import as_signal, check_positive
 from maglevid.exceptions import DataError, IdentificationError, ModelError
+from maglevid.identify._gram_operator import GramOperator
 from maglevid.identify._hankel import _LagGram, factor_gram, lower_factor
 from maglevid.identify._structured import START_SAMPLES, _plant, fit_bearing_structure
 from maglevid.identify.options import Option, bind_defaults
@@ -140,14 +139,12 @@ def _window_stats(
     shift: np.ndarray,
     center: bool,
     blocks: int | None = None,
-    prefix: np.ndarray | None = None,
 ) -> _Stats:
     """Scaled, normalised factor of the Hankel rows of window ``w`` (centred if asked).
 
     ``blocks``: only the rows of ``z(0..blocks-1)`` (the Gram's leading block,
-    still over the window's ``N - w + 1`` Hankel rows): what the VARX, and
-    separately the structured fit's shorter window (P16), read. ``prefix``: a
-    factor of fewer leading rows of the same window, extended (:func:`_factor`).
+    still over the window's ``N - w + 1`` Hankel rows): what the VARX reads (the
+    structured fit reads the window's Gram as an operator, :class:`_WindowGram`).
 
     Centring: with ``s_a = sum_t z(t+a)`` the column sums of the Hankel rows, the
     Gram of the rows less their means is ``G - s s^T / j``; ``s_a`` is the total
@@ -178,7 +175,7 @@ def _window_stats(
     d = np.tile(1.0 / scale, k)  # page faults at w m = 2290 (the same numbers)
     G *= d[:, None] * d[None, :]
     G /= j
-    F, rank = _factor(G, prefix)
+    F, rank = _factor(G)
     return _Stats(
         F=F,
         nu=nu,
@@ -193,7 +190,7 @@ def _window_stats(
     )
 
 
-def _factor(G: np.ndarray, prefix: np.ndarray | None = None) -> tuple[np.ndarray, int]:
+def _factor(G: np.ndarray) -> tuple[np.ndarray, int]:
     """``(F, rank)``, ``F F^T = G``: plain Cholesky (LAPACK ``dpotrf``) when ``G`` is
     well conditioned, else :func:`~maglevid.identify._hankel.factor_gram`'s pivoted one.
 
@@ -204,26 +201,7 @@ def _factor(G: np.ndarray, prefix: np.ndarray | None = None) -> tuple[np.ndarray
     factorisations of rows of ``F``, unchanged by ``F -> F Q``. A noise-free
     (rank-deficient) or nearly so record -- the Cholesky diagonal spanning more
     than ``_CHOL_SPAN`` (condition above ~1e12) -- takes the pivoted factor and its rank.
-
-    ``prefix``: the Cholesky factor ``L11`` of ``G``'s leading rows (square, lower
-    triangular: this function's own on the same window), extended by the block
-    step ``L21 = G21 L11^{-T}``, ``L22 L22^T = G22 - L21 L21^T`` (the remaining work
-    of one factorisation: the VARX's rows are not factored twice); else, or when
-    the extension fails the rule above, the whole of ``G`` from the start.
     """
-    k1 = 0 if prefix is None else prefix.shape[0]
-    if k1 and prefix.shape == (k1, k1) and k1 < G.shape[0]:
-        # L21^T = L11^{-1} G12 (G symmetric: its upper block, a contiguous row slab)
-        L21t = sla.solve_triangular(prefix, G[:k1, k1:], lower=True, check_finite=False)
-        S22 = G[k1:, k1:] - L21t.T @ L21t
-        c22, info = lapack.dpotrf(S22, lower=1, clean=1, overwrite_a=1)
-        dg = np.abs(np.concatenate([np.diag(prefix), np.diag(c22)]))
-        if info == 0 and dg.min() > dg.max() / _CHOL_SPAN:
-            G[:k1, :k1] = prefix  # G is this function's own (the caller's scratch): in place
-            G[:k1, k1:] = 0.0
-            G[k1:, :k1] = L21t.T
-            G[k1:, k1:] = c22
-            return G, G.shape[0]
     c, info = lapack.dpotrf(G, lower=1, clean=1, overwrite_a=0)
     if info == 0:
         dg = np.abs(np.diag(c))
@@ -665,7 +643,7 @@ def _coordinates(
     model: StateSpace,
     K: np.ndarray,
     Re: np.ndarray,
-    stats: Callable[[int], _Stats],
+    gram: _WindowGram,
     opt: _Options,
     notes: list[str],
     extras: dict[str, Any],
@@ -676,7 +654,7 @@ def _coordinates(
     if opt.coordinates == "physical":
         model, continuous, K, v = _bearing_coordinates(model, K)
         if opt.physical_fit == "structured":
-            model, continuous, K, Re, v = _structured(model, K, Re, v, stats, opt, notes, extras)
+            model, continuous, K, Re, v = _structured(model, K, Re, v, gram, opt, notes, extras)
         params.update(zip(V_NAMES, v.tolist()))
     else:
         try:
@@ -687,43 +665,58 @@ def _coordinates(
     return model, continuous, K, Re, params
 
 
+@dataclass(frozen=True)
+class _WindowGram:
+    """The widest window's Gram of its leading ``k`` samples, as an operator (P18), on call."""
+
+    acc: _LagGram
+    w: int
+    scale: np.ndarray
+    center: bool
+
+    @property
+    def n_samples(self) -> int:
+        return self.acc.n
+
+    def __call__(self, k: int) -> GramOperator:
+        return GramOperator(self.acc, self.w, k, self.scale, self.center)
+
+
 def _structured(
     model: StateSpace,
     K: np.ndarray,
     Re: np.ndarray,
     v: np.ndarray,
-    stats: Callable[[int], _Stats],
+    gram: _WindowGram,
     opt: _Options,
     notes: list[str],
     extras: dict[str, Any],
 ) -> tuple[StateSpace, StateSpace, np.ndarray, np.ndarray, np.ndarray]:
-    """v1..v9, ``K`` and cov(v) by the structured weighted least-squares fit (P11)-(P16).
+    """v1..v9, ``K`` and cov(v) by the structured weighted least-squares fit (P11)-(P18).
 
-    ``stats(k)``: the data stage's factor of the rows of ``z(0..k-1)``; the fit
-    reads ``z(0..P)`` of the widest window's Hankel rows, factored here once ``P``
-    is known (the window (P16) is shorter than the lags kept: ~0.35 of the
-    Cholesky of all of them; docs/subspace.md, "sixth session").
+    ``gram(k)``: the widest window's Gram of ``z(0..k-1)`` as an operator (P18),
+    never formed: the fit reads it only through products, by FFT
+    (docs/subspace.md, "seventh session").
     """
     P = _structure_lags(opt)
     rho = float(np.max(np.abs(np.linalg.eigvals(model.A - K @ model.C))))
     if opt.structure_auto:
-        P = _structure_window(P, stats(1).n_samples, rho)  # stats(1): the VARX's, no work
+        P = _structure_window(P, gram.n_samples, rho)
         if P == _structure_lags(opt) and rho >= _STRUCTURE_RHO:
             notes.append(
                 f"the transform's predictor has spectral radius {rho:.4f}: the structured "
                 f"fit's window {P} (the lags kept) leaves a truncation of {rho**P:.1e} "
                 "(pass structure_past for a longer one)"
             )
-    st_all = stats(P + 1)
+    G = gram(P + 1)
     sf = fit_bearing_structure(
-        st_all.F[st_all.y_rows(P, P + 1)],
-        st_all.F[_z_rows(st_all, 0, P)],
+        G,
         v0=v,
         K0=K,
         dt=opt.dt,
-        scale=st_all.scale,
-        j=st_all.j,
-        initial_state=_start_samples(opt, rho, P, st_all.scale[st_all.nu :], Re),
+        scale=gram.scale,
+        j=G.j,
+        initial_state=_start_samples(opt, rho, P, gram.scale[2:], Re),
     )
     notes.append(
         f"v1..v9 by the structured weighted least-squares fit over a window of {P} lags "
@@ -839,17 +832,13 @@ def _fit(
     # the VARX reads the rows of its own window only; the structured fit factors the
     # leading rows of its window (P16) itself, once it is chosen (_structured)
     k_varx = min(W, _window(opt, p_top, _future(opt.algorithm, opt.future, p_top)))
-    leading = functools.partial(_window_stats, acc, nu, ny, W, shift, opt.remove_mean)
-    st_all = leading(k_varx)
-
-    def stats(k: int) -> _Stats:
-        return st_all if k <= k_varx else leading(k, st_all.F)
-
+    st_all = _window_stats(acc, nu, ny, W, shift, opt.remove_mean, k_varx)
+    gram = _WindowGram(acc, W, st_all.scale, opt.remove_mean)
     p, f, past_rule = _choose_past(st_all, opt, p_top, notes, extras)
     st = replace(st_all, F=_leading(st_all.F, _window(opt, p, f) * st_all.m))  # z(0..w-1)
     system, s, n, gap = _identify_states(st, opt, p, f, notes)
     model, K, Re = _unscale(system, st.scale, nu, opt.dt)
-    model, continuous, K, Re, params = _coordinates(model, K, Re, stats, opt, notes, extras)
+    model, continuous, K, Re, params = _coordinates(model, K, Re, gram, opt, notes, extras)
     rho = _stability_notes(model, K, notes)
     Re_s = Re / np.outer(st.scale[nu:], st.scale[nu:])
     fit, residuals = _fit_metrics(st, model, K, Re_s, p, opt.remove_mean, data, rho)
