@@ -51,11 +51,18 @@ def test_gram_products_equal_the_hankel_rows(N, L, w, k, center):
     G = _dense(z, w, k, scale, center)
     op = GramOperator(acc, w, k, scale, center)
     assert op.j == N - w + 1 and op.k == k
-    for r in (1, 3, 66):  # the buffers are kept per row count: call each twice
+    Y = rng.standard_normal((4, k * 5))
+    ey = op.encode(Y)
+    for r in (1, 3, 66):
         X = rng.standard_normal((r, k * 5))
-        for _ in range(2):
-            XG = op(X)
-            assert np.max(np.abs(XG - X @ G)) < 1e-12 * np.max(np.abs(X @ G))
+        ex = op.encode(X)
+        # one encoding with itself, with another one, and row slices of one
+        for got, ref in [
+            (op.inner(ex, ex), X @ G @ X.T),
+            (op.inner(ex, ey), X @ G @ Y.T),
+            (op.inner(ex[r // 2 :], ex[: r // 2 + 1]), X[r // 2 :] @ G @ X[: r // 2 + 1].T),
+        ]:
+            assert np.max(np.abs(got - ref)) < 1e-12 * np.max(np.abs(ref))
     np.testing.assert_array_equal(acc.head, z[:L])  # the data stage's state is untouched
 
 

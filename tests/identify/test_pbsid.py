@@ -460,7 +460,7 @@ def test_structured_jacobian_equals_central_differences(monkeypatch):
 
     seen = {}
 
-    def spy(crit, p, W, j, max_iter):
+    def spy(crit, p, W, j, max_iter, tol):
         dV = p.dV.reshape(p.theta.size, -1)
         d = np.linalg.norm(dV, axis=1)
         err = np.empty(p.theta.size)
@@ -508,7 +508,7 @@ def _assert_same_optimum(new, old, se_tol: float, steps: str) -> None:
 @pytest.mark.parametrize("fit", [fit_pbsid, fit_ssarx])
 def test_structured_fit_through_the_gram_operator_equals_the_dense_gram(bearing, fit, monkeypatch):
     # Reference: the data stage's own factor F of the window's Gram (its Cholesky, as
-    # the sixth session's fit read it), products X (F F^T) formed densely. The seventh
+    # the sixth session's fit read it), products X (F F^T) Y^T formed densely. The seventh
     # session reads the Gram only through FFT products (P18), equal to rounding
     # (test_gram_operator.py), and evaluates cost differences instead of costs: the
     # same optimum (measured <= 1e-6 of a standard error on the bench records at 1e4;
@@ -523,8 +523,11 @@ def test_structured_fit_through_the_gram_operator_equals_the_dense_gram(bearing,
             st = P._window_stats(wg.acc, 2, 3, wg.w, np.zeros(5), wg.center, k)
             self.G, self.k, self.j = st.F @ st.F.T, k, st.j
 
-        def __call__(self, X):
-            return X @ self.G
+        def encode(self, X):
+            return X
+
+        def inner(self, A, C):
+            return A @ self.G @ C.T
 
     monkeypatch.setattr(P._WindowGram, "__call__", lambda wg, k: Dense(wg, k))
     _assert_same_optimum(new, fit(bearing.y, bearing.u, **kw), 1e-4, "equal")

@@ -1,4 +1,4 @@
-"""The Gram matrix of a Hankel window as an operator: products ``X G`` by FFT.
+"""The Gram matrix of a Hankel window as an operator: products ``X G Y^T`` by FFT.
 
 Why: the structured fit (``_structured.py``, docs/subspace.md (P11)-(P15))
 reads the data only through products of its parameters' Markov-parameter
@@ -30,6 +30,8 @@ operator is the same ``G`` that stage factors, to rounding.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 import scipy.fft as sfft
 
@@ -38,8 +40,26 @@ from maglevid.identify._hankel import _LagGram
 __all__: list[str] = []
 
 
+@dataclass(frozen=True)
+class Encoded:
+    """Rows ``X`` (r, k m) as :meth:`GramOperator.inner` reads them: the weighted spectrum
+    of the scaled rows, their products with the head's and the tail's columns of (P18)
+    and with the window's sums."""
+
+    xf: np.ndarray  # (nf, r, m) complex: rfft of X D, times sqrt(c_f / n)
+    flat: np.ndarray  # (r, 2 nf m) float: the same, row-major, real and imaginary parts
+    yh: np.ndarray  # (r, k - 1): X D Lh
+    yt: np.ndarray  # (r, w - 1): X D Lt
+    sp: np.ndarray | None  # (r,): X D s (centring), None when not centred
+
+    def __getitem__(self, rows: slice) -> Encoded:
+        sp = None if self.sp is None else self.sp[rows]
+        return Encoded(self.xf[:, rows], self.flat[rows], self.yh[rows], self.yt[rows], sp)
+
+
 class GramOperator:
-    """``X -> X G``: the scaled, normalised (and centred) Gram of a window's leading samples.
+    """``(X, Y) -> X G Y^T``: the scaled, normalised (and centred) Gram of a window's
+    leading samples, as a bilinear form on rows encoded once (:meth:`encode`).
 
     Parameters
     ----------
@@ -54,6 +74,16 @@ class GramOperator:
         Channel scale; ``G`` is that of ``z / scale``, divided by ``j``.
     center : bool
         Subtract the rows' means (``G - s s^T / j``), as the data stage does.
+
+    Notes
+    -----
+    ``X T(St) Y^T = (1/n) sum_f X(f) R(f) Y(f)^H`` (Parseval, the linear convolution
+    held without wrapping by ``n >= w + k``), summed over the half spectrum of the
+    real sequences with weights ``c_f`` (1 at 0 and n/2, else 2) as one real GEMM;
+    the corrections are products of the short time-domain sequences ``X Lh``,
+    ``X Lt`` (one inverse FFT of ``r`` sequences each). Encoding ``r`` rows costs one
+    real FFT of ``r m`` sequences of length ``n``; a product of ``r1`` and ``r2`` rows
+    ``O(n m (m r1 + r1 r2))``.
     """
 
     def __init__(self, acc: _LagGram, w: int, k: int, scale: np.ndarray, center: bool) -> None:
@@ -75,41 +105,45 @@ class GramOperator:
         self._Rf = sfft.rfft(R, axis=0)  # (nf, m, m)
         self._hf = sfft.rfft(head[: k - 1], n=n, axis=0)  # h(s) = z(s), s < k - 1
         self._gf = sfft.rfft(tail[L - (w - 1) :], n=n, axis=0)  # g(s) = z(j + s), s <= w - 2
+        c = np.full(self._Rf.shape[0], 2.0)
+        c[0] = 1.0
+        if n % 2 == 0:
+            c[-1] = 1.0
+        self._wf = np.sqrt(c / n)  # Parseval's weights, half on each side
+        self._hc = np.ascontiguousarray(self._hf.conj().T)  # (m, nf): the einsums' layout
+        self._gc = np.ascontiguousarray(self._gf.conj().T)
         self._d = np.tile(1.0 / np.asarray(scale, dtype=float), k)
         self._s = _window_sums(acc, w, k) if center else None
-        self._bufs: dict[int, tuple[np.ndarray, np.ndarray]] = {}
 
-    def __call__(self, X: np.ndarray) -> np.ndarray:
-        """``X G`` for ``X`` of shape (r, k m)."""
+    def encode(self, X: np.ndarray) -> Encoded:
+        """Rows ``X`` (r, k m) for :meth:`inner`."""
         r = X.shape[0]
         m, k, n, w = self.m, self.k, self.n, self.w
         Xs = X * self._d
-        buf, res = self._buffers(r)  # reused: fresh megabyte temporaries page-fault
+        buf = np.zeros((r * m, n))
         buf[:, :k] = Xs.reshape(r, k, m).transpose(0, 2, 1).reshape(r * m, k)
-        xf = np.fft.rfft(buf, axis=-1).reshape(r, m, -1).transpose(2, 0, 1)  # (nf, r, m)
-        out = xf @ self._Rf  # T(St): out(b) = sum_a x(a) R(b - a)
-        # head: Y(i) = sum_c x(c) h(c - i), i = 1..k-1; out(c) -= sum_i Y(i) h(c - i)^T
-        Y = np.fft.irfft((xf @ self._hf.conj()[:, :, None])[:, :, 0].T, n=n, axis=-1)  # (r, n)
-        Y[:, 0] = 0.0
-        Y[:, k:] = 0.0
-        out -= np.fft.rfft(Y, axis=-1).T[:, :, None] * self._hf[:, None, :]
-        # tail: Y(i) = sum_c x(c) g(c + i), i = 0..w-2; out(c) -= sum_i Y(i) g(c + i)^T
-        Y = np.fft.irfft((xf.conj() @ self._gf[:, :, None])[:, :, 0].T, n=n, axis=-1)
-        Y[:, w - 1 :] = 0.0
-        out -= np.fft.rfft(Y, axis=-1).T.conj()[:, :, None] * self._gf[:, None, :]
-        np.fft.irfft(out.transpose(1, 2, 0).reshape(r * m, -1), n=n, axis=-1, out=res)
-        XG = res[:, :k].reshape(r, m, k).transpose(0, 2, 1).reshape(r, k * m)
-        if self._s is not None:
-            XG -= np.outer(Xs @ self._s, self._s) / self.j
-        XG *= self._d
-        XG /= self.j
-        return XG
+        xr = np.fft.rfft(buf, axis=-1).reshape(r, m, -1)  # (r, m, nf), contiguous
+        # head: (X Lh)(i) = sum_c x(c) h(c - i), i = 1..k-1 (a correlation)
+        yh = np.fft.irfft(np.einsum("rmf,mf->rf", xr, self._hc), n=n, axis=-1)[:, 1:k]
+        # tail: (X Lt)(i) = sum_c x(c) g(c + i), i = 0..w-2: conj(X(f)) g(f), conjugated
+        yt = np.fft.irfft(np.einsum("rmf,mf->rf", xr, self._gc).conj(), n=n, axis=-1)[:, : w - 1]
+        xr *= self._wf
+        xf = np.ascontiguousarray(xr.transpose(2, 0, 1))  # (nf, r, m): inner's matmul
+        flat = np.ascontiguousarray(xr.transpose(0, 2, 1)).reshape(r, -1).view(float)
+        sp = None if self._s is None else Xs @ self._s
+        return Encoded(xf, flat, yh, yt, sp)
 
-    def _buffers(self, r: int) -> tuple[np.ndarray, np.ndarray]:
-        """Zero-padded input and output rows for ``r`` rows (kept for the next call)."""
-        if r not in self._bufs:
-            self._bufs[r] = (np.zeros((r * self.m, self.n)), np.empty((r * self.m, self.n)))
-        return self._bufs[r]
+    def inner(self, A: Encoded, C: Encoded) -> np.ndarray:
+        """``A G C^T`` (rA, rC), (P18)."""
+        P = A.xf @ self._Rf  # (nf, rA, m): A(f) R(f), weighted
+        Pf = np.ascontiguousarray(P.transpose(1, 0, 2)).reshape(P.shape[1], -1).view(float)
+        out = Pf @ C.flat.T  # sum_f Re(A(f) R(f) C(f)^H), c_f / n
+        out -= A.yh @ C.yh.T
+        out -= A.yt @ C.yt.T
+        if A.sp is not None and C.sp is not None:
+            out -= np.outer(A.sp, C.sp) / self.j
+        out /= self.j
+        return out
 
 
 def _window_sums(acc: _LagGram, w: int, k: int) -> np.ndarray:

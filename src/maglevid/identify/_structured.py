@@ -16,8 +16,8 @@ over the Hankel rows (P11)::
     J(theta) = tr( W (Y - V(theta) Z_P) (Y - V(theta) Z_P)^T ) / j,  W = Re^{-1}
 
 which needs only products with the Gram matrix of the window, taken by FFT
-without forming it (``_gram_operator``, (P18)): it is the VARX's least-squares criterion with the 21
-structured parameters in place of ``P (nu + ny) ny`` free ones, i.e. a
+without forming it (``_gram_operator``, (P18)): it is the VARX's least-squares
+criterion with the 21 structured parameters in place of ``P (nu + ny) ny`` free ones, i.e. a
 weighted least-squares fit of the structured Markov parameters to the VARX's,
 with the VARX's own covariance ``(Z_P Z_P^T)^{-1} (x) Re`` as weight (P12).
 With ``W`` the innovation covariance's inverse this is the prediction-error
@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import scipy.linalg as sla
@@ -51,6 +52,11 @@ START_SAMPLES = 8
 #: Stop when a step lowers ``j J`` (twice a log-likelihood) by less than this: the
 #: optimum is then a small fraction of a standard error away.
 _GAIN_TOL = 1e-3
+#: The same for the first weighting round (P13), which only supplies ``W`` for the
+#: second: stopping it within a fraction of a standard error changes ``W`` at second
+#: order (docs/subspace.md, "seventh session": 1-3 Jacobians fewer, v within ~1e-3
+#: of a standard error).
+_GAIN_TOL_FIRST = 0.1
 #: Floor of the weighting's innovation covariance (channels scaled to unit RMS).
 _RE_FLOOR = 1e-12
 #: Gauss-Newton steps per weighting round at most (6-16 in all are taken on the
@@ -237,22 +243,27 @@ def _power_derivative(Abar: np.ndarray, dAbar: np.ndarray, P: int) -> np.ndarray
 @dataclass(frozen=True)
 class _Point:
     """The criterion's W-free parts at one ``theta`` (scaled units): what a new weighting,
-    the normal equations and the secant term read, without another product with ``G``."""
+    the normal equations, the cost differences and the secant term read, without
+    another product with ``G``."""
 
     theta: np.ndarray
     V: np.ndarray  # (3, 5P): the predictor's blocks, the start term (P14) included
     dV: np.ndarray  # (n_th, 3, 5P): their derivatives
-    XGz: np.ndarray  # (3, 5P): ([-V, I] G)'s z columns, i.e. (Fz E^T)^T
-    Re: np.ndarray  # (3, 3): [-V, I] G [-V, I]^T, the prediction errors' covariance
-    Q: np.ndarray  # (n_th, 3, 5P): dV Gzz
+    enc: Any  # the rows [X; dV] (X = [-V, I]) encoded for the Gram's products
+    M: np.ndarray  # (3 + 3 n_th) squared: [X; dV] G [X; dV]^T
+
+    @property
+    def Re(self) -> np.ndarray:
+        """``X G X^T``: the prediction errors' covariance (scaled units)."""
+        return self.M[:3, :3]
 
 
 class _Criterion:
     """(P11) through products with the window's Gram (P18): values, normal equations, steps.
 
-    ``gram(X)`` is ``X G`` for the scaled, normalised Gram of the window's ``P + 1``
-    samples (``_gram_operator.GramOperator``); the columns of sample ``P`` are
-    ``[u(P), y(P)]``, the predicted output's the last three.
+    ``gram`` encodes rows and takes their products ``X G Y^T`` with the scaled,
+    normalised Gram of the window's ``P + 1`` samples (``_gram_operator.GramOperator``);
+    the columns of sample ``P`` are ``[u(P), y(P)]``, the predicted output's the last three.
     """
 
     def __init__(self, gram, v0, dt, su, sy, k0):  # type: ignore[no-untyped-def]
@@ -287,7 +298,7 @@ class _Criterion:
         return V
 
     def point(self, th: np.ndarray) -> _Point:
-        """``V``, ``dV`` and their products with ``G``: one operator call of 66 rows."""
+        """``V``, ``dV`` and their Gram products: one encoding of 66 rows, one product."""
         Abar, Btil, dAbar, dBtil, Cs, *_ = _model(th, self.v0, self.dt, self.sy, self.su)
         V, dV = _predictor_blocks(Abar, Btil, dAbar, dBtil, Cs, self.P)
         if self.k0:  # the start term and its derivative, analytic (a 3 x 5 k0 block each)
@@ -298,39 +309,40 @@ class _Criterion:
         rows[:3, :c] = -V
         rows[:3, c + 2 :] = np.eye(3)
         rows[3:, :c] = dV.reshape(-1, c)
-        XG = self.gram(rows)
-        Re = XG[:3] @ rows[:3].T
-        return _Point(th, V, dV, XG[:3, :c], 0.5 * (Re + Re.T), XG[3:, :c].reshape(n_th, 3, c))
+        enc = self.gram.encode(rows)
+        M = self.gram.inner(enc, enc)
+        return _Point(th, V, dV, enc, 0.5 * (M + M.T))
 
     def delta(self, p: _Point, th: np.ndarray, W: np.ndarray) -> float:
         """``J(theta) - J(p.theta)`` under ``W``, cancellation-free.
 
         With ``X = [-V, I]`` and ``dX = X(theta) - X(p)``: ``2 tr(W dX G X_p^T) +
-        tr(W dX G dX^T)`` -- the first term from ``p``'s product (whose true size is
-        that of the prediction errors), the second a quadratic form in the small
-        ``dV``; ``J`` itself (``tr(W X G X^T)``) would lose the ratio of the signal's
-        to the errors' energy (~1e6 on a high-SNR record) to rounding.
+        tr(W dX G dX^T)`` -- the first term a product with ``p``'s rows (whose true
+        size is that of the prediction errors), the second a quadratic form in the
+        small ``dV``; ``J`` itself (``tr(W X G X^T)``) would lose the ratio of the
+        signal's to the errors' energy (~1e6 on a high-SNR record) to rounding.
         """
         dV = self.markov(th) - p.V
         rows = np.zeros((3, dV.shape[1] + 5))
-        rows[:, : dV.shape[1]] = dV
-        dG = self.gram(rows)[:, : dV.shape[1]]
-        WdV = W @ dV
-        return float(np.sum(WdV * (dG - 2.0 * p.XGz)))
+        rows[:, : dV.shape[1]] = -dV
+        e = self.gram.encode(rows)
+        return float(np.sum(W * (2.0 * self.gram.inner(e, p.enc[:3]) + self.gram.inner(e, e))))
+
+    def cross(self, p0: _Point, p1: _Point, W: np.ndarray) -> np.ndarray:
+        """``J_0^T R_1``: the old point's Jacobian against the new residual (the secant term)."""
+        C = self.gram.inner(p1.enc[:3], p0.enc[3:])  # X_1 G dV_0^T: (3, 3 n_th)
+        B = C.reshape(3, -1, 3).transpose(1, 2, 0)  # [i, p, q] = dV_0(i, p) G X_1(q)^T
+        return -np.einsum("ipq,qp->i", B, W)
 
 
 def _normal(p: _Point, W: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``(J^T J, J^T R)`` of the whitened residual ``R = W^{1/2} (Fy - V Fz)`` at ``p``:
-    ``tr(W dV_i Gzz dV_k^T)`` and ``-tr(W dV_i (Fz E^T))``."""
-    WdV = np.einsum("ab,ibk->iak", W, p.dV).reshape(p.dV.shape[0], -1)
-    H = WdV @ p.Q.reshape(p.Q.shape[0], -1).T
-    return 0.5 * (H + H.T), -WdV @ p.XGz.ravel()
-
-
-def _cross(p0: _Point, p1: _Point, W: np.ndarray) -> np.ndarray:
-    """``J_0^T R_1``: the old point's Jacobian against the new residual (the secant term)."""
-    WdV = np.einsum("ab,ibk->iak", W, p0.dV).reshape(p0.dV.shape[0], -1)
-    return -WdV @ p1.XGz.ravel()
+    ``tr(W dV_i Gzz dV_k^T)`` and ``-tr(W dV_i Gz: X^T)`` from ``p``'s Gram products."""
+    n = p.dV.shape[0]
+    B = p.M[3:, :3].reshape(n, 3, 3)  # [i, p, q] = dV(i, p) G X(q)^T
+    D = p.M[3:, 3:].reshape(n, 3, n, 3)  # [i, p, k, q] = dV(i, p) G dV(k, q)^T
+    H = np.einsum("ipkq,qp->ik", D, W)
+    return 0.5 * (H + H.T), -np.einsum("ipq,qp->i", B, W)
 
 
 def _weight(Re: np.ndarray) -> np.ndarray:
@@ -371,8 +383,8 @@ def fit_bearing_structure(
     # starts where the last one ended (its W-free parts reused: one Jacobian fewer)
     p = crit.point(theta)
     iterations = 0
-    for _ in range(2):
-        p, it = _gauss_newton(crit, p, _weight(p.Re), j, max_iter)
+    for tol in (_GAIN_TOL_FIRST, _GAIN_TOL):
+        p, it = _gauss_newton(crit, p, _weight(p.Re), j, max_iter, tol)
         iterations += it
     _, _, _, _, _, v, Ad, Bd, Ks = _model(p.theta, v0, dt, sy, su)
     Re = p.Re * np.outer(sy, sy)
@@ -411,12 +423,12 @@ def _solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
         return np.linalg.lstsq(A, b, rcond=None)[0]
 
 
-def _gauss_newton(crit: _Criterion, p: _Point, W: np.ndarray, j: int, max_iter: int):  # type: ignore[no-untyped-def]
+def _gauss_newton(crit: _Criterion, p: _Point, W: np.ndarray, j: int, max_iter: int, tol: float):  # type: ignore[no-untyped-def]
     """Gauss-Newton on the normal equations with column scaling; Levenberg-Marquardt
     damping when a step fails. Returns the last point and the steps taken.
 
     Stops when a step lowers ``j J`` (twice the log-likelihood change) by less
-    than ``_GAIN_TOL``, or after ``max_iter`` steps. An undamped Gauss-Newton
+    than ``tol``, or after ``max_iter`` steps. An undamped Gauss-Newton
     step that raises the cost is first halved (up to ``_HALVINGS`` times: far
     from the optimum the predictor's ``Abar^P`` makes the full step overshoot
     along a good direction) before damping turns it towards the gradient. Near the
@@ -459,8 +471,8 @@ def _gauss_newton(crit: _Criterion, p: _Point, W: np.ndarray, j: int, max_iter: 
         lam = 0.0 if lam <= 1e-3 else lam / 10.0
         H, g = _normal(p, W)
         # the second-order term S by a secant update while the steps are full ones
-        Sq = _dgw(Sq, step / d, g0, g, _cross(p0, p, W)) if full else None
-        if gain < _GAIN_TOL:
+        Sq = _dgw(Sq, step / d, g0, g, crit.cross(p0, p, W)) if full else None
+        if gain < tol:
             break
     return p, it
 
