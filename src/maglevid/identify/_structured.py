@@ -53,10 +53,10 @@ START_SAMPLES = 8
 #: optimum is then a small fraction of a standard error away.
 _GAIN_TOL = 1e-3
 #: The same for the first weighting round (P13), which only supplies ``W`` for the
-#: second: stopping it within a fraction of a standard error changes ``W`` at second
-#: order (docs/subspace.md, "seventh session": 1-3 Jacobians fewer, v within ~1e-3
-#: of a standard error).
-_GAIN_TOL_FIRST = 0.1
+#: second: stopped within about a standard error of its optimum (a gain below one unit
+#: of ``j J``), ``W`` changes at second order (docs/subspace.md, "seventh session":
+#: 1-3 Jacobians fewer on the bench records, v within 1.3e-3 of a standard error).
+_GAIN_TOL_FIRST = 1.0
 #: Floor of the weighting's innovation covariance (channels scaled to unit RMS).
 _RE_FLOOR = 1e-12
 #: Gauss-Newton steps per weighting round at most (6-16 in all are taken on the
