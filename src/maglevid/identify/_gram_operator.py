@@ -148,10 +148,11 @@ class GramOperator:
 
 def _window_sums(acc: _LagGram, w: int, k: int) -> np.ndarray:
     """``s_a = sum_{t<j} z(t + a)``, a = 0..k-1, stacked (k m): the total less the first
-    ``a`` and the last ``w - 1 - a`` samples (``pbsid._window_stats``'s centring)."""
+    ``a`` and the last ``w - 1 - a`` samples (the data stage's centring, ``G - s s^T / j``;
+    ``pbsid._window_stats`` and :class:`GramOperator` alike)."""
     m = acc.m
     total = acc.moments.sum
     head = np.cumsum(np.concatenate([np.zeros((1, m)), acc.head[: w - 1]]), axis=0)
     tail = acc.pending[::-1][: w - 1]  # newest first
     tcum = np.cumsum(np.concatenate([np.zeros((1, m)), tail]), axis=0)
-    return np.concatenate([total - head[a] - tcum[w - 1 - a] for a in range(k)])
+    return (total - head[:k] - tcum[w - 1 :: -1][:k]).reshape(-1)

@@ -356,6 +356,15 @@ class _LagGram:
         rows): the same numbers as ``gram(w)[:blocks m, :blocks m]``, at
         ``(blocks / w)^2`` of the cost (the structured fit's window (P16) is shorter
         than the lags kept; docs/subspace.md, "sixth session").
+
+        Block ``(a, a + tau)`` is ``S_tau`` less the head's ``sum_{s<a} z(s) z(s+tau)^T``,
+        plus the tail's ``sum_{q=0}^{a+L-w} tail(q) tail(q+tau)^T`` (``tail(q) =
+        z(N-L+q)``). Both edge sums are running sums over ``a`` for every lag at
+        once (:func:`_edge_sums`), so that block row ``a`` of the upper triangle is
+        one contiguous write and the lower triangle its mirror: the same numbers
+        (the same products, summed in the same order) as one lag at a time, whose
+        ``k`` diagonals of scattered 5 x 5 blocks and ~10 small calls per lag were
+        35 ms of the structured fit's 1530-row Gram (docs/subspace.md, "seventh session").
         """
         L, m, N = self.L, self.m, self.n
         if not 1 <= w <= L + 1:
@@ -365,30 +374,60 @@ class _LagGram:
             raise ValueError(f"blocks {k} outside 1..{w}")
         if N < self.min_samples():
             raise DataError(f"{N} samples are too few for lags up to {L}")
-        head, tail = self.head, self.pending  # first L and last L samples
-        S = self.S
+        St = self.S[:k].transpose(1, 0, 2)  # St[i, tau, j] = S_tau[i, j]
         G = np.empty((k * m, k * m))
-        s0, s1 = G.strides
-        for tau in range(k):
-            # Blocks (a, a + tau), a < n = k - tau: S_tau less the head's sum_{s<a}
-            # z(s) z(s+tau)^T, plus the tail's sum_{q=0}^{a+L-w} tail(q) tail(q+tau)^T
-            # (tail(q) = z(N-L+q)); one lag at a time, so the temporaries are
-            # (n, m, m) and stay in the cache (the (w, w, m, m) edge sums of all lags at
-            # once were 0.6-2.4 s at w = 458, mostly memory traffic; the same sums).
-            n = k - tau  # blocks (a, a + tau) with a + tau < k
-            hc = np.zeros((n, m, m))
-            Dh = np.einsum("si,sj->sij", head[: n - 1], head[tau : tau + n - 1])
-            np.cumsum(Dh, 0, out=hc[1:])
-            q = L - w + n  # tail terms the last block needs (a cumulative sum: a prefix)
-            tc = np.zeros((q + 1, m, m))
-            np.cumsum(np.einsum("qi,qj->qij", tail[:q], tail[tau : tau + q]), 0, out=tc[1:])
-            blk = S[tau] - hc + tc[L - w + 1 :]
-            # the block diagonal tau of G and its mirror, as strided views (no copies)
-            up = as_strided(G[:, tau * m :], (n, m, m), (m * (s0 + s1), s0, s1))
-            lo = as_strided(G[tau * m :], (n, m, m), (m * (s0 + s1), s1, s0))
-            lo[...] = blk
-            up[...] = blk  # after the mirror: the diagonal blocks as computed
+        G4 = G.reshape(k, m, k, m)
+        rows = max(1, _EDGE_CHUNK // (k * m * m))  # block rows per chunk: ~1 MB temporaries
+        heads = _edge_sums(self.head, k, 0, k, rows)  # block row a: s < a
+        tails = _edge_sums(self.pending, k, L - w + 1, k, rows)  # q < a + L - w + 1
+        for (a0, hc), (_, tc) in zip(heads, tails, strict=True):
+            blk = np.subtract(St[:, : hc.shape[2]], hc, out=hc)
+            blk += tc
+            for i in range(hc.shape[0]):  # block row a: blocks (a, a + tau), tau < k - a
+                a = a0 + i
+                G4[a, :, a:, :] = blk[i, :, : k - a]
+        for a in range(1, k):  # the strictly lower triangle: the upper's mirror
+            G[a * m : (a + 1) * m, : a * m] = G[: a * m, a * m : (a + 1) * m].T
         return G
+
+
+#: Entries of one chunk of :func:`_edge_sums` (8 MB at most, ~1 MB for 5 channels).
+_EDGE_CHUNK = 1 << 17
+
+
+def _edge_sums(
+    x: np.ndarray, k: int, first: int, n: int, rows: int
+) -> Iterator[tuple[int, np.ndarray]]:
+    """Running lagged sums ``C[r, i, tau, j] = sum_{q < r} x_i(q) x_j(q + tau)``, ``tau < k``.
+
+    Yields ``(a0, C[first + a0 : first + a0 + rows, :, :k - a0])`` for ``a0 = 0,
+    rows, ...`` below ``n`` (the rows before ``first`` are summed, not yielded):
+    block row ``a`` of the Gram needs lags below ``k - a`` only. Rows of ``x`` past
+    its end count as zeros. Summed in ``q`` order, row by row (``np.cumsum``'s
+    order; a ``cumsum`` along the first axis loops over it innermost, 3x slower),
+    each chunk continuing the last row of the one before: the same numbers as one
+    running sum over all rows. The yielded array is the caller's to overwrite.
+    """
+    m = x.shape[1]
+    total = first + n
+    xp = np.zeros((total + k, m))  # x behind one zero row: C[r] sums q < r
+    xp[1 : min(x.shape[0] + 1, xp.shape[0])] = x[: xp.shape[0] - 1]
+    flat = xp.reshape(-1)
+    starts = [*range(0, first, rows), *range(first, total, rows)]
+    carry = None
+    for r0, r1 in zip(starts, [*starts[1:], total], strict=True):
+        lags = k if r0 < first else k - (r0 - first)
+        # P[r, i, (tau, j)] = xp_i(r) xp_j(r + tau): samples r..r+lags-1, flat, are one
+        # window of the flat record (a view)
+        ahead = sliding_window_view(flat[r0 * m : (r1 + lags - 1) * m], lags * m)[::m]
+        P = xp[r0:r1, :, None] * ahead[:, None, :]
+        if carry is not None:
+            P[0] += carry[:, : lags * m]
+        for r in range(1, r1 - r0):
+            P[r] += P[r - 1]
+        carry = P[-1].copy()
+        if r0 >= first:
+            yield r0 - first, P.reshape(r1 - r0, m, lags, m)
 
 
 #: Samples per FFT block of :func:`lag_products_fft` at least this many times the lags.
