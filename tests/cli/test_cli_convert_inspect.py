@@ -144,3 +144,17 @@ def test_inspect_bad_file(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.startswith("maglevid inspect: error:") and "not a readable Parquet file" in err
     assert len(err.strip().splitlines()) == 1
+
+
+def test_identify_a_real_levitator_record_with_a_whole_record_method(shared_data, capsys):
+    # Reference: the record's own levitating segments (levitator.find_levitator_segments:
+    # 230..956 and 1089..2989 on this step record). A method that fits one model to
+    # one record (pbsid here; the subspace, ML and PEM methods alike) was handed the
+    # segments anyway and refused an option the user never gave ("no option
+    # 'segments'"); it now fits the longest segment and says so.
+    path = shared_data / "maglev-uaq-levitador" / "dataset_escalon_20251217_205858.txt"
+    assert main(["identify", str(path), "--mapping", "uaq-levitador", "--method", "pbsid",
+                 "--json"]) == 0  # fmt: skip
+    out = json.loads(capsys.readouterr().out)
+    assert out["n_samples"] == 2989 - 1089
+    assert any("samples 1089..2989" in n and "indirect" in n for n in out["notes"])

@@ -216,7 +216,8 @@ def _run_one(path: str, args: argparse.Namespace) -> dict[str, Any]:
     if data.r is None and (args.recover_excitation or method in NEEDS_EXCITATION):
         data, notes = _recover(data, method, options)
     if kind == "levitator" and "segments" not in options and method != "levitator":
-        options["segments"] = _levitator_segments(data, method)
+        data, note = _levitating(data, method, options)
+        notes += [note] if note else []
     fit = get_method(method)
     try:
         warnings = quality_gate(data, force=args.force)
@@ -296,6 +297,28 @@ def _levitator_segments(data: Any, method: str) -> list[tuple[int, int]]:
 
     rep, segs, _ = find_levitator_segments(data)
     return segs if method == "greybox-levitator" else rep.bounds()
+
+
+def _levitating(data: Any, method: str, options: dict[str, Any]) -> tuple[Any, str | None]:
+    """A levitator record for ``method``: its levitating segments as the method's
+    ``segments`` option where it takes one; else (one model of the whole record: the
+    subspace, ML and PEM methods) the longest segment alone, said in a note -- the
+    pieces where the ball rests or is caught are not the loop the model describes."""
+    from maglevid.identify.registry import method_options
+
+    segs = _levitator_segments(data, method)
+    if any(o.name == "segments" for o in method_options(method) or ()):
+        options["segments"] = segs
+        return data, None
+    a, b = max(segs, key=lambda ab: ab[1] - ab[0])
+    if (a, b) == (0, data.n_samples):
+        return data, None
+    note = (
+        f"{method} fits one model to one record: fitted on samples {a}..{b} (the longest "
+        f"of {len(segs)} levitating segment(s) found); `--method indirect`, "
+        "`greybox-levitator` or `levitator` use every segment"
+    )
+    return data.segment(a, b), note
 
 
 def _run_sessions(args: argparse.Namespace) -> dict[str, Any]:
