@@ -461,7 +461,7 @@ def test_structured_jacobian_equals_central_differences(monkeypatch):
     seen = {}
 
     def spy(crit, p, W, j, max_iter, tol):
-        dV = p.dV.reshape(p.theta.size, -1)
+        dV = p.dV.transpose(1, 0, 2, 3).reshape(p.theta.size, -1)  # (P, n_th, 3, 5) blocks
         d = np.linalg.norm(dV, axis=1)
         err = np.empty(p.theta.size)
         for i in range(p.theta.size):
@@ -523,8 +523,8 @@ def test_structured_fit_through_the_gram_operator_equals_the_dense_gram(bearing,
             st = P._window_stats(wg.acc, 2, 3, wg.w, np.zeros(5), wg.center, k)
             self.G, self.k, self.j = st.F @ st.F.T, k, st.j
 
-        def encode(self, X):
-            return X
+        def encode_blocks(self, Xb):  # (k, r, m) block-major -> rows (r, k m)
+            return Xb.transpose(1, 0, 2).reshape(Xb.shape[1], -1)
 
         def inner(self, A, C):
             return A @ self.G @ C.T

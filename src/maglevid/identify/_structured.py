@@ -49,14 +49,19 @@ __all__ = ["START_SAMPLES", "StructuredFit", "fit_bearing_structure"]
 #: Samples at the start of the window the predictor's initial state is
 #: reconstructed from (P14); 0 leaves it at zero (the truncated predictor).
 START_SAMPLES = 8
-#: Stop when a step lowers ``j J`` (twice a log-likelihood) by less than this: the
-#: optimum is then a small fraction of a standard error away.
+#: Stop when the next Gauss-Newton step would lower ``j J`` (twice a log-likelihood) by
+#: less than this (its predicted gain ``-j g^T s``, free at every point; the achieved
+#: gain of a damped step): the optimum is then a few hundredths of a standard error
+#: away. (Judging the step after taking it cost one Jacobian more per round: the
+#: point it reached; docs/subspace.md, "eighth session".)
 _GAIN_TOL = 1e-3
 #: The same for the first weighting round (P13), which only supplies ``W`` for the
 #: second: stopped within about a standard error of its optimum (a gain below one unit
 #: of ``j J``), ``W`` changes at second order (docs/subspace.md, "seventh session":
 #: 1-3 Jacobians fewer on the bench records, v within 1.3e-3 of a standard error).
 _GAIN_TOL_FIRST = 1.0
+#: Parameters: v1..v9 (relative to the start) and the Kalman gain's 12 entries (scaled).
+_N_THETA = 21
 #: Floor of the weighting's innovation covariance (channels scaled to unit RMS).
 _RE_FLOOR = 1e-12
 #: Gauss-Newton steps per weighting round at most (6-16 in all are taken on the
@@ -161,8 +166,10 @@ def _model(theta: np.ndarray, v0: np.ndarray, dt: float, sy: np.ndarray, su: np.
 
 
 def _predictor_blocks(Abar, Btil, dAbar, dBtil, Cs, P):  # type: ignore[no-untyped-def]
-    """``V`` (ny, P m; blocks oldest first) and ``dV`` (n_th, ny, P m).
+    """``V`` (P, ny, m) and ``dV`` (P, n_th, ny, m), block-major, oldest block first.
 
+    Block ``c`` is ``Xi_{P-c} = C M_{P-c}``; block-major because the Gram operator
+    transforms along the blocks (``GramOperator.encode_blocks``).
     ``dM_k = d(Abar^{k-1} Btil)`` is the upper block of ``T^{k-1} [dBtil; Btil]``
     with ``T = [[Abar, dAbar], [0, Abar]]`` (the derivative of a power as a
     block-triangular power): one doubling sequence for all parameters.
@@ -175,10 +182,7 @@ def _predictor_blocks(Abar, Btil, dAbar, dBtil, Cs, P):  # type: ignore[no-untyp
     T[:, :n, n:] = dAbar
     B = np.concatenate([dBtil, np.broadcast_to(Btil, dBtil.shape)], axis=1)
     dM = _markov(T, B, P)[:, :, :n, :]
-    # block c (oldest first) is Xi_{P-c} = C M_{P-c}: reverse k
-    V = np.einsum("ij,kjm->ikm", Cs, M[::-1]).reshape(Cs.shape[0], -1)
-    dV = (Cs @ dM[:, ::-1]).transpose(0, 2, 1, 3).reshape(n_th, Cs.shape[0], -1)
-    return V, dV
+    return Cs @ M[::-1], (Cs @ dM[:, ::-1]).transpose(1, 0, 2, 3)
 
 
 def _state_map(
@@ -239,16 +243,20 @@ def _toeplitz_index(k: int) -> tuple[np.ndarray, np.ndarray]:
     return np.maximum(i - 1 - l, 0), (l < i).astype(float)
 
 
-def _power_derivative(Abar: np.ndarray, dAbar: np.ndarray, P: int) -> np.ndarray:
-    """``d(Abar^P)`` along each of ``dAbar`` (n_d, n, n): the upper-right block of
-    ``[[Abar, dAbar_i], [0, Abar]]^P`` (Van Loan 1978's block-triangular trick for
-    the power's Frechet derivative), all directions by one stacked ``matrix_power``."""
+def _power_derivative(
+    Abar: np.ndarray, dAbar: np.ndarray, P: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """``Abar^P`` and ``d(Abar^P)`` along each of ``dAbar`` (n_d, n, n): the diagonal and
+    the upper-right blocks of ``[[Abar, dAbar_i], [0, Abar]]^P`` (Van Loan 1978's
+    block-triangular trick for the power's Frechet derivative), all directions by one
+    stacked ``matrix_power``."""
     n = Abar.shape[0]
     T = np.zeros((dAbar.shape[0], 2 * n, 2 * n))
     T[:, :n, :n] = Abar
     T[:, n:, n:] = Abar
     T[:, :n, n:] = dAbar
-    return np.linalg.matrix_power(T, P)[:, :n, n:]
+    TP = np.linalg.matrix_power(T, P)
+    return TP[0, :n, :n], TP[:, :n, n:]
 
 
 @dataclass(frozen=True)
@@ -258,8 +266,8 @@ class _Point:
     another product with ``G``."""
 
     theta: np.ndarray
-    V: np.ndarray  # (3, 5P): the predictor's blocks, the start term (P14) included
-    dV: np.ndarray  # (n_th, 3, 5P): their derivatives
+    V: np.ndarray  # (P, 3, 5): the predictor's blocks, the start term (P14) included
+    dV: np.ndarray  # (P, n_th, 3, 5): their derivatives
     enc: Any  # the rows [X; dV] (X = [-V, I]) encoded for the Gram's products
     M: np.ndarray  # (3 + 3 n_th) squared: [X; dV] G [X; dV]^T
 
@@ -282,45 +290,50 @@ class _Criterion:
         self.P = gram.k - 1
         self.Cs = C_AMB / sy[:, None]
         self.k0 = min(k0, self.P)
+        # the rows' buffers, filled at each point (the encodings keep no reference)
+        self._rows = np.zeros((self.P + 1, 1 + _N_THETA, 3, 5))
+        self._rows[self.P, 0, :, 2:] = np.eye(3)  # X's identity on y(t); dV's last block 0
+        self._rows_x = np.zeros((self.P + 1, 3, 5))
 
-    def _start_term(self, th: np.ndarray) -> np.ndarray:  # C Abar^P x_hat(t-P), (P14)
-        Ad, Bd = _plant(self.v0 * (1.0 + th[:9]), self.dt)
-        Abar = Ad - th[9:].reshape(4, 3) @ self.Cs
-        M = _state_map(Ad, Bd * self.su[None, :], self.Cs, self.k0)
-        return self.Cs @ np.linalg.matrix_power(Abar, self.P) @ M
-
-    def _start_derivative(self, th, Abar, dAbar, dBtil):  # type: ignore[no-untyped-def]
-        # d(Cs Abar^P M) = Cs d(Abar^P) M + Cs Abar^P dM; M depends on v only
-        Ad, Bd = _plant(self.v0 * (1.0 + th[:9]), self.dt)
-        Bs = Bd * self.su[None, :]
-        M, dM = _state_map(Ad, Bs, self.Cs, self.k0, dAbar[:9], dBtil[:9, :, :2])
-        out = self.Cs @ _power_derivative(Abar, dAbar, self.P) @ M
-        out[:9] += self.Cs @ np.linalg.matrix_power(Abar, self.P) @ dM
-        return out
+    def _start(self, Abar, Ad, Bs, dAbar=None, dBtil=None):  # type: ignore[no-untyped-def]
+        """``C Abar^P x_hat(t-P)`` (P14), (k0, 3, 5) block-major; with ``dAbar``, ``dBtil``
+        also its derivative (k0, n_th, 3, 5): ``Cs d(Abar^P) M + Cs Abar^P dM``, ``M``
+        depending on v only (``Bs`` the scaled ``B_d``)."""
+        k0, Cs = self.k0, self.Cs
+        if dAbar is None:
+            S = Cs @ np.linalg.matrix_power(Abar, self.P) @ _state_map(Ad, Bs, Cs, k0)
+            return S.reshape(3, k0, 5).transpose(1, 0, 2)
+        M, dM = _state_map(Ad, Bs, Cs, k0, dAbar[:9], dBtil[:9, :, :2])
+        AP, dAP = _power_derivative(Abar, dAbar, self.P)
+        CAP = Cs @ AP
+        dS = Cs @ dAP @ M
+        dS[:9] += CAP @ dM
+        S = (CAP @ M).reshape(3, k0, 5).transpose(1, 0, 2)
+        return S, dS.reshape(-1, 3, k0, 5).transpose(2, 0, 1, 3)
 
     def markov(self, th: np.ndarray) -> np.ndarray:
-        """``V(theta)`` (3, 5P), no derivatives (the trial steps)."""
+        """``V(theta)`` (P, 3, 5), block-major, no derivatives (the trial steps)."""
         Ad, Bd = _plant(self.v0 * (1.0 + th[:9]), self.dt)
         Ks = th[9:].reshape(4, 3)
-        M = _markov(Ad - Ks @ self.Cs, np.concatenate([Bd * self.su[None, :], Ks], axis=1), self.P)
-        V = np.einsum("ij,kjm->ikm", self.Cs, M[::-1]).reshape(3, -1)
+        Bs = Bd * self.su[None, :]
+        Abar = Ad - Ks @ self.Cs
+        V = self.Cs @ _markov(Abar, np.concatenate([Bs, Ks], axis=1), self.P)[::-1]
         if self.k0:
-            V[:, : 5 * self.k0] += self._start_term(th)
+            V[: self.k0] += self._start(Abar, Ad, Bs)
         return V
 
     def point(self, th: np.ndarray) -> _Point:
         """``V``, ``dV`` and their Gram products: one encoding of 66 rows, one product."""
-        Abar, Btil, dAbar, dBtil, Cs, *_ = _model(th, self.v0, self.dt, self.sy, self.su)
+        Abar, Btil, dAbar, dBtil, Cs, _, Ad, _, _ = _model(th, self.v0, self.dt, self.sy, self.su)
         V, dV = _predictor_blocks(Abar, Btil, dAbar, dBtil, Cs, self.P)
-        if self.k0:  # the start term and its derivative, analytic (a 3 x 5 k0 block each)
-            V[:, : 5 * self.k0] += self._start_term(th)
-            dV[:, :, : 5 * self.k0] += self._start_derivative(th, Abar, dAbar, dBtil)
-        n_th, c = th.size, 5 * self.P
-        rows = np.zeros((3 + 3 * n_th, c + 5))
-        rows[:3, :c] = -V
-        rows[:3, c + 2 :] = np.eye(3)
-        rows[3:, :c] = dV.reshape(-1, c)
-        enc = self.gram.encode(rows)
+        if self.k0:  # the start term and its derivative, analytic (k0 blocks each)
+            S, dS = self._start(Abar, Ad, Btil[:, :2], dAbar, dBtil)
+            V[: self.k0] += S
+            dV[: self.k0] += dS
+        P, rows = self.P, self._rows  # block-major rows [X; dV], X = [-V, I]
+        np.negative(V, out=rows[:P, 0])
+        rows[:P, 1:] = dV
+        enc = self.gram.encode_blocks(rows.reshape(P + 1, -1, 5))
         M = self.gram.inner(enc, enc)
         return _Point(th, V, dV, enc, 0.5 * (M + M.T))
 
@@ -333,10 +346,9 @@ class _Criterion:
         small ``dV``; ``J`` itself (``tr(W X G X^T)``) would lose the ratio of the
         signal's to the errors' energy (~1e6 on a high-SNR record) to rounding.
         """
-        dV = self.markov(th) - p.V
-        rows = np.zeros((3, dV.shape[1] + 5))
-        rows[:, : dV.shape[1]] = -dV
-        e = self.gram.encode(rows)
+        rows = self._rows_x  # the last block (the current sample's) stays 0
+        np.subtract(p.V, self.markov(th), out=rows[: self.P])
+        e = self.gram.encode_blocks(rows)
         return float(np.sum(W * (2.0 * self.gram.inner(e, p.enc[:3]) + self.gram.inner(e, e))))
 
     def cross(self, p0: _Point, p1: _Point, W: np.ndarray) -> np.ndarray:
@@ -349,7 +361,7 @@ class _Criterion:
 def _normal(p: _Point, W: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``(J^T J, J^T R)`` of the whitened residual ``R = W^{1/2} (Fy - V Fz)`` at ``p``:
     ``tr(W dV_i Gzz dV_k^T)`` and ``-tr(W dV_i Gz: X^T)`` from ``p``'s Gram products."""
-    n = p.dV.shape[0]
+    n = p.theta.size
     B = p.M[3:, :3].reshape(n, 3, 3)  # [i, p, q] = dV(i, p) G X(q)^T
     D = p.M[3:, 3:].reshape(n, 3, n, 3)  # [i, p, k, q] = dV(i, p) G dV(k, q)^T
     H = np.einsum("ipkq,qp->ik", D, W)
@@ -438,8 +450,10 @@ def _gauss_newton(crit: _Criterion, p: _Point, W: np.ndarray, j: int, max_iter: 
     """Gauss-Newton on the normal equations with column scaling; Levenberg-Marquardt
     damping when a step fails. Returns the last point and the steps taken.
 
-    Stops when a step lowers ``j J`` (twice the log-likelihood change) by less
-    than ``tol``, or after ``max_iter`` steps. An undamped Gauss-Newton
+    Stops when the next undamped step is predicted to lower ``j J`` (twice the
+    log-likelihood change) by less than ``tol`` (``-j g^T s`` of the quadratic model
+    the step minimises), when a damped step gained less, or after ``max_iter`` steps
+    (the returned count: the steps taken). An undamped Gauss-Newton
     step that raises the cost is first halved (up to ``_HALVINGS`` times: far
     from the optimum the predictor's ``Abar^P`` makes the full step overshoot
     along a good direction) before damping turns it towards the gradient. Near the
@@ -448,12 +462,12 @@ def _gauss_newton(crit: _Criterion, p: _Point, W: np.ndarray, j: int, max_iter: 
     step the second-order term ``S`` is updated by the secant rule of NL2SOL
     (:func:`_dgw`) and the next step solves ``(J^T J + S) s = -J^T r``; ``S`` is
     dropped after a halved or damped step and whenever ``J^T J + S`` is not positive
-    definite. docs/subspace.md, "sixth session" and "seventh session".
+    definite. docs/subspace.md, "sixth" to "eighth session".
     """
     H, g = _normal(p, W)
     lam, it, h = 0.0, 0, 0
     Sq = None
-    for it in range(1, max_iter + 1):  # noqa: B007 - the count is returned
+    for it in range(1, max_iter + 1):
         d = np.sqrt(np.abs(np.diag(H)))
         d[d == 0] = 1.0
         Hs, gs = H / np.outer(d, d), g / d
@@ -466,6 +480,8 @@ def _gauss_newton(crit: _Criterion, p: _Point, W: np.ndarray, j: int, max_iter: 
                 if step is None:  # J^T J + S not positive definite: Gauss-Newton
                     Sq = None
                     step = _solve(Hs, -gs)
+                if -j * float(gs @ step) < tol:  # the predicted gain: converged
+                    return p, it - 1
                 for h in range(_HALVINGS + 1):
                     dc = crit.delta(p, p.theta + step / d, W)
                     if dc <= 0.0 or h == _HALVINGS:
@@ -483,7 +499,7 @@ def _gauss_newton(crit: _Criterion, p: _Point, W: np.ndarray, j: int, max_iter: 
         H, g = _normal(p, W)
         # the second-order term S by a secant update while the steps are full ones
         Sq = _dgw(Sq, step / d, g0, g, crit.cross(p0, p, W)) if full else None
-        if gain < tol:
+        if lam and gain < tol:  # damped on: no prediction to judge the next step by
             break
     return p, it
 
