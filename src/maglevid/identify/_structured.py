@@ -165,11 +165,12 @@ def _model(theta: np.ndarray, v0: np.ndarray, dt: float, sy: np.ndarray, su: np.
     return Abar, Btil, dAbar, dBtil, Cs, v, Ad, Bd, Ks
 
 
-def _predictor_blocks(Abar, Btil, dAbar, dBtil, Cs, P):  # type: ignore[no-untyped-def]
+def _predictor_blocks(Abar, Btil, dAbar, dBtil, Cs, P, out=None):  # type: ignore[no-untyped-def]
     """``V`` (P, ny, m) and ``dV`` (P, n_th, ny, m), block-major, oldest block first.
 
     Block ``c`` is ``Xi_{P-c} = C M_{P-c}``; block-major because the Gram operator
-    transforms along the blocks (``GramOperator.encode_blocks``).
+    transforms along the blocks (``GramOperator.encode_blocks``). ``out``: an array
+    (P, n_th, ny, m) ``dV`` is written into (and returned).
     ``dM_k = d(Abar^{k-1} Btil)`` is the upper block of ``T^{k-1} [dBtil; Btil]``
     with ``T = [[Abar, dAbar], [0, Abar]]`` (the derivative of a power as a
     block-triangular power): one doubling sequence for all parameters.
@@ -182,7 +183,10 @@ def _predictor_blocks(Abar, Btil, dAbar, dBtil, Cs, P):  # type: ignore[no-untyp
     T[:, :n, n:] = dAbar
     B = np.concatenate([dBtil, np.broadcast_to(Btil, dBtil.shape)], axis=1)
     dM = _markov(T, B, P)[:, :, :n, :]
-    return Cs @ M[::-1], (Cs @ dM[:, ::-1]).transpose(1, 0, 2, 3)
+    if out is None:
+        out = np.empty((P, n_th, Cs.shape[0], Btil.shape[1]))
+    np.matmul(Cs, dM[:, ::-1], out=out.transpose(1, 0, 2, 3))
+    return Cs @ M[::-1], out
 
 
 def _state_map(
@@ -267,7 +271,6 @@ class _Point:
 
     theta: np.ndarray
     V: np.ndarray  # (P, 3, 5): the predictor's blocks, the start term (P14) included
-    dV: np.ndarray  # (P, n_th, 3, 5): their derivatives
     enc: Any  # the rows [X; dV] (X = [-V, I]) encoded for the Gram's products
     M: np.ndarray  # (3 + 3 n_th) squared: [X; dV] G [X; dV]^T
 
@@ -322,20 +325,25 @@ class _Criterion:
             V[: self.k0] += self._start(Abar, Ad, Bs)
         return V
 
-    def point(self, th: np.ndarray) -> _Point:
-        """``V``, ``dV`` and their Gram products: one encoding of 66 rows, one product."""
+    def blocks(self, th: np.ndarray, out: np.ndarray | None = None):  # type: ignore[no-untyped-def]
+        """``V`` (P, 3, 5) and ``dV`` (P, n_th, 3, 5) at ``th``, block-major, the start
+        term (P14) included; ``dV`` written into ``out`` when given."""
         Abar, Btil, dAbar, dBtil, Cs, _, Ad, _, _ = _model(th, self.v0, self.dt, self.sy, self.su)
-        V, dV = _predictor_blocks(Abar, Btil, dAbar, dBtil, Cs, self.P)
+        V, dV = _predictor_blocks(Abar, Btil, dAbar, dBtil, Cs, self.P, out=out)
         if self.k0:  # the start term and its derivative, analytic (k0 blocks each)
             S, dS = self._start(Abar, Ad, Btil[:, :2], dAbar, dBtil)
             V[: self.k0] += S
             dV[: self.k0] += dS
+        return V, dV
+
+    def point(self, th: np.ndarray) -> _Point:
+        """``V``, ``dV`` and their Gram products: one encoding of 66 rows, one product."""
         P, rows = self.P, self._rows  # block-major rows [X; dV], X = [-V, I]
+        V, _ = self.blocks(th, out=rows[:P, 1:])
         np.negative(V, out=rows[:P, 0])
-        rows[:P, 1:] = dV
         enc = self.gram.encode_blocks(rows.reshape(P + 1, -1, 5))
         M = self.gram.inner(enc, enc)
-        return _Point(th, V, dV, enc, 0.5 * (M + M.T))
+        return _Point(th, V, enc, 0.5 * (M + M.T))
 
     def delta(self, p: _Point, th: np.ndarray, W: np.ndarray) -> float:
         """``J(theta) - J(p.theta)`` under ``W``, cancellation-free.
