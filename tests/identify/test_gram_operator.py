@@ -66,6 +66,27 @@ def test_gram_products_equal_the_hankel_rows(N, L, w, k, center):
     np.testing.assert_array_equal(acc.head, z[:L])  # the data stage's state is untouched
 
 
+def test_encodings_survive_the_next_encoding():
+    # The operator reuses its FFT buffers from one encoding of r rows to the next (the
+    # temporaries are MB-sized): an encoding must keep nothing of them. Reference: the
+    # first encoding's products, taken before the second encoding was made.
+    rng = np.random.default_rng(7)
+    z = rng.standard_normal((2000, 5))
+    acc = _LagGram(5, 40)
+    acc.update(z)
+    op = GramOperator(acc, 41, 30, z.std(axis=0), True)
+    X1, X2 = rng.standard_normal((2, 66, 30 * 5))
+    e1 = op.encode(X1)
+    before = op.inner(e1, e1)
+    e2 = op.encode(X2)
+    np.testing.assert_array_equal(op.inner(e1, e1), before)
+    assert not np.allclose(op.inner(e2, e2), before)
+    # the block-major entry point is the same encoding
+    e3 = op.encode_blocks(np.ascontiguousarray(X1.reshape(66, 30, 5).transpose(1, 0, 2)))
+    for a, b in [(e3.flat, e1.flat), (e3.yh, e1.yh), (e3.yt, e1.yt), (e3.sp, e1.sp)]:
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-14 * np.max(np.abs(b)))
+
+
 def test_gram_operator_refuses_a_window_beyond_the_lags():
     acc = _LagGram(5, 10)
     acc.update(np.random.default_rng(0).standard_normal((100, 5)))

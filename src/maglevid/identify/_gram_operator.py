@@ -87,16 +87,17 @@ class GramOperator:
     ``X T(St) Y^T = (1/n) sum_f X(f) R(f) Y(f)^H`` (Parseval, the linear convolution
     held without wrapping by ``n >= w + k``), summed over the half spectrum of the
     real sequences with weights ``c_f`` (1 at 0 and n/2, else 2). ``D R(f) D`` (``D``
-    the channel scaling) is Hermitian (``St_{-tau} = St_tau^T``), ``= U(f) diag(lambda(f))
-    U(f)^H`` (not definite: the lags are truncated at ``k - 1``); rows are stored as
-    ``X(f) U(f)``,
-    so a product is one real GEMM with the weights ``c_f lambda(f) / n`` on one side.
-    The corrections are products of the short time-domain sequences ``X Lh``,
-    ``X Lt`` (one inverse FFT of ``r`` sequences each). Rows come as time-domain
-    blocks (:meth:`encode`: one real FFT of ``r m`` sequences of length ``n``) or as
-    their spectra (:meth:`encode_spectra`, e.g. in closed form from a state-space
-    model, ``_structured``); a product of ``r1`` and ``r2`` rows costs
-    ``O(n m r1 r2)``.
+    the channel scaling) is Hermitian (``St_{-tau} = St_tau^T``) with
+    ``D R(f) D = U(f) diag(lambda(f)) U(f)^H`` (not definite: the lags are truncated at
+    ``k - 1``), so rows are stored rotated, ``X(f) U(f)``, and a product is one real
+    GEMM with the weights ``c_f lambda(f) / n`` on one side (eq. (P19) of
+    docs/subspace.md). The corrections are products of the short time-domain
+    sequences ``X Lh``, ``X Lt`` (one inverse FFT of ``r`` sequences each). Encoding
+    ``r`` rows costs one real FFT of ``r m`` sequences of length ``n`` and one
+    ``m x m`` rotation per frequency; a product of ``r1`` and ``r2`` rows
+    ``O(n m r1 r2)``. The rows come as ``(r, k m)`` (:meth:`encode`) or block-major
+    ``(k, r, m)`` (:meth:`encode_blocks`, what the FFT along the blocks reads
+    without a transposed copy).
     """
 
     def __init__(self, acc: _LagGram, w: int, k: int, scale: np.ndarray, center: bool) -> None:
@@ -166,9 +167,10 @@ class GramOperator:
         return Encoded(flat, yh[1:k].copy(), yt[: w - 1].copy(), sp)
 
     def _workspace(self, r: int) -> tuple[np.ndarray, ...]:
-        """Buffers for encoding ``r`` rows, kept for the next encoding of as many: an
-        encoding's temporaries are several MB, and fresh ones cost more in page faults
-        than the FFT itself (measured 4-5 ms against 2.5 ms for 66 rows at N = 1e4)."""
+        """Buffers for encoding ``r`` rows, kept for the next encoding of as many (an
+        encoding keeps none of them): an encoding's temporaries are several MB, and with
+        fresh ones a loop of encodings of 66 rows took 7.2 ms each against 3.3 ms reused
+        (N = 1e4, the issue record's window; allocator and page-fault costs)."""
         ws = self._ws.get(r)
         if ws is None:
             nf, n = self._hg.shape[0], self.n
