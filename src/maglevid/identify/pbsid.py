@@ -1090,15 +1090,20 @@ def _fit_in_memory(algorithm: str, y: Any, u: Any, kw: dict[str, Any]) -> Identi
     # 20 % of a fit at 1e4) costs more than it saves. The same sums to rounding.
     step = max(lags, 1) * max(1, _PASS_CHUNK // max(lags, 1))
     shift = np.zeros(nu + ny)
-    if opt.remove_mean:  # the first chunk's mean: centring the Gram without cancellation
-        shift = np.concatenate([u[:step], y[:step]], axis=1).mean(axis=0)
     if opt.physical_fit == "structured" and lags >= _FFT_MIN_LAGS:
         # the structured fit's long window: its lagged products by blocked FFT, 10-40x
-        # faster than the direct sums at 100-460 lags (docs/subspace.md, "sixth session")
+        # faster than the direct sums at 100-460 lags (docs/subspace.md, "sixth session").
+        # One interleaved copy of the record serves the shift and the FFT: the shift's
+        # own copy of the first chunk (the whole record below 2.6e5 samples) was 3-5 ms
+        # of a fit at 1e5; the same values, reduced alike: the same shift.
         z = np.concatenate([u, y], axis=1)
-        z -= shift
+        if opt.remove_mean:
+            shift = z[:step].mean(axis=0)
+            z -= shift
         acc.load_fft(z)
         return _fit(acc, nu, ny, opt, p_top, shift, (y, u))
+    if opt.remove_mean:  # the first chunk's mean: centring the Gram without cancellation
+        shift = np.concatenate([u[:step], y[:step]], axis=1).mean(axis=0)
     for t0 in range(0, N, step):  # the same accumulator a stream would use
         if N > _SPLIT_MIN:
             acc.update_split(u[t0 : t0 + step] - shift[:nu], y[t0 : t0 + step] - shift[nu:])
