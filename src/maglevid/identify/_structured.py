@@ -173,7 +173,7 @@ def _predictor_blocks(Abar, Btil, dAbar, dBtil, Cs, P, out=None, work=None):  # 
     transforms along the blocks (``GramOperator.encode_blocks``). ``out``: an array
     (P, n_th, ny, m) ``dV`` is written into (and returned); ``work``: the buffers
     :func:`_doubling_buffers` makes, reused from call to call (fresh MB-sized arrays
-    cost page faults comparable to the products).
+    are faulted in again at every call: docs/subspace.md, "eighth session").
     ``M_k = Abar^{k-1} Btil`` and ``dM_k`` by doubling: ``[dM; M]_{L+j}`` is
     ``[[Abar^L, d(Abar^L)], [0, Abar^L]] [dM_j; M_j]`` (the derivative of a power as a
     block-triangular power, Van Loan 1978), so ``dM_{L+j} = Abar^L dM_j + d(Abar^L) M_j``
