@@ -51,7 +51,13 @@ from maglevid.jsonable import thaw
 from maglevid.lti import StateSpace
 from maglevid.physics.amb import V_NAMES, AMBParameters, amb_state_space, parameters_from_v
 from maglevid.physics.units import parameter_unit
-from maglevid.plants.base import BaseKind, DiagnosisRun, as_mapping, shape_of
+from maglevid.plants.base import (
+    BaseKind,
+    DiagnosisRun,
+    as_mapping,
+    cannot_diagnose,
+    shape_of,
+)
 
 __all__ = [
     "DEFAULT_METHOD",
@@ -306,14 +312,76 @@ def _verdict(
 
 
 def _percentage_index(ident: StateSpace | None, base: StateSpace | None) -> dict[str, Any] | None:
-    if ident is None or base is None:
-        return None
+    if ident is None or base is None or ident.A.shape != base.A.shape:
+        return None  # no model, or another state vector than the bearing's four
     from maglevid.diagnose.percentage import percentage_index
 
     return {
         "A_p": percentage_index(ident.A, base.A, zero_tol=1e-10),
         "B_p": percentage_index(ident.B, base.B, zero_tol=1e-10),
     }
+
+
+def _physical_options(
+    method: str, options: Mapping[str, Any] | None, notes: list[str]
+) -> dict[str, Any]:
+    """The method's options for a diagnosis: a method that can report the bearing's
+    physical parameters or a black-box model (``coordinates``, PBSID-opt and SSARX) is
+    asked for the parameters unless the user chose, and the note says so."""
+    from maglevid.identify.registry import method_options
+
+    out = dict(options or {})
+    declared = {o.name: o for o in method_options(method) or ()}
+    coords = declared.get("coordinates")
+    if coords is not None and "coordinates" not in out and "physical" in (coords.choices or ()):
+        out["coordinates"] = "physical"
+        notes.append(
+            f"{method}: coordinates='physical' (the diagnosis compares the bearing's "
+            "physical parameters, which the identified coordinates do not give)"
+        )
+    return out
+
+
+def _physical_estimates(
+    result: Any, ref: AMBParameters | None, notes: list[str]
+) -> tuple[dict[str, float], dict[str, float]]:
+    """The result's estimates and standard errors; when it gives v1..v9 with their
+    covariance but no physical parameters (PBSID-opt and SSARX in physical coordinates),
+    those follow from eq. (4) with the baseline's mass and bias current (the delta
+    method for their standard errors), appended after the result's own."""
+    est, se = dict(result.parameters), result.std_errors()
+    if ref is None or result.covariance is None or any(k in est for k in DIAGNOSED_PARAMETERS):
+        return est, se
+    if not all(k in est for k in V_NAMES):
+        return est, se
+    names = list(est)
+    idx = [names.index(k) for k in V_NAMES]
+    v, cov = np.array([est[k] for k in V_NAMES]), result.covariance[np.ix_(idx, idx)]
+    phys = parameters_from_v(v, m=ref.m, i0=ref.i0)
+    _, J = central_jacobian(
+        lambda vv: np.array(list(parameters_from_v(vv, m=ref.m, i0=ref.i0).values())), v
+    )
+    sd = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", J, cov, J), 0.0))
+    est.update(phys)
+    se = {**se, **dict(zip(phys, sd.tolist()))}
+    notes.append(
+        "physical parameters from the method's v1..v9 with the baseline's mass and bias "
+        f"current (m = {ref.m:g} kg, i0 = {ref.i0:g} A), eq. (4) inverted; their standard "
+        "errors by the delta method"
+    )
+    return est, se
+
+
+def _no_physical_parameters(method: str, estimated: Mapping[str, Any]) -> str:
+    """Why a diagnosis cannot judge a method's result, and which methods can."""
+    got = ", ".join(sorted(estimated)[:6]) or "no parameters"
+    return (
+        f"method {method!r} estimated none of the bearing's physical parameters "
+        f"({', '.join(DIAGNOSED_PARAMETERS[:6])}, ...), only {got}: a black-box model "
+        "cannot be compared with the baseline parameter by parameter. Use a method "
+        "that estimates them: ml (the default), physical, deadbeat-iv, okid-era, or "
+        "pbsid / ssarx with coordinates=physical"
+    )
 
 
 @dataclass
@@ -364,7 +432,7 @@ class AMBStages:
     drift_parameters: tuple[str, ...] = DIAGNOSED_PARAMETERS
 
     def quality(self, run: DiagnosisRun) -> tuple[QualityCheck, ...]:
-        run.identify_options = dict(run.method_options or {})
+        run.identify_options = _physical_options(run.method, run.method_options, run.notes)
         return run_checks(run.data)
 
     def baseline(self, run: DiagnosisRun) -> None:
@@ -397,13 +465,15 @@ class AMBStages:
             )
         run.base = _Baseline(params, values, source, design, v_cov)
 
-    def compare(self, run: DiagnosisRun) -> None:
-        """The diagnosed parameters against the baseline, with the model-error term."""
+    def compare(self, run: DiagnosisRun) -> Diagnosis | None:
+        """The diagnosed parameters against the baseline, with the model-error term; a
+        method that estimated none of them ends the diagnosis (it cannot judge)."""
         result, base, data = run.result, run.base, run.data
-        est = result.parameters
-        se = result.std_errors()
-        compared = {k: (est[k], se[k]) for k in DIAGNOSED_PARAMETERS if k in est}
         ref = base.params or base.design
+        est, se = _physical_estimates(result, ref, run.notes)
+        compared = {k: (est[k], se[k]) for k in DIAGNOSED_PARAMETERS if k in est}
+        if not compared:
+            return cannot_diagnose(run, [_no_physical_parameters(run.method, est)])
         eps = estimate_model_error(data, ref)
         model_errors: dict[str, float] = {}
         has_v = all(k in est for k in V_NAMES)
@@ -418,6 +488,7 @@ class AMBStages:
             model_errors=model_errors,
         )  # fmt: skip
         run.compared = _Compared(changes, est, measured_operating_point(data), eps, has_v)
+        return None
 
     def _isolation(self, run: DiagnosisRun) -> IsolationResult | None:
         """The fault hypotheses fitted to v1..v9 at the settled operating point."""
