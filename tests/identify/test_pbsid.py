@@ -630,3 +630,30 @@ def test_varx_by_triangular_solve_equals_the_pivoted_qr(bearing, monkeypatch):
     scale = np.abs(old.residuals).max()
     np.testing.assert_allclose(new.residuals, old.residuals, rtol=0, atol=1e-10 * scale)
     assert new.options == old.options and new.notes == old.notes
+
+
+@pytest.mark.parametrize("gap", [1e3, 1.28])
+def test_left_svd_values_and_leading_vectors_equal_the_full_svd(gap):
+    # The transform's SVD: values by gesdd without vectors, the n leading left vectors
+    # as eigenvectors of R^T R (eighth session). Reference: numpy's full SVD of P.
+    # A clear gap (1e3) and the UAQ rig's marginal one (s_4 / s_5 = 1.28), s_1 / s_4
+    # = 1e3: values to 1e-12 relative, the vectors' projector to 1e-9 (bound
+    # ~eps s_1^2 / (s_4^2 - s_5^2) ~ 3e-10 at the marginal gap).
+    from maglevid.identify.pbsid import _LeftSVD
+
+    rng = np.random.default_rng(5)
+    r, c = 60, 200
+    s_true = np.concatenate([[1.0, 0.3, 0.05, 1e-3], 1e-3 / gap * np.logspace(0, -3, r - 4)])
+    Ul = np.linalg.qr(rng.standard_normal((r, r)))[0]
+    Vr = np.linalg.qr(rng.standard_normal((c, r)))[0]
+    P = (Ul * s_true) @ Vr.T
+    U, s, _ = np.linalg.svd(P, full_matrices=False)
+    svd = _LeftSVD(P)
+    np.testing.assert_allclose(svd.s, s, rtol=1e-12, atol=1e-15 * s[0])
+    V = svd.vectors(4)
+    assert V.shape == (r, 4)
+    assert np.max(np.abs(V @ V.T - U[:, :4] @ U[:, :4].T)) < 1e-9
+    tall = _LeftSVD(P[:, :40].T @ P[:, :40])  # rows >= columns: the SVD itself
+    np.testing.assert_allclose(
+        np.abs(tall.vectors(2)), np.abs(np.linalg.svd(P[:, :40].T @ P[:, :40])[0][:, :2])
+    )

@@ -290,27 +290,44 @@ def _gamma_k(V: np.ndarray, p: int, f: int, m: int) -> np.ndarray:
     return GK
 
 
-def _state_map_pbsid(
-    st: _Stats, V: np.ndarray, p: int, f: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Left singular vectors and singular values of ``Gamma_f K_p Z_p``; ``Gamma_f K_p`` (P6)."""
+def _state_map_pbsid(st: _Stats, V: np.ndarray, p: int, f: int) -> tuple[_LeftSVD, np.ndarray]:
+    """The SVD of ``Gamma_f K_p Z_p`` (values; leading left vectors on demand) and
+    ``Gamma_f K_p`` (P6)."""
     GK = _gamma_k(V, p, f, st.m)
-    U, s = _left_svd(GK @ st.F[_z_rows(st, 0, p)])  # Gamma_f K_p Z_p in the factor's basis
-    return U, s, GK
+    return _LeftSVD(GK @ st.F[_z_rows(st, 0, p)]), GK  # Gamma_f K_p Z_p, the factor's basis
 
 
-def _left_svd(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Left singular vectors and values of a wide ``P`` (rows << columns).
+class _LeftSVD:
+    """Singular values of a wide ``P`` (rows << columns) and, on demand, its leading
+    left singular vectors.
 
-    ``P^T = Q R`` first, then the SVD of the square ``R^T`` (same ``U``, ``s``):
-    the right singular vectors of ``P``, not needed, are never formed.
+    ``P^T = Q R`` first: ``P`` and the square ``R^T`` have the same ``U`` and ``s``,
+    and the right singular vectors are never formed. The values by ``gesdd`` without
+    vectors; the ``n`` leading vectors, once the order is chosen from the values, as
+    the leading eigenvectors of ``R^T R = P P^T`` (``syevr`` on that subset only). Their
+    error is ~``eps s_1^2 / (s_n^2 - s_{n+1}^2)``: ~3e-10 at the UAQ rig's marginal
+    gap of 1.28 with ``s_1 / s_n`` 1e3. The full SVD with both vector sets was 6.4-10
+    ms of the transform's ~12 (1e4, 198 rows), this 2.7-3.3 (docs/subspace.md,
+    "eighth session"). A tall ``P`` takes the SVD.
     """
-    if P.shape[0] >= P.shape[1]:
-        U, s, _ = np.linalg.svd(P, full_matrices=False)
-        return U, s
-    R = sla.qr(P.T, mode="r", check_finite=False)[0][: P.shape[0]]
-    U, s, _ = np.linalg.svd(R.T)
-    return U, s
+
+    def __init__(self, P: np.ndarray) -> None:
+        self._U: np.ndarray | None = None
+        if P.shape[0] >= P.shape[1]:
+            self._U, self.s, _ = np.linalg.svd(P, full_matrices=False)
+            self._R = None
+            return
+        self._R = sla.qr(P.T, mode="r", check_finite=False)[0][: P.shape[0]]
+        self.s = sla.svd(self._R, compute_uv=False, check_finite=False)
+
+    def vectors(self, n: int) -> np.ndarray:
+        """The ``n`` leading left singular vectors (columns), largest first."""
+        if self._U is not None:
+            return self._U[:, :n]
+        G = self._R.T @ self._R
+        r = G.shape[0]
+        _, V = sla.eigh(G, subset_by_index=[r - n, r - 1], check_finite=False)
+        return V[:, ::-1]
 
 
 def _corrected_future(st: _Stats, V: np.ndarray, D: np.ndarray, p: int, f: int) -> np.ndarray:
@@ -394,8 +411,8 @@ def _ssarx_regression(
 
 def _state_map_ssarx(
     st: _Stats, p: int, f: int, feedthrough: bool, weighting: str, notes: list[str]
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Left singular vectors, singular values and ``W1 beta`` of the weighted SVD, eq. (P8)."""
+) -> tuple[_LeftSVD, np.ndarray]:
+    """The weighted SVD of eq. (P8) (values; leading left vectors on demand) and ``W1 beta``."""
     _, _, beta, Yt = _ssarx_regression(st, p, f, feedthrough)  # ytil_f = Gamma_f K_p Z_p + e
     W1beta = beta
     if weighting == "cca":
@@ -408,8 +425,7 @@ def _state_map_ssarx(
                 "weighting='cca' needs the corrected future outputs to have a full-rank "
                 "covariance, which noise-free data lack; the SVD was not weighted"
             )
-    U, s = _left_svd(W1beta @ _leading(st.F, p * st.m))
-    return U, s, W1beta
+    return _LeftSVD(W1beta @ _leading(st.F, p * st.m)), W1beta
 
 
 def _order(s: np.ndarray, order: int | None, n_max: int, rank_tol: float) -> tuple[int, float]:
@@ -633,11 +649,12 @@ def _identify_states(
     """VARX (P4), state sequence (P5)-(P8), order, ``(A, B, C, D, K, Re)`` (P9), scaled."""
     if opt.algorithm == "pbsid":
         V, _ = _varx(st, p, opt.feedthrough)
-        U, s, GK = _state_map_pbsid(st, V, p, f)
+        svd, GK = _state_map_pbsid(st, V, p, f)
     else:
-        U, s, GK = _state_map_ssarx(st, p, f, opt.feedthrough, opt.weighting, notes)
+        svd, GK = _state_map_ssarx(st, p, f, opt.feedthrough, opt.weighting, notes)
+    s = svd.s
     n, gap = _order(s, opt.order, f * st.ny, opt.rank_tol)
-    L = (U[:, :n] / np.sqrt(s[:n])[None, :]).T @ GK  # X = S^{-1/2} U^T (Gamma K) Z_p
+    L = (svd.vectors(n) / np.sqrt(s[:n])[None, :]).T @ GK  # X = S^{-1/2} U^T (Gamma K) Z_p
     system = _system_from_states(st, L, p, opt.feedthrough)  # eq. (P9)
     if opt.order is None:
         notes.append(
