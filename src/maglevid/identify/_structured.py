@@ -182,12 +182,12 @@ def _predictor_blocks(Abar, Btil, dAbar, dBtil, Cs, P, out=None, work=None):  # 
     twice the work and allocated twice the memory).
     """
     n_th = dAbar.shape[0]
-    M, dM, tmp = _doubling_buffers(n_th, P, Btil.shape) if work is None else work
-    M[0], dM[:, 0] = Btil, dBtil
+    dM, tmp = _doubling_buffers(n_th, P, Btil.shape) if work is None else work
+    M = _markov(Abar, Btil, P)
+    dM[:, 0] = dBtil
     L, Ap, dAp = 1, Abar, dAbar
     while L < P:
         c = min(L, P - L)
-        np.matmul(Ap, M[:c], out=M[L : L + c])
         np.matmul(Ap, dM[:, :c], out=dM[:, L : L + c])
         dM[:, L : L + c] += np.matmul(dAp[:, None], M[:c], out=tmp[:, :c])
         L += c
@@ -201,9 +201,8 @@ def _predictor_blocks(Abar, Btil, dAbar, dBtil, Cs, P, out=None, work=None):  # 
 
 
 def _doubling_buffers(n_th: int, P: int, shape: tuple[int, ...]) -> tuple[np.ndarray, ...]:
-    """``M``, ``dM`` and a product's scratch for :func:`_predictor_blocks`."""
+    """``dM`` and a product's scratch for :func:`_predictor_blocks`."""
     return (
-        np.empty((P, *shape)),
         np.empty((n_th, P, *shape)),
         np.empty((n_th, (P + 1) // 2, *shape)),
     )

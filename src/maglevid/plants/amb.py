@@ -165,12 +165,19 @@ def estimate_model_error(data: ClosedLoopData, p: AMBParameters | None) -> float
     return model_error_term(relative_excursion(data.y, p.x0, p.i0))
 
 
-def _physical_model_errors(v: np.ndarray, eps: float, m: float, i0: float) -> dict[str, float]:
-    """Model-error std of each physical parameter: eq. (4) inverted, J diag(eps v) J^T."""
+def _physical_from_v(v: np.ndarray, m: float, i0: float) -> tuple[dict[str, float], np.ndarray]:
+    """The physical parameters of v1..v9 (eq. (4) inverted with ``m``, ``i0``) and their
+    Jacobian in v (central differences), in :func:`parameters_from_v`'s order."""
     base = parameters_from_v(v, m=m, i0=i0)
     _, J = central_jacobian(
         lambda vv: np.array(list(parameters_from_v(vv, m=m, i0=i0).values())), v
     )
+    return base, J
+
+
+def _physical_model_errors(v: np.ndarray, eps: float, m: float, i0: float) -> dict[str, float]:
+    """Model-error std of each physical parameter: eq. (4) inverted, J diag(eps v) J^T."""
+    base, J = _physical_from_v(v, m, i0)
     sd = np.sqrt(np.einsum("ij,j,ij->i", J, (eps * v) ** 2, J))
     out = dict(zip(base, sd.tolist()))
     out.update({k: float(eps * abs(vi)) for k, vi in zip(V_NAMES, v)})
@@ -350,17 +357,12 @@ def _physical_estimates(
     those follow from eq. (4) with the baseline's mass and bias current (the delta
     method for their standard errors), appended after the result's own."""
     est, se = dict(result.parameters), result.std_errors()
-    if ref is None or result.covariance is None or any(k in est for k in DIAGNOSED_PARAMETERS):
+    has_v_only = all(k in est for k in V_NAMES) and not any(k in est for k in DIAGNOSED_PARAMETERS)
+    if ref is None or result.covariance is None or not has_v_only:
         return est, se
-    if not all(k in est for k in V_NAMES):
-        return est, se
-    names = list(est)
-    idx = [names.index(k) for k in V_NAMES]
+    idx = [list(est).index(k) for k in V_NAMES]
     v, cov = np.array([est[k] for k in V_NAMES]), result.covariance[np.ix_(idx, idx)]
-    phys = parameters_from_v(v, m=ref.m, i0=ref.i0)
-    _, J = central_jacobian(
-        lambda vv: np.array(list(parameters_from_v(vv, m=ref.m, i0=ref.i0).values())), v
-    )
+    phys, J = _physical_from_v(v, ref.m, ref.i0)
     sd = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", J, cov, J), 0.0))
     est.update(phys)
     se = {**se, **dict(zip(phys, sd.tolist()))}
