@@ -460,7 +460,7 @@ def test_structured_jacobian_equals_central_differences(monkeypatch):
 
     seen = {}
 
-    def spy(crit, p, W, j, max_iter, tol):
+    def spy(crit, p, W, j, max_iter, tol, final=False):
         dV = crit.blocks(p.theta)[1].transpose(1, 0, 2, 3).reshape(p.theta.size, -1)
         d = np.linalg.norm(dV, axis=1)
         err = np.empty(p.theta.size)
@@ -470,7 +470,7 @@ def test_structured_jacobian_equals_central_differences(monkeypatch):
             dc = (crit.markov(p.theta + e) - crit.markov(p.theta - e)).ravel() / (2 * e[i])
             err[i] = np.linalg.norm(dV[i] - dc) / np.linalg.norm(dc)
         seen.setdefault("err", err)
-        return p, 0
+        return p, 0, (p.theta, p.Re)
 
     monkeypatch.setattr(S, "_gauss_newton", spy)
     # the bench's paper-like record at N = 1e4 (noise 1e-10 m, 3e-6 A; R1, kw1 +20 %):

@@ -61,6 +61,16 @@ _GAIN_TOL = 1e-2
 #: of ``j J``), ``W`` changes at second order (docs/subspace.md, "seventh session":
 #: 1-3 Jacobians fewer on the bench records, v within 1.3e-3 of a standard error).
 _GAIN_TOL_FIRST = 1.0
+#: The last round ends with the step of a point that predicts a gain below this (of ``j J``,
+#: at or above ``_GAIN_TOL``): the step is taken, checked to lower the cost, and no point
+#: is built after it (its Jacobian would only confirm convergence); the estimate is then
+#: ~``sqrt(0.1)`` x (the steps' contraction) ~ 0.1 standard errors from the optimum or
+#: closer (docs/subspace.md, "ninth session").
+_FINAL_GAIN = 0.1
+#: A full step is taken without a trial of its cost first when the last full step gained
+#: within these factors of its prediction (the quadratic model holds): its point is built
+#: at once and the cost's change read off the two points' encodings.
+_TRUST = (0.5, 2.0)
 #: Parameters: v1..v9 (relative to the start) and the Kalman gain's 12 entries (scaled).
 _N_THETA = 21
 #: Floor of the weighting's innovation covariance (channels scaled to unit RMS).
@@ -391,10 +401,25 @@ class _Criterion:
         small ``dV``; ``J`` itself (``tr(W X G X^T)``) would lose the ratio of the
         signal's to the errors' energy (~1e6 on a high-SNR record) to rounding.
         """
+        return self._change(p, self._encode_x(p, th), W)[0]
+
+    def _encode_x(self, p: _Point, th: np.ndarray):  # type: ignore[no-untyped-def]
+        """The rows ``X(theta) - X(p) = V(p) - V(theta)`` encoded (the trial's one encoding)."""
         rows = self._rows_x  # the last block (the current sample's) stays 0
         np.subtract(p.V, self.markov(th), out=rows[: self.P])
-        e = self.gram.encode_blocks(rows)
-        return float(np.sum(W * (2.0 * self.gram.inner(e, p.enc[:3]) + self.gram.inner(e, e))))
+        return self.gram.encode_blocks(rows)
+
+    def _change(self, p: _Point, e, W: np.ndarray):  # type: ignore[no-untyped-def]
+        """``J(theta) - J(p)`` from the encoded ``dX`` (:meth:`delta`), and the new prediction
+        errors' covariance ``(X_p + dX) G (X_p + dX)^T`` from the same two products."""
+        B = self.gram.inner(e, p.enc[:3])  # dX G X_p^T
+        E = self.gram.inner(e, e)
+        return float(np.sum(W * (2.0 * B + E))), p.Re + B + B.T + E
+
+    def change(self, p: _Point, q: _Point, W: np.ndarray) -> float:
+        """``J(q) - J(p)`` of two built points: :meth:`delta` with ``dX``'s encoding the
+        difference of theirs (encodings are linear), no encoding of its own."""
+        return self._change(p, _difference(q.enc[:3], p.enc[:3]), W)[0]
 
     def cross(self, p0: _Point, p1: _Point, W: np.ndarray) -> np.ndarray:
         """``J_0^T R_1``: the old point's Jacobian against the new residual (the secant term)."""
@@ -425,6 +450,14 @@ def _weight(Re: np.ndarray) -> np.ndarray:
     return np.linalg.inv(Re)
 
 
+def _difference(a, b):  # type: ignore[no-untyped-def]
+    """``a - b`` of two encodings (``Encoded`` or a dense operator's plain rows)."""
+    if isinstance(a, np.ndarray):
+        return a - b
+    sp = None if a.sp is None else a.sp - b.sp
+    return type(a)(a.flat - b.flat, a.yh - b.yh, a.yt - b.yt, sp)
+
+
 def fit_bearing_structure(
     gram,  # type: ignore[no-untyped-def]
     *,
@@ -451,16 +484,16 @@ def fit_bearing_structure(
     # starts where the last one ended (its W-free parts reused: one Jacobian fewer)
     p = crit.point(theta)
     iterations = 0
-    for tol in (_GAIN_TOL_FIRST, _GAIN_TOL):
-        p, it = _gauss_newton(crit, p, _weight(p.Re), j, max_iter, tol)
+    for tol, final in ((_GAIN_TOL_FIRST, False), (_GAIN_TOL, True)):
+        p, it, (theta, Re_s) = _gauss_newton(crit, p, _weight(p.Re), j, max_iter, tol, final)
         iterations += it
-    _, _, _, _, _, v, Ad, Bd, Ks = _model(p.theta, v0, dt, sy, su)
-    Re = p.Re * np.outer(sy, sy)
-    cov = _covariance(p, j) * np.outer(v0, v0)
+    _, _, _, _, _, v, Ad, Bd, Ks = _model(theta, v0, dt, sy, su)
+    Re = Re_s * np.outer(sy, sy)
+    cov = _covariance(p, Re_s, j) * np.outer(v0, v0)
     return StructuredFit(v, Ks / sy[None, :], Ad, Bd, Re, iterations, crit.k0, cov)
 
 
-def _covariance(p: _Point, j: int) -> np.ndarray:
+def _covariance(p: _Point, Re: np.ndarray, j: int) -> np.ndarray:
     """``cov(dv/v0)`` (9, 9), (P15): ``(J^T J)^{-1} / j`` with ``W = Re^{-1}`` at the optimum.
 
     (P11) is the weighted least-squares fit (P12) of the structured Markov
@@ -469,9 +502,11 @@ def _covariance(p: _Point, j: int) -> np.ndarray:
     ``(J' W J)^{-1} J' W Sigma W J (J' W J)^{-1}`` collapses to
     ``(J' Sigma^{-1} J)^{-1}``, here ``(J^T J)^{-1} / j`` with ``J`` the
     Jacobian of the whitened residual of the normalised Gram, ``W``
-    re-estimated at the optimum; inverted with the columns scaled to unit norm.
+    re-estimated at the optimum (``Re`` the estimate's prediction errors' covariance,
+    ``p`` the last point built: the estimate itself, or one step before it when the
+    last round ended on its final step); inverted with the columns scaled to unit norm.
     """
-    H, _ = _normal(p, _weight(p.Re))
+    H, _ = _normal(p, _weight(Re))
     d = np.sqrt(np.abs(np.diag(H)))
     d[d == 0] = 1.0
     Hs = H / np.outer(d, d)
@@ -491,31 +526,39 @@ def _solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
         return np.linalg.lstsq(A, b, rcond=None)[0]
 
 
-def _gauss_newton(crit: _Criterion, p: _Point, W: np.ndarray, j: int, max_iter: int, tol: float):  # type: ignore[no-untyped-def]
+def _gauss_newton(  # type: ignore[no-untyped-def]
+    crit: _Criterion, p: _Point, W: np.ndarray, j: int, max_iter: int, tol: float, final=False
+):
     """Gauss-Newton on the normal equations with column scaling; Levenberg-Marquardt
-    damping when a step fails. Returns the last point and the steps taken.
+    damping when a step fails. Returns the last point built, the steps taken and the
+    estimate ``(theta, Re)`` (the last point's, or the final step's: below).
 
     Stops when the next undamped step is predicted to lower ``j J`` (twice the
     log-likelihood change) by less than ``tol`` (``-j g^T s`` of the quadratic model
     the step minimises), when a damped step gained less, or after ``max_iter`` steps
-    (the returned count: the steps taken). An undamped Gauss-Newton
+    (the returned count: the steps taken). With ``final`` (the last round), a step
+    predicted to gain less than ``_FINAL_GAIN`` is taken (its cost checked) and ends
+    the fit without a point after it. An undamped Gauss-Newton
     step that raises the cost is first halved (up to ``_HALVINGS`` times: far
     from the optimum the predictor's ``Abar^P`` makes the full step overshoot
-    along a good direction) before damping turns it towards the gradient. Near the
+    along a good direction) before damping turns it towards the gradient; while the
+    last full step gained as predicted (``_TRUST``), the next full step's point is built
+    without a trial first. Near the
     optimum the problem is a large-residual one (the true curvature along the step
     ~1.75x ``J^T J``'s, so plain Gauss-Newton converges linearly): after each full
     step the second-order term ``S`` is updated by the secant rule of NL2SOL
     (:func:`_dgw`) and the next step solves ``(J^T J + S) s = -J^T r``; ``S`` is
     dropped after a halved or damped step and whenever ``J^T J + S`` is not positive
-    definite. docs/subspace.md, "sixth" to "eighth session".
+    definite. docs/subspace.md, "sixth" to "ninth session".
     """
     H, g = _normal(p, W)
     lam, it, h = 0.0, 0, 0
-    Sq = None
+    Sq, trusted = None, False
     for it in range(1, max_iter + 1):
         d = np.sqrt(np.abs(np.diag(H)))
         d[d == 0] = 1.0
         Hs, gs = H / np.outer(d, d), g / d
+        q = None  # the next point, when built before its cost is judged
         while True:
             if lam:
                 step = _solve(Hs + lam * np.eye(gs.size), -gs)
@@ -525,13 +568,15 @@ def _gauss_newton(crit: _Criterion, p: _Point, W: np.ndarray, j: int, max_iter: 
                 if step is None:  # J^T J + S not positive definite: Gauss-Newton
                     Sq = None
                     step = _solve(Hs, -gs)
-                if -j * float(gs @ step) < tol:  # the predicted gain: converged
-                    return p, it - 1
-                for h in range(_HALVINGS + 1):
-                    dc = crit.delta(p, p.theta + step / d, W)
-                    if dc <= 0.0 or h == _HALVINGS:
-                        break
-                    step = 0.5 * step
+                pred = -j * float(gs @ step)
+                if pred < tol:  # the predicted gain: converged
+                    return p, it - 1, (p.theta, p.Re)
+                if final and pred < _FINAL_GAIN:  # the last step, without a point after it
+                    th = p.theta + step / d
+                    dc, Re = crit._change(p, crit._encode_x(p, th), W)
+                    if dc <= 0.0:
+                        return p, it, (th, Re)
+                step, dc, q, h = _undamped(crit, p, step, d, W, trusted)
             if dc <= 0.0 or lam > 1e8:
                 break
             lam = 1e-4 if lam == 0 else lam * 10.0
@@ -539,14 +584,37 @@ def _gauss_newton(crit: _Criterion, p: _Point, W: np.ndarray, j: int, max_iter: 
             break
         gain = -dc * j
         p0, g0, full = p, g, not lam and h == 0
-        p = crit.point(p.theta + step / d)
+        trusted = full and _TRUST[0] * pred <= gain <= _TRUST[1] * pred
+        p = crit.point(p.theta + step / d) if q is None else q
         lam = 0.0 if lam <= 1e-3 else lam / 10.0
         H, g = _normal(p, W)
         # the second-order term S by a secant update while the steps are full ones
         Sq = _dgw(Sq, step / d, g0, g, crit.cross(p0, p, W)) if full else None
         if lam and gain < tol:  # damped on: no prediction to judge the next step by
             break
-    return p, it
+    return p, it, (p.theta, p.Re)
+
+
+def _undamped(crit, p, step, d, W, trusted):  # type: ignore[no-untyped-def]
+    """The undamped step, halved up to ``_HALVINGS`` times while it raises the cost:
+    ``(step, cost change, its point or None, halvings)``. A trusted full step's point is
+    built first and its cost change read off the encodings (no trial; the point is
+    dropped if the cost rose)."""
+    h0 = 0
+    if trusted:
+        q = crit.point(p.theta + step / d)
+        dc = crit.change(p, q, W)
+        if dc <= 0.0:
+            return step, dc, q, 0
+        if _HALVINGS == 0:
+            return step, dc, None, 0
+        step, h0 = 0.5 * step, 1
+    for h in range(h0, _HALVINGS + 1):
+        dc = crit.delta(p, p.theta + step / d, W)
+        if dc <= 0.0 or h == _HALVINGS:
+            break
+        step = 0.5 * step
+    return step, dc, None, h
 
 
 def _newton_step(Hs: np.ndarray, gs: np.ndarray, d: np.ndarray, Sq: np.ndarray | None):
