@@ -59,10 +59,10 @@ from maglevid._validation import as_signal, check_positive
 from maglevid.exceptions import DataError, IdentificationError, ModelError
 from maglevid.identify._gram_operator import GramOperator, _window_sums
 from maglevid.identify._hankel import _LagGram, factor_gram, lower_factor
-from maglevid.identify._structured import START_SAMPLES, _plant, fit_bearing_structure
+from maglevid.identify._structured import START_SAMPLES, _zoh, fit_bearing_structure
 from maglevid.identify.options import Option, bind_defaults
 from maglevid.identify.physical import to_physical_coordinates
-from maglevid.identify.result import IdentificationResult, propagate_covariance
+from maglevid.identify.result import IdentificationResult
 from maglevid.identify.subspace import (
     _arx_horizon,
     _char_poly,
@@ -918,13 +918,27 @@ def _fit(
 def _parameter_covariance(
     params: dict[str, float], cov_v: np.ndarray | None, dt: float
 ) -> np.ndarray | None:
-    """cov of ``[v1..v9, a1..a4]`` from the structured fit's cov(v) (P15), delta method."""
+    """cov of ``[v1..v9, a1..a4]`` from the structured fit's cov(v) (P15), delta method.
+
+    ``a = char. poly(A_d(v))``: ``d a_k = -tr(M_k dA_d)`` with ``M_1 = I``,
+    ``M_{k+1} = A_d M_k + a_k I`` (Faddeev-LeVerrier; Jacobi's formula for
+    ``det(zI - A_d)``, whose adjugate is ``sum_k M_k z^{n-k}``) and ``dA_d`` the ZOH's
+    Frechet derivatives: exact, one stacked ``expm`` (central differences took 19
+    exponentials and eigenvalue problems, 2-4 ms a fit, and agree to 7e-7 relative, their
+    own error).
+    """
     if cov_v is None:
         return None
     v = np.array([params[k] for k in V_NAMES])
-    _, cov = propagate_covariance(
-        lambda x: np.concatenate([x, _char_poly(_plant(x, dt)[0])]), v, cov_v
-    )
+    Ad, _, dAd, _ = _zoh(v, dt)
+    a, n = _char_poly(Ad), Ad.shape[0]
+    T = np.zeros((9 + n, 9))
+    T[:9] = np.eye(9)
+    Mk = np.eye(n)
+    for k in range(n):
+        T[9 + k] = -np.einsum("ij,dji->d", Mk, dAd)  # -tr(M_k dA_d / dv_d)
+        Mk = Ad @ Mk + a[k] * np.eye(n)
+    cov = T @ cov_v @ T.T
     return 0.5 * (cov + cov.T)
 
 
