@@ -509,7 +509,8 @@ def _assert_same_optimum(new, old, se_tol: float, steps: str) -> None:
 @pytest.mark.parametrize("fit", [fit_pbsid, fit_ssarx])
 def test_structured_fit_through_the_gram_operator_equals_the_dense_gram(bearing, fit, monkeypatch):
     # Reference: the data stage's own factor F of the window's Gram (its Cholesky, as
-    # the sixth session's fit read it), products X (F F^T) Y^T formed densely. The seventh
+    # the sixth session's fit read it; since the ninth, the Hankel rows of the structured
+    # window itself, N - P rows), products X (F F^T) Y^T formed densely. The seventh
     # session reads the Gram only through FFT products (P18), equal to rounding
     # (test_gram_operator.py), and evaluates cost differences instead of costs: the
     # same optimum (measured <= 1e-6 of a standard error on the bench records at 1e4;
@@ -521,7 +522,7 @@ def test_structured_fit_through_the_gram_operator_equals_the_dense_gram(bearing,
 
     class Dense:
         def __init__(self, wg, k):
-            st = P._window_stats(wg.acc, 2, 3, wg.w, np.zeros(5), wg.center, k)
+            st = P._window_stats(wg.acc, 2, 3, k, np.zeros(5), wg.center, k)
             self.G, self.k, self.j = st.F @ st.F.T, k, st.j
 
         def encode_blocks(self, Xb):  # (k, r, m) block-major -> rows (r, k m)

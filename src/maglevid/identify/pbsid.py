@@ -709,10 +709,17 @@ def _coordinates(
 
 @dataclass(frozen=True)
 class _WindowGram:
-    """The widest window's Gram of its leading ``k`` samples, as an operator (P18), on call."""
+    """The Gram of the Hankel rows of a window of ``k`` samples (``N - k + 1`` rows), as
+    an operator (P18), on call.
+
+    The structured fit's own window: its rows, not those of the widest window the VARX
+    reads (``N - W + 1``), so that its FFT needs ``2k`` points instead of ``W + k``
+    (540 -> 432-480 at N = 1e4 on the bench records: 8-12 % of the whole fit; the
+    criterion over the 60-90 more rows moved v1..v9 by 0.01-0.16 standard errors;
+    docs/subspace.md, "ninth session").
+    """
 
     acc: _LagGram
-    w: int
     scale: np.ndarray
     center: bool
 
@@ -721,7 +728,7 @@ class _WindowGram:
         return self.acc.n
 
     def __call__(self, k: int) -> GramOperator:
-        return GramOperator(self.acc, self.w, k, self.scale, self.center)
+        return GramOperator(self.acc, k, k, self.scale, self.center)
 
 
 def _structured(
@@ -736,7 +743,7 @@ def _structured(
 ) -> tuple[StateSpace, StateSpace, np.ndarray, np.ndarray, np.ndarray]:
     """v1..v9, ``K`` and cov(v) by the structured weighted least-squares fit (P11)-(P18).
 
-    ``gram(k)``: the widest window's Gram of ``z(0..k-1)`` as an operator (P18),
+    ``gram(k)``: the Gram of the Hankel rows of ``k`` samples as an operator (P18),
     never formed: the fit reads it only through products, by FFT
     (docs/subspace.md, "seventh session").
     """
@@ -868,14 +875,14 @@ def _fit(
     """Everything after the pass over the data (in memory and streamed alike)."""
     notes: list[str] = []
     extras: dict[str, Any] = {}
-    # one factor of the widest window the fit may use (the AIC's and the fit's Hankel
-    # rows are the same, rows 0..N - W, as MOESP's)
+    # one factor of the widest window the fit may use (the AIC's and the VARX's Hankel
+    # rows are the same, rows 0..N - W, as MOESP's; the structured fit's are its own)
     W = _check_window(acc.n, nu + ny, opt, p_top)
-    # the VARX reads the rows of its own window only; the structured fit factors the
-    # leading rows of its window (P16) itself, once it is chosen (_structured)
+    # the VARX reads the rows of its own window only; the structured fit reads the Gram
+    # of its window (P16)'s own rows as an operator, once it is chosen (_structured)
     k_varx = min(W, _window(opt, p_top, _future(opt.algorithm, opt.future, p_top)))
     st_all = _window_stats(acc, nu, ny, W, shift, opt.remove_mean, k_varx)
-    gram = _WindowGram(acc, W, st_all.scale, opt.remove_mean)
+    gram = _WindowGram(acc, st_all.scale, opt.remove_mean)
     p, f, past_rule = _choose_past(st_all, opt, p_top, notes, extras)
     st = replace(st_all, F=_leading(st_all.F, _window(opt, p, f) * st_all.m))  # z(0..w-1)
     system, s, n, gap = _identify_states(st, opt, p, f, notes)
