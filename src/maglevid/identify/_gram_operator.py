@@ -47,7 +47,8 @@ _FFT_OUT = np.lib.NumpyVersion(np.__version__) >= "2.0.0"
 class Encoded:
     """Rows ``X`` (r, k m) as :meth:`GramOperator.inner` reads them: their spectra in the
     eigenbasis of the lag sums' spectrum ``R(f)``, their products with the head's and
-    the tail's columns of (P18) and with the window's sums."""
+    the tail's columns of (P18) and with the window's sums. Linear in ``X``: the
+    difference of two encodings is the encoding of the rows' difference."""
 
     flat: np.ndarray  # (r, 2 nf m) float: X(f) U(f), row-major over (f, m), re/im interleaved
     yh: np.ndarray  # (k - 1, r): (X D Lh)^T
@@ -57,6 +58,10 @@ class Encoded:
     def __getitem__(self, rows: slice) -> Encoded:
         sp = None if self.sp is None else self.sp[rows]
         return Encoded(self.flat[rows], self.yh[:, rows], self.yt[:, rows], sp)
+
+    def __sub__(self, other: Encoded) -> Encoded:
+        sp = None if self.sp is None or other.sp is None else self.sp - other.sp
+        return Encoded(self.flat - other.flat, self.yh - other.yh, self.yt - other.yt, sp)
 
 
 class GramOperator:

@@ -403,25 +403,26 @@ class _Criterion:
         small ``dV``; ``J`` itself (``tr(W X G X^T)``) would lose the ratio of the
         signal's to the errors' energy (~1e6 on a high-SNR record) to rounding.
         """
-        return self._change(p, self._encode_x(p, th), W)[0]
+        return self.trial(p, th, W)[0]
 
-    def _encode_x(self, p: _Point, th: np.ndarray):  # type: ignore[no-untyped-def]
-        """The rows ``X(theta) - X(p) = V(p) - V(theta)`` encoded (the trial's one encoding)."""
+    def trial(self, p: _Point, th: np.ndarray, W: np.ndarray) -> tuple[float, np.ndarray]:
+        """:meth:`delta` and the prediction errors' covariance at ``theta`` (what the final
+        step keeps): the rows ``dX = V(p) - V(theta)`` encoded once."""
         rows = self._rows_x  # the last block (the current sample's) stays 0
         np.subtract(p.V, self.markov(th), out=rows[: self.P])
-        return self.gram.encode_blocks(rows)
-
-    def _change(self, p: _Point, e, W: np.ndarray):  # type: ignore[no-untyped-def]
-        """``J(theta) - J(p)`` from the encoded ``dX`` (:meth:`delta`), and the new prediction
-        errors' covariance ``(X_p + dX) G (X_p + dX)^T`` from the same two products."""
-        B = self.gram.inner(e, p.enc[:3])  # dX G X_p^T
-        E = self.gram.inner(e, e)
-        return float(np.sum(W * (2.0 * B + E))), p.Re + B + B.T + E
+        return self._change(p, self.gram.encode_blocks(rows), W)
 
     def change(self, p: _Point, q: _Point, W: np.ndarray) -> float:
         """``J(q) - J(p)`` of two built points: :meth:`delta` with ``dX``'s encoding the
         difference of theirs (encodings are linear), no encoding of its own."""
-        return self._change(p, _difference(q.enc[:3], p.enc[:3]), W)[0]
+        return self._change(p, q.enc[:3] - p.enc[:3], W)[0]
+
+    def _change(self, p: _Point, e, W: np.ndarray):  # type: ignore[no-untyped-def]
+        """``J(theta) - J(p)`` from the encoded ``dX``, and the new prediction errors'
+        covariance ``(X_p + dX) G (X_p + dX)^T`` from the same two products."""
+        B = self.gram.inner(e, p.enc[:3])  # dX G X_p^T
+        E = self.gram.inner(e, e)
+        return float(np.sum(W * (2.0 * B + E))), p.Re + B + B.T + E
 
     def cross(self, p0: _Point, p1: _Point, W: np.ndarray) -> np.ndarray:
         """``J_0^T R_1``: the old point's Jacobian against the new residual (the secant term)."""
@@ -450,14 +451,6 @@ def _weight(Re: np.ndarray) -> np.ndarray:
         lam, U = np.linalg.eigh(Re)
         Re = (U * np.maximum(lam, _RE_FLOOR)) @ U.T
     return np.linalg.inv(Re)
-
-
-def _difference(a, b):  # type: ignore[no-untyped-def]
-    """``a - b`` of two encodings (``Encoded`` or a dense operator's plain rows)."""
-    if isinstance(a, np.ndarray):
-        return a - b
-    sp = None if a.sp is None else a.sp - b.sp
-    return type(a)(a.flat - b.flat, a.yh - b.yh, a.yt - b.yt, sp)
 
 
 def fit_bearing_structure(
@@ -576,7 +569,7 @@ def _gauss_newton(  # type: ignore[no-untyped-def]
                 dc0 = None  # the full step's cost change, when already tried
                 if final and pred < _FINAL_GAIN:  # the last step, without a point after it
                     th = p.theta + step / d
-                    dc0, Re = crit._change(p, crit._encode_x(p, th), W)
+                    dc0, Re = crit.trial(p, th, W)
                     if dc0 <= 0.0:
                         return p, it, (th, Re)
                 step, dc, q, h = _undamped(crit, p, step, d, W, trusted, dc0)
