@@ -524,6 +524,7 @@ def test_structured_fit_through_the_gram_operator_equals_the_dense_gram(bearing,
         def __init__(self, wg, k):
             st = P._window_stats(wg.acc, 2, 3, k, np.zeros(5), wg.center, k)
             self.G, self.k, self.j = st.F @ st.F.T, k, st.j
+            self.n = k  # the FFT's length the criterion pads its rows to: none here
 
         def encode_blocks(self, Xb):  # (k, r, m) block-major -> rows (r, k m)
             return Xb.transpose(1, 0, 2).reshape(Xb.shape[1], -1)

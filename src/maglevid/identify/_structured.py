@@ -341,10 +341,11 @@ class _Criterion:
         self.P = gram.k - 1
         self.Cs = C_AMB / sy[:, None]
         self.k0 = min(k0, self.P)
-        # the rows' buffers, filled at each point (the encodings keep no reference)
-        self._rows = np.zeros((self.P + 1, 1 + _N_THETA, 3, 5))
+        # the rows' buffers, filled at each point (the encodings keep no reference),
+        # zero-padded to the FFT's length (read in place: GramOperator.encode_blocks)
+        self._rows = np.zeros((gram.n, 1 + _N_THETA, 3, 5))
         self._rows[self.P, 0, :, 2:] = np.eye(3)  # X's identity on y(t); dV's last block 0
-        self._rows_x = np.zeros((self.P + 1, 3, 5))
+        self._rows_x = np.zeros((gram.n, 3, 5))
         self._work = _doubling_buffers(_N_THETA, self.P, (4, 5), 3)
 
     def _start(self, Abar, Ad, Bs, dAbar=None, dBtil=None):  # type: ignore[no-untyped-def]
@@ -390,7 +391,7 @@ class _Criterion:
         P, rows = self.P, self._rows  # block-major rows [X; dV], X = [-V, I]
         V, _ = self.blocks(th, out=rows[:P, 1:])
         np.negative(V, out=rows[:P, 0])
-        enc = self.gram.encode_blocks(rows.reshape(P + 1, -1, 5))
+        enc = self.gram.encode_blocks(rows.reshape(rows.shape[0], -1, 5))
         M = self.gram.inner(enc, enc)
         return _Point(th, V, enc, 0.5 * (M + M.T))
 
