@@ -1,8 +1,10 @@
-"""bench_pbsid's verdicts on PARSIM-K above the N it runs at (issue 16).
+"""bench_pbsid's verdicts on PARSIM-K above the N it runs at, and on the Monte Carlo (issue 16).
 
 Reference values: PARSIM_K_MEASURED, SIPPY PARSIM-K's time and peak resident
 memory measured by ``python -m benchmarks.bench_pbsid --parsim-k-scaling`` and
-stored with the script. No benchmark and no peer is run here.
+stored with the script; for the Monte Carlo verdicts, hand-made results whose
+ratios and coverages are set so each verdict is known. No benchmark and no peer
+is run here.
 """
 
 from __future__ import annotations
@@ -12,13 +14,15 @@ from benchmarks.bench_pbsid import (
     PARSIM_K_MEASURED,
     PEER_MAX_N,
     PEER_MEMORY_GB,
+    STRUCTURED,
     TRANSFORM,
     _time_checks,
     markdown_section,
     parsim_k_projection,
     parsim_k_verdict,
+    targets,
 )
-from benchmarks.judge import MET, NOT_MET, Judge
+from benchmarks.judge import MET, NOT_MEASURED, NOT_MET, Judge
 
 
 def test_memory_projection_is_the_measured_line():
@@ -66,3 +70,51 @@ def test_markdown_states_the_footprint():
     assert f"above N = {PEER_MAX_N:.0e}" in text and "not measured" in text
     gb, _ = parsim_k_projection(1_000_000)
     assert f"~{gb:.1f} GB" in text and np.isfinite(gb)
+
+
+def _mc_point(case, n, records, pbsid_rel, ml_rel, cover):
+    method = lambda rel, c: {  # noqa: E731
+        "rms_rel": rel, "rms_z": [1.0] * 9, "cover95": [c] * 9,
+        "rms_z_all": 1.0, "cover95_all": c, "time_s": 0.1,
+    }  # fmt: skip
+    return {
+        "case": case, "N": n, "records": records,
+        "methods": {"pbsid": method(pbsid_rel, cover), "ssarx": None, "ml": method(ml_rel, cover)},
+    }  # fmt: skip
+
+
+def test_v_target_is_judged_on_the_monte_carlo_where_it_ran():
+    # One record's ratio of two random errors says little (the bench's record at 1e4
+    # gave 2.1x where 100 records give 1.33x): where the Monte Carlo ran, the verdict is
+    # the largest per-parameter RMS ratio to ML; elsewhere the timed record's ratio.
+    tool = STRUCTURED["pbsid"]
+    rows = [
+        {"case": "issue", "N": 10_000, "tool": tool, "v_error": 2.1e-3, "pole_error": 1e-3},
+        {"case": "issue", "N": 10_000, "tool": "maglevid ml", "v_error": 1e-3, "pole_error": 1e-3},
+        {"case": "issue", "N": 10**6, "tool": tool, "v_error": 1.5e-4, "pole_error": 1e-4},
+        {"case": "issue", "N": 10**6, "tool": "maglevid ml", "v_error": 1e-4, "pole_error": 1e-4},
+    ]
+    ml_rel = [1e-3] * 9
+    mc = [_mc_point("issue", 10_000, 100, [1.3e-3] + [1e-3] * 8, ml_rel, 0.95)]
+
+    def verdict(results, what):
+        judge = Judge()
+        targets(results, judge)
+        return next(
+            v for v in judge.verdicts if v.target.startswith("pbsid, s") and what in v.target
+        )
+
+    v = verdict({"bearing": rows, "monte_carlo": mc}, "v_i error")
+    assert v.status == MET
+    assert "issue 1e+04: 1.3x (RMS over 100 records; the timed record 2.1x)" in v.measured
+    assert "issue 1e+06: 1.5x (one record)" in v.measured
+    mc[0]["methods"]["pbsid"]["rms_rel"][4] = 2.5e-3  # v5 2.5x ML's RMS: not met
+    assert verdict({"bearing": rows, "monte_carlo": mc}, "v_i error").status == NOT_MET
+    # without a Monte Carlo the timed record decides (2.1x: not met)
+    assert verdict({"bearing": rows, "monte_carlo": []}, "v_i error").status == NOT_MET
+    # the intervals: every Monte Carlo point within 90-99 %
+    v = verdict({"bearing": rows, "monte_carlo": mc}, "intervals")
+    assert v.status == MET and "100 records x 9: 0.950" in v.measured
+    mc.append(_mc_point("diagnostic", 10_000, 100, ml_rel, ml_rel, 0.85))
+    assert verdict({"bearing": rows, "monte_carlo": mc}, "intervals").status == NOT_MET
+    assert verdict({"bearing": rows, "monte_carlo": []}, "intervals").status == NOT_MEASURED
