@@ -110,6 +110,18 @@ _STRUCTURE_RHO = 0.985
 _STRUCTURE_MIN = 40
 #: Relative singular-value floor of the order choice (Gram route, as MOESP's).
 _DEFAULT_RANK_TOL = 1e-6
+#: A gap ``s_n / s_{n+1}`` at least this large decides the automatic order; below it
+#: (no clear gap: real rigs' singular values decay smoothly, the largest ratio lands
+#: anywhere, e.g. order 44 at 1.38 on the UAQ levitator's step record) the order is
+#: the one whose own one-step predictor has the smallest BIC (:func:`_order_by_bic`).
+_CLEAR_GAP = 10.0
+#: Orders the BIC compares (1..this, at most ``f ny``): a model's predictor is run
+#: over the record for each.
+_BIC_ORDERS = 20
+#: ``options["order_rule"]`` of each way the order is set (``"auto"``: the gap, as MOESP's).
+_ORDER_RULES = {"given": "given", "gap": "auto", "bic": "auto-bic", "structure": "structure"}
+#: The order of ``coordinates="physical"`` when not given: eq. (4)'s states x, dx/dt, i1, i2.
+_BEARING_ORDER = 4
 #: Relative rank threshold of the least-squares steps.
 _RCOND = 1e-10
 #: The normal equations are used while the Cholesky diagonal spans less than this.
@@ -644,29 +656,106 @@ def _choose_past(
 
 
 def _identify_states(
-    st: _Stats, opt: _Options, p: int, f: int, notes: list[str]
+    st: _Stats,
+    opt: _Options,
+    p: int,
+    f: int,
+    notes: list[str],
+    data: tuple[np.ndarray, np.ndarray] | None = None,
+    extras: dict[str, Any] | None = None,
 ) -> tuple[tuple[np.ndarray, ...], np.ndarray, int, float]:
-    """VARX (P4), state sequence (P5)-(P8), order, ``(A, B, C, D, K, Re)`` (P9), scaled."""
+    """VARX (P4), state sequence (P5)-(P8), order, ``(A, B, C, D, K, Re)`` (P9), scaled.
+
+    The automatic order is the largest gap of the singular values when it is clear
+    (``_CLEAR_GAP``); otherwise, with the record in memory (``data``), the order of
+    smallest BIC of the model's own one-step prediction errors (:func:`_order_by_bic`,
+    its table in ``extras["order_bic"]``).
+    """
     if opt.algorithm == "pbsid":
         V, _ = _varx(st, p, opt.feedthrough)
         svd, GK = _state_map_pbsid(st, V, p, f)
     else:
         svd, GK = _state_map_ssarx(st, p, f, opt.feedthrough, opt.weighting, notes)
     s = svd.s
-    n, gap = _order(s, opt.order, f * st.ny, opt.rank_tol)
-    L = (svd.vectors(n) / np.sqrt(s[:n])[None, :]).T @ GK  # X = S^{-1/2} U^T (Gamma K) Z_p
-    system = _system_from_states(st, L, p, opt.feedthrough)  # eq. (P9)
-    if opt.order is None:
+    if opt.order is None and opt.coordinates == "physical":  # the bearing's 4 states
+        n, gap = _order(s, _BEARING_ORDER, f * st.ny, opt.rank_tol)
+        rule = "structure"
+        notes.append(
+            f"order {n}: the two-coil bearing's states (coordinates='physical'; "
+            f"s_{n}/s_{n + 1} = {gap:.3g})"
+        )
+    else:
+        n, gap = _order(s, opt.order, f * st.ny, opt.rank_tol)
+        rule = "given" if opt.order is not None else "gap"
+    if rule == "gap" and gap < _CLEAR_GAP and data is not None:
+        n_bic, bic = _order_by_bic(st, svd, GK, p, opt, data, min(f * st.ny, _BIC_ORDERS))
+        if extras is not None:
+            extras["order_bic"] = bic
+        if n_bic:
+            notes.append(
+                f"order {n_bic} chosen automatically: no clear gap of the singular values "
+                f"(the largest, s_{n}/s_{n + 1} = {gap:.3g}, is below {_CLEAR_GAP:g}), so "
+                f"the order of smallest BIC of the model's one-step prediction errors "
+                f"over 1..{bic.size} (stable predictors; `order_bic` in the extras); "
+                "pass `order=` to override"
+            )
+            n, rule = n_bic, "bic"
+            gap = float(s[n - 1] / s[n]) if s.size > n and s[n] > 0 else float("inf")
+    if extras is not None:
+        extras["order_choice"] = rule
+    system = _system_from_states(st, _state_matrix(svd, GK, n), p, opt.feedthrough)  # (P9)
+    if rule == "gap":
         notes.append(
             f"order {n} chosen automatically: largest gap of the singular values "
             f"(s_{n}/s_{n + 1} = {gap:.3g}, values below {opt.rank_tol:.1e} x s_1 floored)"
         )
-        if gap < 10.0:
+        if gap < _CLEAR_GAP:
             notes.append(
-                f"order choice is marginal (gap ratio {gap:.3g} < 10); inspect "
+                f"order choice is marginal (gap ratio {gap:.3g} < {_CLEAR_GAP:g}); inspect "
                 "`singular_values` and pass `order=` explicitly"
             )
     return system, s, n, gap
+
+
+def _state_matrix(svd: _LeftSVD, GK: np.ndarray, n: int, U: np.ndarray | None = None):  # type: ignore[no-untyped-def]
+    """``L`` of ``X = L Z_p = S^{-1/2} U^T (Gamma K) Z_p`` for order ``n`` (``U``: the
+    leading left vectors when already at hand, at least ``n`` of them)."""
+    U = svd.vectors(n) if U is None else U[:, :n]
+    return (U / np.sqrt(svd.s[:n])[None, :]).T @ GK
+
+
+def _order_by_bic(  # type: ignore[no-untyped-def]
+    st: _Stats, svd: _LeftSVD, GK: np.ndarray, p: int, opt: _Options, data, n_top: int
+) -> tuple[int, np.ndarray]:
+    """``(order, BIC per order 1..n_top)``: each order's model (P9) run as its own
+    steady-state predictor over the record (x_hat(0) = 0, the first ``p`` errors left
+    out for every order alike), (P20) ``BIC(n) = N' log det Sigma_n + n (2 ny + nu) log N'``
+    (Schwarz 1978; ``n (2 ny + nu)`` the innovation form's parameters beyond a basis,
+    ``Sigma_n`` in the scaled units). A predictor that is not stable gets ``inf``; order 0
+    when none is.
+
+    Why not the singular values alone: without a clear gap their largest ratio is a
+    coin toss among dozens of orders, and a large order's model need not predict
+    well (the UAQ levitator's step record: order 44 by the gap, one-step fit -54 %;
+    order 3 fits 69 %, docs/subspace.md "Automatic order without a clear gap").
+    """
+    y, u = data
+    nu, ny = st.nu, st.ny
+    n_top = int(min(n_top, np.count_nonzero(svd.s > opt.rank_tol * svd.s[0])))
+    mean = (st.mean[:nu], st.mean[nu:]) if opt.remove_mean else None
+    U = svd.vectors(n_top)
+    bic = np.full(n_top, np.inf)
+    N = y.shape[0] - p
+    for n in range(1, n_top + 1):
+        system = _system_from_states(st, _state_matrix(svd, GK, n, U), p, opt.feedthrough)
+        model, K, _ = _unscale(system, st.scale, nu, opt.dt)
+        if not np.max(np.abs(np.linalg.eigvals(model.A - K @ model.C))) < 1.0:
+            continue
+        E = _predictor_residuals(model, K, y, u, mean)[p:] / st.scale[nu:]
+        sign, logdet = np.linalg.slogdet(E.T @ E / N)
+        if sign > 0:
+            bic[n - 1] = N * logdet + n * (2 * ny + nu) * np.log(N)
+    return (int(np.argmin(bic)) + 1 if np.isfinite(bic).any() else 0), bic
 
 
 def _unscale(
@@ -841,7 +930,7 @@ def _options_used(
 ) -> dict[str, Any]:
     options = {
         "order": n,
-        "order_rule": "given" if opt.order is not None else "auto",
+        "order_rule": _ORDER_RULES[extras.get("order_choice", "gap")],
         "past": p,
         "past_rule": past_rule,
         "future": f,
@@ -885,7 +974,7 @@ def _fit(
     gram = _WindowGram(acc, st_all.scale, opt.remove_mean)
     p, f, past_rule = _choose_past(st_all, opt, p_top, notes, extras)
     st = replace(st_all, F=_leading(st_all.F, _window(opt, p, f) * st_all.m))  # z(0..w-1)
-    system, s, n, gap = _identify_states(st, opt, p, f, notes)
+    system, s, n, gap = _identify_states(st, opt, p, f, notes, data, extras)
     model, K, Re = _unscale(system, st.scale, nu, opt.dt)
     model, continuous, K, Re, params = _coordinates(model, K, Re, gram, opt, notes, extras)
     rho = _stability_notes(model, K, notes)
@@ -1185,7 +1274,12 @@ def fit_pbsid(
     u : array_like, shape (N, nu)
         Plant inputs (in closed loop: what the plant received).
     order : int, optional
-        Model order; by default the largest gap of the singular values.
+        Model order. By default: 4 with ``coordinates="physical"`` (the bearing's
+        states); else the largest gap of the singular values when it is clear
+        (``s_n / s_{n+1} >= 10``), otherwise (records in memory) the order of smallest
+        BIC of each candidate model's own one-step prediction errors over
+        ``1..min(f ny, 20)`` (``options["order_rule"]`` says which: ``"auto"``,
+        ``"auto-bic"``, ``"structure"``; the BIC table in ``extras["order_bic"]``).
     past : int, optional
         VARX order ``p`` (past window). Default: AIC over ``1..max_past``
         (the smallest exact order on noise-free data).
@@ -1403,7 +1497,9 @@ def _declaration(algorithm: str) -> tuple[Option, ...]:
     """The options of ``pbsid`` / ``ssarx`` (maglevid.identify.options), defaults from
     :func:`fit_pbsid` / :func:`fit_ssarx` except ``dt`` (the recording's)."""
     opts = [
-        Option("order", "int", "model order (default: from the singular values)", low=1),
+        Option("order", "int", "model order (default: a clear gap of the singular "
+               "values, else the smallest BIC of the one-step prediction errors; 4 in "
+               "physical coordinates)", low=1),
         Option("past", "int", "past window p (default: by AIC)", low=1),
         Option("future", "int", "future window f (default: from p)", low=1),
         Option("dt", "float", "sample time (default: the recording's)", default=None,
