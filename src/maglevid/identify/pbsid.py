@@ -663,8 +663,9 @@ def _identify_states(
     notes: list[str],
     data: tuple[np.ndarray, np.ndarray] | None = None,
     extras: dict[str, Any] | None = None,
-) -> tuple[tuple[np.ndarray, ...], np.ndarray, int, float]:
-    """VARX (P4), state sequence (P5)-(P8), order, ``(A, B, C, D, K, Re)`` (P9), scaled.
+) -> tuple[tuple[np.ndarray, ...], np.ndarray, int, float, str]:
+    """VARX (P4), state sequence (P5)-(P8), order, ``(A, B, C, D, K, Re)`` (P9), scaled,
+    and how the order was set (a key of ``_ORDER_RULES``).
 
     The automatic order is the largest gap of the singular values when it is clear
     (``_CLEAR_GAP``); otherwise, with the record in memory (``data``), the order of
@@ -687,8 +688,9 @@ def _identify_states(
     else:
         n, gap = _order(s, opt.order, f * st.ny, opt.rank_tol)
         rule = "given" if opt.order is not None else "gap"
+    system = None
     if rule == "gap" and gap < _CLEAR_GAP and data is not None:
-        n_bic, bic = _order_by_bic(st, svd, GK, p, opt, data, min(f * st.ny, _BIC_ORDERS))
+        n_bic, bic, best = _order_by_bic(st, svd, GK, p, opt, data, min(f * st.ny, _BIC_ORDERS))
         if extras is not None:
             extras["order_bic"] = bic
         if n_bic:
@@ -699,11 +701,10 @@ def _identify_states(
                 f"over 1..{bic.size} (stable predictors; `order_bic` in the extras); "
                 "pass `order=` to override"
             )
-            n, rule = n_bic, "bic"
+            n, rule, system = n_bic, "bic", best
             gap = float(s[n - 1] / s[n]) if s.size > n and s[n] > 0 else float("inf")
-    if extras is not None:
-        extras["order_choice"] = rule
-    system = _system_from_states(st, _state_matrix(svd, GK, n), p, opt.feedthrough)  # (P9)
+    if system is None:
+        system = _system_from_states(st, _state_matrix(svd, GK, n), p, opt.feedthrough)  # (P9)
     if rule == "gap":
         notes.append(
             f"order {n} chosen automatically: largest gap of the singular values "
@@ -714,7 +715,7 @@ def _identify_states(
                 f"order choice is marginal (gap ratio {gap:.3g} < {_CLEAR_GAP:g}); inspect "
                 "`singular_values` and pass `order=` explicitly"
             )
-    return system, s, n, gap
+    return system, s, n, gap, rule
 
 
 def _state_matrix(svd: _LeftSVD, GK: np.ndarray, n: int, U: np.ndarray | None = None):  # type: ignore[no-untyped-def]
@@ -726,13 +727,14 @@ def _state_matrix(svd: _LeftSVD, GK: np.ndarray, n: int, U: np.ndarray | None = 
 
 def _order_by_bic(  # type: ignore[no-untyped-def]
     st: _Stats, svd: _LeftSVD, GK: np.ndarray, p: int, opt: _Options, data, n_top: int
-) -> tuple[int, np.ndarray]:
-    """``(order, BIC per order 1..n_top)``: each order's model (P9) run as its own
+) -> tuple[int, np.ndarray, tuple[np.ndarray, ...] | None]:
+    """``(order, BIC per order 1..n_top, that order's system (P9))``: each order's model
+    run as its own
     steady-state predictor over the record (x_hat(0) = 0, the first ``p`` errors left
     out for every order alike), (P20) ``BIC(n) = N' log det Sigma_n + n (2 ny + nu) log N'``
     (Schwarz 1978; ``n (2 ny + nu)`` the innovation form's parameters beyond a basis,
     ``Sigma_n`` in the scaled units). A predictor that is not stable gets ``inf``; order 0
-    when none is.
+    (and no system) when none is.
 
     Why not the singular values alone: without a clear gap their largest ratio is a
     coin toss among dozens of orders, and a large order's model need not predict
@@ -745,6 +747,7 @@ def _order_by_bic(  # type: ignore[no-untyped-def]
     mean = (st.mean[:nu], st.mean[nu:]) if opt.remove_mean else None
     U = svd.vectors(n_top)
     bic = np.full(n_top, np.inf)
+    best = None
     N = y.shape[0] - p
     for n in range(1, n_top + 1):
         system = _system_from_states(st, _state_matrix(svd, GK, n, U), p, opt.feedthrough)
@@ -754,8 +757,11 @@ def _order_by_bic(  # type: ignore[no-untyped-def]
         E = _predictor_residuals(model, K, y, u, mean)[p:] / st.scale[nu:]
         sign, logdet = np.linalg.slogdet(E.T @ E / N)
         if sign > 0:
-            bic[n - 1] = N * logdet + n * (2 * ny + nu) * np.log(N)
-    return (int(np.argmin(bic)) + 1 if np.isfinite(bic).any() else 0), bic
+            b = N * logdet + n * (2 * ny + nu) * np.log(N)
+            if b < np.min(bic):  # the first minimum, as argmin's
+                best = system
+            bic[n - 1] = b
+    return (int(np.argmin(bic)) + 1 if best is not None else 0), bic, best
 
 
 def _unscale(
@@ -926,11 +932,17 @@ def _stability_notes(model: StateSpace, K: np.ndarray, notes: list[str]) -> floa
 
 
 def _options_used(
-    opt: _Options, n: int, p: int, f: int, past_rule: str, extras: dict[str, Any]
+    opt: _Options,
+    n: int,
+    order_rule: str,
+    p: int,
+    f: int,
+    past_rule: str,
+    extras: dict[str, Any],
 ) -> dict[str, Any]:
     options = {
         "order": n,
-        "order_rule": _ORDER_RULES[extras.get("order_choice", "gap")],
+        "order_rule": _ORDER_RULES[order_rule],
         "past": p,
         "past_rule": past_rule,
         "future": f,
@@ -974,7 +986,7 @@ def _fit(
     gram = _WindowGram(acc, st_all.scale, opt.remove_mean)
     p, f, past_rule = _choose_past(st_all, opt, p_top, notes, extras)
     st = replace(st_all, F=_leading(st_all.F, _window(opt, p, f) * st_all.m))  # z(0..w-1)
-    system, s, n, gap = _identify_states(st, opt, p, f, notes, data, extras)
+    system, s, n, gap, order_rule = _identify_states(st, opt, p, f, notes, data, extras)
     model, K, Re = _unscale(system, st.scale, nu, opt.dt)
     model, continuous, K, Re, params = _coordinates(model, K, Re, gram, opt, notes, extras)
     rho = _stability_notes(model, K, notes)
@@ -1001,7 +1013,7 @@ def _fit(
         parameters=params,
         covariance=_parameter_covariance(params, extras.get("structure_covariance"), opt.dt),
         n_samples=acc.n,
-        options=_options_used(opt, n, p, f, past_rule, extras),
+        options=_options_used(opt, n, order_rule, p, f, past_rule, extras),
         residuals=residuals,
         fit=fit,
         singular_values=s,
