@@ -97,6 +97,9 @@ class StructuredFit:
     iterations: int
     start_samples: int  # samples the window-start state was rebuilt from (0: left at 0)
     covariance: np.ndarray  # (9, 9) of v1..v9, physical units, (P15)
+    #: the last round's predicted gain in ``j J`` left at its end (0: ended by its stop
+    #: rule; inf: no descent found though one was predicted)
+    remaining: float = 0.0
 
 
 def _zoh(v: np.ndarray, dt: float) -> tuple[np.ndarray, ...]:
@@ -481,12 +484,14 @@ def fit_bearing_structure(
     p = crit.point(theta)
     iterations = 0
     for tol, final in ((_GAIN_TOL_FIRST, False), (_GAIN_TOL, True)):
-        p, it, (theta, Re_s) = _gauss_newton(crit, p, _weight(p.Re), j, max_iter, tol, final)
+        p, it, (theta, Re_s), remaining = _gauss_newton(
+            crit, p, _weight(p.Re), j, max_iter, tol, final
+        )
         iterations += it
     _, _, _, _, _, v, Ad, Bd, Ks = _model(theta, v0, dt, sy, su)
     Re = Re_s * np.outer(sy, sy)
     cov = _covariance(p, Re_s, j) * np.outer(v0, v0)
-    return StructuredFit(v, Ks / sy[None, :], Ad, Bd, Re, iterations, crit.k0, cov)
+    return StructuredFit(v, Ks / sy[None, :], Ad, Bd, Re, iterations, crit.k0, cov, remaining)
 
 
 def _covariance(p: _Point, Re: np.ndarray, j: int) -> np.ndarray:
@@ -526,8 +531,11 @@ def _gauss_newton(  # type: ignore[no-untyped-def]
     crit: _Criterion, p: _Point, W: np.ndarray, j: int, max_iter: int, tol: float, final=False
 ):
     """Gauss-Newton on the normal equations with column scaling; Levenberg-Marquardt
-    damping when a step fails. Returns the last point built, the steps taken and the
-    estimate ``(theta, Re)`` (the last point's, or the final step's: below).
+    damping when a step fails. Returns the last point built, the steps taken, the
+    estimate ``(theta, Re)`` (the last point's, or the final step's: below) and the gain
+    in ``j J`` still predicted there: 0 when the round ended by its stop rule, the next
+    Gauss-Newton step's after ``max_iter`` steps, inf when no descent was found by the
+    most damped step while the undamped one predicted one.
 
     Stops when the next undamped step is predicted to lower ``j J`` (twice the
     log-likelihood change) by less than ``tol`` (``-j g^T s`` of the quadratic model
@@ -566,19 +574,19 @@ def _gauss_newton(  # type: ignore[no-untyped-def]
                     step = _solve(Hs, -gs)
                 pred = -j * float(gs @ step)
                 if pred < tol:  # the predicted gain: converged
-                    return p, it - 1, (p.theta, p.Re)
+                    return p, it - 1, (p.theta, p.Re), 0.0
                 dc0 = None  # the full step's cost change, when already tried
                 if final and pred < _FINAL_GAIN:  # the last step, without a point after it
                     th = p.theta + step / d
                     dc0, Re = crit.trial(p, th, W)
                     if dc0 <= 0.0:
-                        return p, it, (th, Re)
+                        return p, it, (th, Re), 0.0
                 step, dc, q, h = _undamped(crit, p, step, d, W, trusted, dc0)
             if dc <= 0.0 or lam > 1e8:
                 break
             lam = 1e-4 if lam == 0 else lam * 10.0
         if not dc <= 0.0:  # (a NaN from an overflowing trial fails too)
-            break
+            return p, it, (p.theta, p.Re), float("inf")
         gain = -dc * j
         p0, g0, full = p, g, not lam and h == 0
         trusted = full and _TRUST[0] * pred <= gain <= _TRUST[1] * pred
@@ -588,8 +596,11 @@ def _gauss_newton(  # type: ignore[no-untyped-def]
         # the second-order term S by a secant update while the steps are full ones
         Sq = _dgw(Sq, step / d, g0, g, crit.cross(p0, p, W)) if full else None
         if lam and gain < tol:  # damped on: no prediction to judge the next step by
-            break
-    return p, it, (p.theta, p.Re)
+            return p, it, (p.theta, p.Re), 0.0
+    d = np.sqrt(np.abs(np.diag(H)))
+    d[d == 0] = 1.0
+    step = _solve(H / np.outer(d, d), -g / d)  # the step limit: what the next step predicts
+    return p, it, (p.theta, p.Re), max(0.0, -j * float((g / d) @ step))
 
 
 def _undamped(crit, p, step, d, W, trusted, dc0=None):  # type: ignore[no-untyped-def]

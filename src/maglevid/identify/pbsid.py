@@ -59,7 +59,12 @@ from maglevid._validation import as_signal, check_positive
 from maglevid.exceptions import DataError, IdentificationError, ModelError
 from maglevid.identify._gram_operator import GramOperator, _window_sums
 from maglevid.identify._hankel import _LagGram, factor_gram, lower_factor
-from maglevid.identify._structured import START_SAMPLES, _zoh, fit_bearing_structure
+from maglevid.identify._structured import (
+    START_SAMPLES,
+    StructuredFit,
+    _zoh,
+    fit_bearing_structure,
+)
 from maglevid.identify.options import Option, bind_defaults
 from maglevid.identify.physical import to_physical_coordinates
 from maglevid.identify.result import IdentificationResult
@@ -106,6 +111,11 @@ DEFAULT_STRUCTURE_PAST = 460
 #: bearing's predictor: 0.983 on both simulated records); a slower predictor
 #: gets the cap and a note.
 _STRUCTURE_RHO = 0.985
+#: The gain in ``j J`` (``N log det``, twice a log-likelihood) a structured fit that hit
+#: its step limit may still predict and be kept, with a note: 1 is a step of about a
+#: standard error (issue 16, twelfth session: one of 400 Monte Carlo fits at 1e4 stops
+#: there); beyond it, or without a descent, the fit is refused (_structure_failure).
+_STRUCTURE_LEFT = 1.0
 #: Shortest automatic window of the structured fit.
 _STRUCTURE_MIN = 40
 #: Relative singular-value floor of the order choice (Gram route, as MOESP's).
@@ -853,15 +863,19 @@ def _structured(
                 "(pass structure_past for a longer one)"
             )
     G = gram(P + 1)
-    sf = fit_bearing_structure(
-        G,
-        v0=v,
-        K0=K,
-        dt=opt.dt,
-        scale=gram.scale,
-        j=G.j,
-        initial_state=_start_samples(opt, rho, P, gram.scale[2:], Re),
-    )
+    try:
+        sf = fit_bearing_structure(
+            G,
+            v0=v,
+            K0=K,
+            dt=opt.dt,
+            scale=gram.scale,
+            j=G.j,
+            initial_state=_start_samples(opt, rho, P, gram.scale[2:], Re),
+        )
+    except np.linalg.LinAlgError as exc:
+        raise IdentificationError(_structure_failure(f"failed ({exc})", rho)) from exc
+    _check_structure(sf, rho, notes)
     notes.append(
         f"v1..v9 by the structured weighted least-squares fit over a window of {P} lags "
         f"({'chosen from the data, (P16)' if opt.structure_auto else 'given'}; "
@@ -880,6 +894,50 @@ def _structured(
     Ac, Bc = amb_matrices(sf.v)
     cont = StateSpace(Ac, Bc, C_AMB.copy(), np.zeros((3, 2)))
     return disc, cont, sf.K, sf.Re, sf.v
+
+
+def _check_structure(sf: StructuredFit, rho: float, notes: list[str]) -> None:
+    """Refuse a structured fit whose predictor is unstable or that stopped at its step
+    limit more than ``_STRUCTURE_LEFT`` from its optimum (or without a descent); note one
+    that stopped there closer. ``rho``: the start's predictor radius, for the message."""
+    rho_fit = float(np.max(np.abs(np.linalg.eigvals(sf.Ad - sf.K @ C_AMB))))
+    if not rho_fit < 1.0:
+        why = f"ends on an unstable predictor (spectral radius {rho_fit:.4f})"
+        raise IdentificationError(_structure_failure(why, rho))
+    if sf.remaining > _STRUCTURE_LEFT:
+        why = (
+            f"stopped after {sf.iterations} Gauss-Newton steps "
+            + ("without a descent" if np.isinf(sf.remaining) else
+               f"with a gain of {sf.remaining:.3g} in N log det still predicted")
+        )  # fmt: skip
+        raise IdentificationError(_structure_failure(why, rho))
+    if sf.remaining > 0.0:
+        notes.append(
+            f"the structured fit stopped at its step limit ({sf.iterations} Gauss-Newton "
+            f"steps) with a gain of {sf.remaining:.2g} in N log det still predicted (below "
+            f"{_STRUCTURE_LEFT:g}: within about a standard error of its optimum)"
+        )
+
+
+def _structure_failure(why: str, rho: float) -> str:
+    """Why the structured fit gives no v1..v9 here, what it started from, what to do.
+
+    Refused rather than reported: an estimate that did not converge, or whose
+    predictor is unstable, comes with intervals that mean nothing, and a diagnosis
+    read it as a change in every parameter (a record with 20x the default sensor
+    noise: docs/subspace.md, "twelfth session")."""
+    start = (
+        f"its start, the transform of the black-box model, has a predictor of spectral "
+        f"radius {rho:.4f}"
+    )
+    if rho >= 1.0:
+        start += " (not stable: the VARX past is too short for this record's predictor)"
+    return (
+        f"the structured fit of v1..v9 {why}; {start}. PBSID-opt and SSARX need a past "
+        "longer than the closed-loop predictor's memory (slow with high sensor noise or "
+        "little excitation): use method 'ml' (maximum likelihood through the Kalman "
+        "predictor), or a longer record, more excitation or a larger max_past"
+    )
 
 
 def _fit_metrics(
@@ -1069,6 +1127,14 @@ def _bearing_coordinates(
     except DataError as exc:
         msg = f"coordinates='physical' is the two-coil bearing's transform: {exc}"
         raise DataError(msg) from exc
+    except IdentificationError as exc:  # e.g. a pole on the negative real axis
+        msg = (
+            f"the black-box model cannot be put in the bearing's physical coordinates "
+            f"({exc}); with little excitation or high sensor noise that estimate can be far "
+            "off: use method 'ml' (maximum likelihood through the Kalman predictor), or a "
+            "longer record or more excitation"
+        )
+        raise IdentificationError(msg) from exc
     Ti = sla.lstsq(_observability(model.A, model.C, 2), _observability(disc.A, disc.C, 2))[0]
     v, _ = v_from_matrices(cont.A, cont.B)
     return disc, cont, np.linalg.solve(Ti, K), v
