@@ -118,3 +118,28 @@ def test_v_target_is_judged_on_the_monte_carlo_where_it_ran():
     mc.append(_mc_point("diagnostic", 10_000, 100, ml_rel, ml_rel, 0.85))
     assert verdict({"bearing": rows, "monte_carlo": mc}, "intervals").status == NOT_MET
     assert verdict({"bearing": rows, "monte_carlo": []}, "intervals").status == NOT_MEASURED
+
+
+def test_refused_records_count_against_the_v_target():
+    # A record the structured fit refuses (IdentificationError: no estimate) is left out
+    # of the RMS; the method has then not matched ML on that data, so the v_i target is
+    # not met and says how many (issue 16, twelfth session: the refusals of fits that
+    # did not converge or end on an unstable predictor).
+    tool = STRUCTURED["pbsid"]
+    rows = [
+        {"case": "issue", "N": 10_000, "tool": tool, "v_error": 1e-3, "pole_error": 1e-3},
+        {"case": "issue", "N": 10_000, "tool": "maglevid ml", "v_error": 1e-3, "pole_error": 1e-3},
+    ]
+    mc = [_mc_point("issue", 10_000, 100, [1e-3] * 9, [1e-3] * 9, 0.95)]
+    judge = Judge()
+    targets({"bearing": rows, "monte_carlo": mc}, judge)
+    v = next(v for v in judge.verdicts if v.target.startswith("pbsid, s") and "v_i" in v.target)
+    assert v.status == MET and "refused" not in v.measured
+    mc[0]["methods"]["pbsid"]["refused"] = 1
+    judge = Judge()
+    targets({"bearing": rows, "monte_carlo": mc}, judge)
+    v = next(v for v in judge.verdicts if v.target.startswith("pbsid, s") and "v_i" in v.target)
+    assert v.status == NOT_MET and "1 of 100 records refused" in v.measured
+    res = {"load": (1.0, 1.0, 1.0), "bearing": [], "generic": [], "suspension": []}
+    text = "\n".join(markdown_section({**res, "monte_carlo": mc}))
+    assert "| refused |" in text and "| 0.100 | 1 |" in text
