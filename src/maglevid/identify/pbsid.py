@@ -1409,7 +1409,12 @@ def fit_pbsid(
     DataError
         Bad shapes or options, too few samples, a constant channel.
     IdentificationError
-        No information in the data, or an order above the rank found.
+        No information in the data, or an order above the rank found; in physical
+        coordinates, a black-box model with no physical counterpart (a pole on the
+        negative real axis), or a structured fit that breaks down, ends on an unstable
+        predictor or stops at its step limit far from its optimum (a closed-loop
+        predictor too slow for the VARX past: high sensor noise, little excitation).
+        The message says what to use instead (method ``ml``).
 
     Notes
     -----
