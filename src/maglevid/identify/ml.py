@@ -30,7 +30,9 @@ past and ``u`` is the product of the innovation densities whatever the
 controller (Ljung 1999, sec. 13.4).
 
 How: Fisher scoring (Gauss-Newton on eq. (1) with the expected Hessian, eq.
-(2)) with Levenberg-Marquardt damping, from the ``physical`` IV estimate.
+(2)) with Levenberg-Marquardt damping, from the ``physical`` IV estimate (from the
+loop's nominal bearing where the IV estimate has no physical counterpart: a record
+too noisy or too little excited for the plant ARX).
 Sensitivities come from the linear recursions (3)-(4) of the predictor,
 evaluated in the frequency domain (the record's DFT bins; above ~74k
 samples the same sums from the record's lagged products on a fixed grid,
@@ -187,7 +189,17 @@ def _fit_ml(
     op_m, op_i0 = operating_point(data.loop)
     m = op_m if m is None else m
     i0 = op_i0 if i0 is None else i0
-    v0, noise0, start_kind, notes = _start(data, start, m=m, i0=i0)
+    try:
+        v0, noise0, start_kind, notes = _start(data, start, m=m, i0=i0)
+    except (DataError, IdentificationError) as exc:
+        # the IV start needs a usable ARX of the plant; on a record too noisy or too
+        # little excited for it (20-40x the default sensor noise at 1e4 samples), the
+        # nominal bearing the loop was designed on is the other natural start
+        v_nom = _nominal_v(data)
+        if not (isinstance(start, str) and start == "physical") or v_nom is None:
+            raise
+        v0, noise0, start_kind = v_nom, None, "nominal"
+        notes = [f"the physical (IV) start failed ({exc}); started from the nominal bearing"]
     noise, estimate_noise = _noise(data, noise_std, amplifier_std, noise0)
     force0, est_force = _force(data, force_std)
     noise = NoiseModel(noise.sensor_std, force_std=force0, amplifier_std=noise.amplifier_std)
@@ -213,7 +225,7 @@ def _fit_ml(
             or (run[3] == best[0][3] and run[4] < best[0][4])
         ):
             best = (run, vs, kind)
-        if k == 0 and kind == "nominal":
+        if k == 0 and kind == "nominal" and start_kind == "physical":
             notes.append(
                 "started from the nominal bearing (higher likelihood than the IV estimate)"
             )
