@@ -508,15 +508,21 @@ def _covariance(p: _Point, Re: np.ndarray, j: int) -> np.ndarray:
     last round ended on its final step); inverted with the columns scaled to unit norm.
     """
     H, _ = _normal(p, _weight(Re))
-    d = np.sqrt(np.abs(np.diag(H)))
-    d[d == 0] = 1.0
-    Hs = H / np.outer(d, d)
+    d, Hs = _column_scaled(H)
     try:
         Hinv = sla.cho_solve(sla.cho_factor(Hs, lower=True), np.eye(H.shape[0]))
     except np.linalg.LinAlgError:  # not positive definite to rounding: the weak directions
         Hinv = np.linalg.pinv(Hs, hermitian=True)
     cov = Hinv / np.outer(d, d) / j
     return cov[:9, :9]
+
+
+def _column_scaled(H: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(d, H / (d d^T))``: the normal equations with their columns scaled to unit
+    diagonal (``d = sqrt|diag H|``, 1 where that is 0)."""
+    d = np.sqrt(np.abs(np.diag(H)))
+    d[d == 0] = 1.0
+    return d, H / np.outer(d, d)
 
 
 def _solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -559,9 +565,8 @@ def _gauss_newton(  # type: ignore[no-untyped-def]
     lam, it, h = 0.0, 0, 0
     Sq, trusted = None, False
     for it in range(1, max_iter + 1):
-        d = np.sqrt(np.abs(np.diag(H)))
-        d[d == 0] = 1.0
-        Hs, gs = H / np.outer(d, d), g / d
+        d, Hs = _column_scaled(H)
+        gs = g / d
         q = None  # the next point, when built before its cost is judged
         while True:
             if lam:
@@ -597,10 +602,8 @@ def _gauss_newton(  # type: ignore[no-untyped-def]
         Sq = _dgw(Sq, step / d, g0, g, crit.cross(p0, p, W)) if full else None
         if lam and gain < tol:  # damped on: no prediction to judge the next step by
             return p, it, (p.theta, p.Re), 0.0
-    d = np.sqrt(np.abs(np.diag(H)))
-    d[d == 0] = 1.0
-    step = _solve(H / np.outer(d, d), -g / d)  # the step limit: what the next step predicts
-    return p, it, (p.theta, p.Re), max(0.0, -j * float((g / d) @ step))
+    d, Hs = _column_scaled(H)  # the step limit: what the next Gauss-Newton step predicts
+    return p, it, (p.theta, p.Re), max(0.0, -j * float((g / d) @ _solve(Hs, -g / d)))
 
 
 def _undamped(crit, p, step, d, W, trusted, dc0=None):  # type: ignore[no-untyped-def]
