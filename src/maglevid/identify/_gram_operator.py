@@ -31,6 +31,7 @@ operator is the same ``G`` that stage factors, to rounding.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import scipy.fft as sfft
@@ -62,6 +63,20 @@ class Encoded:
     def __sub__(self, other: Encoded) -> Encoded:
         sp = None if self.sp is None or other.sp is None else self.sp - other.sp
         return Encoded(self.flat - other.flat, self.yh - other.yh, self.yt - other.yt, sp)
+
+
+@dataclass(frozen=True)
+class Sequences:
+    """The rows ``e_c (x) q_j`` (one scalar sequence ``q_j`` over the blocks, in channel
+    ``c`` alone; ``r m`` rows ordered ``(j, c)``) as :meth:`GramOperator.sequence_gram` and
+    :meth:`GramOperator.inner_sequences` read them: the sequences' spectra, the rows'
+    products with the head's and the tail's columns of (P18) and with the window's sums.
+    Built by :meth:`GramOperator.encode_sequences` from ``r`` FFTs instead of ``r m``."""
+
+    qf: np.ndarray  # (nf, r): the sequences' spectra
+    yh: np.ndarray  # (k - 1, r m)
+    yt: np.ndarray  # (w - 1, r m)
+    sp: np.ndarray | None  # (r m,), None when not centred
 
 
 class GramOperator:
@@ -126,7 +141,10 @@ class GramOperator:
         if n % 2 == 0:
             c[-1] = 1.0
         self._U = U  # X(f) -> X(f) U(f): the rows' spectra unscaled, R(f)'s scaled
-        self._w2 = np.repeat((lam * (c / n)[:, None]).reshape(-1), 2)  # re/im interleaved
+        lw = lam * (c / n)[:, None]  # (nf, m): the weights c_f lambda(f) / n
+        self._w2 = np.repeat(lw.reshape(-1), 2)  # re/im interleaved
+        self._lw, self._Uh = lw, U.conj().transpose(0, 2, 1)
+        self._Rw = np.matmul(U * lw[:, None, :], self._Uh)  # (c_f / n) D R(f) D
         # (X D) conj(h) = (X D U) conj(U^T h): the head's, the tail's and the sums' spectra
         # in the same basis
         rot = lambda x: np.einsum("fab,fa->fb", U, x * d).conj()  # noqa: E731
@@ -135,11 +153,12 @@ class GramOperator:
         self._hg = U @ np.stack([ht, gt], axis=-1)  # (nf, m, 2): X(f) U(f) [ht, gt]
         self._ws: dict[int, tuple[np.ndarray, ...]] = {}
         self._weighted: dict[int, np.ndarray] = {}
-        self._st = None
+        self._st = self._us = None
         if center:  # sum_t x(t) s(t) = sum_f (c_f / n) Re(X(f) conj(S(f)))
             sf = rot(sfft.rfft(_window_sums(acc, w, k).reshape(k, m), n=n, axis=0))
             sf *= (c / n)[:, None]
             self._st = np.stack([sf.real, -sf.imag], axis=-1).reshape(-1)
+            self._us = np.matmul(U, sf[:, :, None])[:, :, 0]  # (nf, m): e_c U(f) sf(f)
 
     def encode(self, X: np.ndarray) -> Encoded:
         """Rows ``X`` (r, k m), time-domain blocks (oldest first), for :meth:`inner`."""
@@ -192,12 +211,61 @@ class GramOperator:
             Aw = self._weighted[A.flat.shape[0]] = np.empty_like(A.flat)
         np.multiply(A.flat, self._w2, out=Aw)
         out = Aw @ C.flat.T  # sum_f (c_f / n) Re(A(f) R(f) C(f)^H)
+        return self._corrected(out, A, C)
+
+    def _corrected(self, out: np.ndarray, A: Any, C: Any) -> np.ndarray:
+        """The Toeplitz part's products ``out`` less the head's, the tail's and the
+        centring's terms of (P18), over ``j``: ``A``, ``C`` any rows with ``yh``, ``yt``,
+        ``sp`` (:class:`Encoded`, :class:`Sequences`)."""
         out -= A.yh.T @ C.yh
         out -= A.yt.T @ C.yt
         if A.sp is not None and C.sp is not None:
             out -= np.outer(A.sp, C.sp) / self.j
         out /= self.j
         return out
+
+    def encode_sequences(self, Q: np.ndarray) -> Sequences:
+        """The rows ``e_c (x) Q[:, j]`` (blocks oldest first, ``Q`` (b, r), ``b <= k``;
+        the blocks from ``b`` on zero), for :meth:`sequence_gram` and
+        :meth:`inner_sequences`. A row with one channel has the spectrum ``q_j(f) e_c``:
+        its head, tail and sums products are ``q_j(f)`` times channel ``c``'s, so the
+        ``r m`` rows cost ``r`` FFTs and two inverse FFTs of ``r m`` short sequences."""
+        n, k, w, m = self.n, self.k, self.w, self.m
+        if Q.shape[0] > k:
+            raise ValueError(f"{Q.shape[0]} blocks: need at most k = {k}")
+        r = Q.shape[1]
+        qf = np.fft.rfft(Q, n=n, axis=0)  # (nf, r)
+        hq = (qf[:, :, None, None] * self._hg[:, None, :, :]).reshape(-1, r * m, 2)
+        yh = np.fft.irfft(hq[..., 0], n=n, axis=0)[1:k]
+        yt = np.fft.irfft(hq[..., 1].conj(), n=n, axis=0)[: w - 1]
+        sp = None if self._us is None else (qf.T @ self._us).real.reshape(-1)
+        return Sequences(qf, yh, yt, sp)
+
+    def sequence_gram(self, S: Sequences, T: Sequences | None = None) -> np.ndarray:
+        """``Phi G Psi^T`` (r m, r' m) of the rows of two :meth:`encode_sequences` (``Psi``
+        = ``Phi`` when ``T`` is None): the Toeplitz part
+        ``sum_f Re(q_j(f) conj(p_j'(f)) (c_f / n) R_cc'(f))`` as one product
+        ``(r r' x nf) (nf x m^2)``, then the corrections of (P18)."""
+        T = S if T is None else T
+        (nf, r), r2, m = S.qf.shape, T.qf.shape[1], self.m
+        A = (S.qf[:, :, None] * T.qf.conj()[:, None, :]).reshape(nf, r * r2)
+        out = (A.T @ self._Rw.reshape(nf, m * m)).real
+        out = np.ascontiguousarray(out.reshape(r, r2, m, m).transpose(0, 2, 1, 3))
+        out = out.reshape(r * m, r2 * m)
+        return self._corrected(out, S, T)
+
+    def inner_sequences(self, A: Encoded, S: Sequences) -> np.ndarray:
+        """``A G Phi^T`` (rA, r m) for encoded rows ``A`` and the rows ``Phi`` of
+        :meth:`encode_sequences`: ``A(f) U(f)`` weighted and rotated back to the
+        channels, ``A(f) (c_f / n) R(f)``, against ``conj(q_j(f))`` (one product
+        ``(rA m x nf) (nf x r)``), then the corrections."""
+        rA, m = A.flat.shape[0], self.m
+        nf, r = S.qf.shape
+        AU = A.flat.view(complex).reshape(rA, nf, m)
+        AR = np.matmul((AU * self._lw).transpose(1, 0, 2), self._Uh)  # (nf, rA, m)
+        out = (AR.reshape(nf, rA * m).T @ S.qf.conj()).real  # (rA m, r)
+        out = np.ascontiguousarray(out.reshape(rA, m, r).transpose(0, 2, 1)).reshape(rA, -1)
+        return self._corrected(out, A, S)
 
 
 def _rfft(x: np.ndarray, n: int, out: np.ndarray) -> None:

@@ -30,7 +30,8 @@ the window's start is not left at 0: ``C Abar^P x_hat(t-P)`` is added, with
 otherwise dominates the residual (the bearing's ``Abar`` has a pole at ~0.98).
 Gauss-Newton on the normal equations, Levenberg-Marquardt damping, cost
 differences evaluated without cancellation (:meth:`_Criterion.delta`); the start
-is the transform's estimate. Memory and time do not depend on ``N``.
+is the transform's estimate. The derivative rows' products go through the (at most
+eight) sequences the rows span (P22). Memory and time do not depend on ``N``.
 """
 
 from __future__ import annotations
@@ -83,6 +84,12 @@ _RE_FLOOR = 1e-12
 _MAX_ITER = 20
 #: Halvings of a failed undamped Gauss-Newton step before Levenberg-Marquardt damping.
 _HALVINGS = 4
+#: Columns of the random sketch a point's sequence basis is found from: the derivative
+#: rows' sequences span at most ``2 n`` = 8 dimensions (P22), four more as a margin.
+_SKETCH = 12
+#: A point's derivative rows are encoded as they are when the sequence basis misses one
+#: by more than this, relative to its norm (measured 3e-15 - 8e-15 on the bench records).
+_BASIS_TOL = 1e-10
 
 
 @dataclass(frozen=True)
@@ -322,13 +329,53 @@ class _Point:
 
     theta: np.ndarray
     V: np.ndarray  # (P, 3, 5): the predictor's blocks, the start term (P14) included
-    enc: Any  # the rows [X; dV] (X = [-V, I]) encoded for the Gram's products
+    enc: Any  # the residual rows X = [-V, I], encoded for the Gram's products
     M: np.ndarray  # (3 + 3 n_th) squared: [X; dV] G [X; dV]^T
+    dV: Any  # the derivative rows, as products with encoded rows read them (``products``)
 
     @property
     def Re(self) -> np.ndarray:
         """``X G X^T``: the prediction errors' covariance (scaled units)."""
         return self.M[:3, :3]
+
+
+@dataclass(frozen=True)
+class _EncodedRows:
+    """Derivative rows ``dV`` encoded as they are (``GramOperator.encode_blocks``)."""
+
+    enc: Any
+
+    def products(self, gram: Any, e: Any) -> np.ndarray:
+        """``Y G dV^T`` for the encoded rows ``e`` of ``Y``."""
+        return gram.inner(e, self.enc)
+
+
+@dataclass(frozen=True)
+class _SequenceRows:
+    """Derivative rows ``dV = coef Phi + sd E``: ``Phi`` the rows ``e_c (x) q_j`` of an
+    orthonormal basis ``q_j`` of the rows' sequences over the blocks from ``k0`` on,
+    ``E`` the unit rows of the first ``k0`` blocks (the start term's, (P14))."""
+
+    seq: Any  # GramOperator.encode_sequences of the basis
+    coef: np.ndarray  # (3 n_th, r m)
+    unit: Any  # the unit rows (sequences: one block each), None without a start term
+    unit_gram: np.ndarray | None  # E G E^T
+    sd: np.ndarray | None  # (3 n_th, 5 k0): the rows on the first k0 blocks
+
+    def products(self, gram: Any, e: Any) -> np.ndarray:
+        """``Y G dV^T`` for the encoded rows ``e`` of ``Y``."""
+        out = gram.inner_sequences(e, self.seq) @ self.coef.T
+        if self.sd is not None:
+            out += gram.inner_sequences(e, self.unit) @ self.sd.T
+        return out
+
+    def gram(self, gram: Any) -> np.ndarray:
+        """``dV G dV^T`` (3 n_th, 3 n_th)."""
+        D = self.coef @ gram.sequence_gram(self.seq) @ self.coef.T
+        if self.sd is not None:
+            T = self.coef @ gram.sequence_gram(self.seq, self.unit) @ self.sd.T
+            D += T + T.T + self.sd @ self.unit_gram @ self.sd.T
+        return D
 
 
 class _Criterion:
@@ -350,6 +397,17 @@ class _Criterion:
         self._rows[self.P, 0, :, 2:] = np.eye(3)  # X's identity on y(t); dV's last block 0
         self._rows_x = np.zeros((gram.n, 3, 5))
         self._work = _doubling_buffers(_N_THETA, self.P, (4, 5), 3)
+        # the derivative rows through their sequence basis (_sequence_rows), where the
+        # operator takes such rows (the dense Gram of the tests does not)
+        self._sequences = hasattr(gram, "encode_sequences")
+        self._dv = np.empty((self.P, _N_THETA, 3, 5))  # dV, contiguous
+        self._rows_v = np.zeros((gram.n, 3, 5))  # X = [-V, I] alone
+        self._rows_v[self.P, :, 2:] = np.eye(3)
+        self._sketch = np.random.default_rng(0).standard_normal((15 * _N_THETA, _SKETCH))
+        self._unit = self._unit_gram = None
+        if self._sequences and self.k0:  # the unit rows of the first k0 blocks, (c, channel)
+            self._unit = gram.encode_sequences(np.eye(self.k0))
+            self._unit_gram = gram.sequence_gram(self._unit)
 
     def _start(self, Abar, Ad, Bs, dAbar=None, dBtil=None):  # type: ignore[no-untyped-def]
         """``C Abar^P x_hat(t-P)`` (P14), (k0, 3, 5) block-major; with ``dAbar``, ``dBtil``
@@ -390,13 +448,67 @@ class _Criterion:
         return V, dV
 
     def point(self, th: np.ndarray) -> _Point:
-        """``V``, ``dV`` and their Gram products: one encoding of 66 rows, one product."""
-        P, rows = self.P, self._rows  # block-major rows [X; dV], X = [-V, I]
-        V, _ = self.blocks(th, out=rows[:P, 1:])
-        np.negative(V, out=rows[:P, 0])
-        enc = self.gram.encode_blocks(rows.reshape(rows.shape[0], -1, 5))
-        M = self.gram.inner(enc, enc)
-        return _Point(th, V, enc, 0.5 * (M + M.T))
+        """``V``, ``dV`` and their Gram products.
+
+        The 63 derivative rows are sequences over the window's blocks of one 4-state
+        predictor and its derivative: entries of powers of ``[[Abar, dAbar_i], [0,
+        Abar]]``, whose minimal polynomial divides ``p(q)^2`` (``p`` that of
+        ``Abar``), so all of them lie in one space of at most ``2 n = 8`` sequences
+        (docs/subspace.md, (P22)). Their products are taken through an orthonormal
+        basis of it: ``r <= 8`` FFTs and an ``8 m``-row Gram instead of encoding 63
+        rows; the residual rows ``X`` (3) are encoded as they are. Rows not
+        represented to ``_BASIS_TOL`` by the basis are encoded as they are, all 66.
+        """
+        P, rows, g = self.P, self._rows, self.gram
+        if not self._sequences:
+            V, _ = self.blocks(th, out=rows[:P, 1:])
+            dv = None
+        else:
+            V, dV = self.blocks(th, out=self._dv)
+            dv = self._sequence_rows(dV)
+            if dv is None:
+                rows[:P, 1:] = dV
+        if dv is None:  # one encoding of the 66 rows [X; dV], X = [-V, I]
+            np.negative(V, out=rows[:P, 0])
+            enc = g.encode_blocks(rows.reshape(rows.shape[0], -1, 5))
+            M = g.inner(enc, enc)
+            return _Point(th, V, enc[:3], 0.5 * (M + M.T), _EncodedRows(enc[3:]))
+        np.negative(V, out=self._rows_v[:P])
+        enc = g.encode_blocks(self._rows_v)
+        XdV = dv.products(g, enc)  # X G dV^T (3, 3 n_th)
+        n = XdV.shape[1]
+        M = np.empty((3 + n, 3 + n))
+        M[:3, :3] = g.inner(enc, enc)
+        M[:3, 3:], M[3:, :3] = XdV, XdV.T
+        M[3:, 3:] = dv.gram(g)
+        return _Point(th, V, enc, 0.5 * (M + M.T), dv)
+
+    def _sequence_rows(self, dV: np.ndarray) -> _SequenceRows | None:
+        """``dV`` (P, n_th, 3, 5) through an orthonormal basis of its sequences over the
+        blocks from ``k0`` on (the first ``k0`` carry the start term: unit rows), found
+        from a random sketch of the rows scaled to unit norm (pivoted QR, rank at
+        ``1e-12`` of the largest pivot); None when a row's projection misses it by more
+        than ``_BASIS_TOL`` of its norm (measured 3e-15 - 8e-15 on the bench records)."""
+        P, k0 = self.P, self.k0
+        R = dV[k0:].reshape(P - k0, -1)
+        nrm = np.sqrt(np.einsum("ij,ij->j", R, R))
+        nrm[nrm == 0.0] = 1.0
+        Q, T, _ = sla.qr(R @ (self._sketch / nrm[:, None]), mode="economic", pivoting=True)
+        d = np.abs(np.diag(T))
+        r = int(np.sum(d > 1e-12 * d[0]))
+        if r == 0:
+            return None
+        Q = Q[:, :r]
+        coef = Q.T @ R
+        E = R - Q @ coef
+        if not np.max(np.sqrt(np.einsum("ij,ij->j", E, E)) / nrm) <= _BASIS_TOL:
+            return None
+        Qb = np.zeros((P, r))
+        Qb[k0:] = Q
+        coef = coef.reshape(r, -1, 5).transpose(1, 0, 2).reshape(-1, 5 * r)
+        sd = dV[:k0].transpose(1, 2, 0, 3).reshape(-1, 5 * k0) if k0 else None
+        seq = self.gram.encode_sequences(Qb)
+        return _SequenceRows(seq, coef, self._unit, self._unit_gram, sd)
 
     def delta(self, p: _Point, th: np.ndarray, W: np.ndarray) -> float:
         """``J(theta) - J(p.theta)`` under ``W``, cancellation-free.
@@ -419,18 +531,18 @@ class _Criterion:
     def change(self, p: _Point, q: _Point, W: np.ndarray) -> float:
         """``J(q) - J(p)`` of two built points: :meth:`delta` with ``dX``'s encoding the
         difference of theirs (encodings are linear), no encoding of its own."""
-        return self._change(p, q.enc[:3] - p.enc[:3], W)[0]
+        return self._change(p, q.enc - p.enc, W)[0]
 
     def _change(self, p: _Point, e, W: np.ndarray):  # type: ignore[no-untyped-def]
         """``J(theta) - J(p)`` from the encoded ``dX``, and the new prediction errors'
         covariance ``(X_p + dX) G (X_p + dX)^T`` from the same two products."""
-        B = self.gram.inner(e, p.enc[:3])  # dX G X_p^T
+        B = self.gram.inner(e, p.enc)  # dX G X_p^T
         E = self.gram.inner(e, e)
         return float(np.sum(W * (2.0 * B + E))), p.Re + B + B.T + E
 
     def cross(self, p0: _Point, p1: _Point, W: np.ndarray) -> np.ndarray:
         """``J_0^T R_1``: the old point's Jacobian against the new residual (the secant term)."""
-        C = self.gram.inner(p1.enc[:3], p0.enc[3:])  # X_1 G dV_0^T: (3, 3 n_th)
+        C = p0.dV.products(self.gram, p1.enc)  # X_1 G dV_0^T: (3, 3 n_th)
         B = C.reshape(3, -1, 3).transpose(1, 2, 0)  # [i, p, q] = dV_0(i, p) G X_1(q)^T
         return -np.einsum("ipq,qp->i", B, W)
 
