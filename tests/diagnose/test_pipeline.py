@@ -103,6 +103,15 @@ def test_too_little_excitation_cannot_be_diagnosed():
     assert d.verdict_code == "cannot_diagnose" and "too little excitation" in d.verdict
 
 
+def test_a_fit_that_did_not_converge_is_not_diagnosed():
+    # A verdict is read off the fit's intervals; a fit stopped before its optimum has
+    # none worth reading (a user's .mat file whose IV start was far off: all 13
+    # parameters "changed" on a healthy bearing). Forced here by one scoring iteration.
+    d = diagnose(_rec(seed=2), baseline="nominal", method="ml", method_options={"max_iter": 1})
+    assert d.verdict_code == "cannot_diagnose", d.verdict
+    assert "did not converge" in d.verdict and "pbsid" in d.verdict
+
+
 def test_history_baseline_and_idempotent_store(tmp_path):
     store = open_history(tmp_path / "h.sqlite")
     rec0 = _rec(seed=11).with_metadata(machine="B1", recorded_at="2026-01-01T00:00:00+00:00")

@@ -165,6 +165,19 @@ def _identify(run: DiagnosisRun, stages: DiagnosisStages) -> Diagnosis | None:
     except MaglevidError as exc:
         return cannot_diagnose(run, [str(exc)], prefix="identification failed: ")
     run.notes.extend(run.result.notes)
+    if run.result.extras.get("converged") is False:
+        # not an optimum: its intervals promise nothing, and a verdict read off them
+        # named every parameter changed on a healthy bearing (a user's .mat whose IV
+        # start was far off; docs/diagnosis.md)
+        it = run.result.extras.get("iterations")
+        why = (
+            f"the {run.method} fit did not converge"
+            + (f" ({it} iterations)" if it is not None else "")
+            + ": its estimates are not an optimum and their intervals mean nothing; try "
+            "method 'pbsid' (closed-loop subspace, needs no controller), a longer record "
+            "or more excitation"
+        )
+        return cannot_diagnose(run, [why], prefix="identification failed: ")
     return None
 
 

@@ -66,6 +66,7 @@ from maglevid.identify.cramer_rao import (
     steady_state_predictor,
 )
 from maglevid.identify.options import AMB_OPTIONS, Option
+from maglevid.identify.pbsid import fit_pbsid
 from maglevid.identify.physical import fit_physical
 from maglevid.identify.result import IdentificationResult, propagate_covariance
 from maglevid.identify.uncertainty import one_step_fit_percent, operating_point
@@ -204,18 +205,8 @@ def _fit_ml(
     force0, est_force = _force(data, force_std)
     noise = NoiseModel(noise.sensor_std, force_std=force0, amplifier_std=noise.amplifier_std)
     lay = _Layout(noise, estimate_noise, est_force)
-    # A poor IV start (short or very noisy record) can leave the scoring in a
-    # wrong basin; the nominal bearing the loop was designed on is the other
-    # natural start. The one with the higher likelihood goes first; the other
-    # is tried when the first does not converge, and the better end is kept.
-    starts = [(v0, start_kind)]
     sp = _spectra(y, u, _predictor_radius(lay, v0, data.dt, m), key=data)
-    v_nom = _nominal_v(data)
-    if start_kind == "physical" and v_nom is not None:
-        nom_first = _start_likelihood(sp, v_nom, lay, data.dt, m) < (
-            _start_likelihood(sp, v0, lay, data.dt, m)
-        )
-        starts = [(v_nom, "nominal"), starts[0]] if nom_first else [starts[0], (v_nom, "nominal")]
+    starts = _ordered_starts(data, sp, lay, v0, start_kind, m, notes, y, u)
     best = None
     for k, (vs, kind) in enumerate(starts):
         run = _optimise(sp, y, vs, lay, dt=data.dt, m=m, max_iter=max_iter)
@@ -225,17 +216,17 @@ def _fit_ml(
             or (run[3] == best[0][3] and run[4] < best[0][4])
         ):
             best = (run, vs, kind)
-        if k == 0 and kind == "nominal" and start_kind == "physical":
-            notes.append(
-                "started from the nominal bearing (higher likelihood than the IV estimate)"
-            )
         if k > 0:
             notes.append(
-                f"the first start did not converge; restarted from the {kind} "
+                f"the first start did not converge; restarted from the {_START_WORDS[kind]} "
                 f"({'converged' if run[3] else 'did not converge either'})"
             )
         if run[3]:
             break
+        if k == len(starts) - 1 and start_kind == "physical" and kind != "subspace":
+            vs = _subspace_v(y, u, data.dt)  # the last resort: the closed-loop subspace fit
+            if vs is not None and all(kd != "subspace" for _, kd in starts):
+                starts.append((vs, "subspace"))
     assert best is not None
     (theta, final, it, converged, _), v0, _ = best
     if sp.lags:
@@ -269,26 +260,78 @@ def _fit_ml(
     )
 
 
+#: How a start is named in the notes.
+_START_WORDS = {
+    "physical": "physical (IV) estimate",
+    "nominal": "nominal bearing",
+    "subspace": "PBSID-opt structured fit",
+    "given": "given v1..v9",
+}
+
+
+def _ordered_starts(data, sp, lay, v0, start_kind, m, notes, y, u):  # type: ignore[no-untyped-def]
+    """The starts to try, the one of higher likelihood (eq. (1)) first.
+
+    A poor IV start (short or very noisy record; a record without its loop, where the
+    instruments are lags of ``r``) can leave the scoring in a wrong basin. The other
+    natural starts: the nominal bearing the loop was designed on, where the record
+    carries it; else PBSID-opt's structured fit, consistent under feedback without
+    knowing the controller (a user's own .mat file: the IV estimate from lags of ``r``
+    was 4x off in R1 on the nonlinear bearing there and the scoring stopped in 2
+    iterations; docs/gosiewski.md, "The `ml` method"). The first is tried first, the
+    others when it does not converge (``_fit_ml``), and the better end is kept.
+    """
+    starts = [(v0, start_kind)]
+    if start_kind != "physical":
+        return starts
+    v_nom = _nominal_v(data)
+    alt = (v_nom, "nominal") if v_nom is not None else (_subspace_v(y, u, data.dt), "subspace")
+    if alt[0] is None:
+        return starts
+    if _start_likelihood(sp, alt[0], lay, data.dt, m) < _start_likelihood(sp, v0, lay, data.dt, m):
+        note = f"started from the {_START_WORDS[alt[1]]} (higher likelihood than the IV estimate)"
+        notes[:] = [note if n.startswith("started from the physical") else n for n in notes]
+        return [alt, starts[0]]
+    return [starts[0], alt]
+
+
+def _subspace_v(y: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray | None:
+    """v1..v9 of PBSID-opt's structured fit (None where it refuses the record)."""
+    try:
+        res = fit_pbsid(y, u, order=4, dt=dt, coordinates="physical")
+    except (DataError, IdentificationError):
+        return None
+    return np.array([res.parameters[k] for k in V_NAMES])
+
+
 # ---------------------------------------------------------------------------
 # Steps
 # ---------------------------------------------------------------------------
 def _start_likelihood(
     sp: _Spectra, v: np.ndarray, lay: _Layout, dt: float, m: float | None
 ) -> float:
-    """Eq. (1) at a starting point (inf where the predictor does not exist)."""
-    try:
-        return float(_evaluate(lay.model(lay.theta(v), dt, m), sp, derivatives=False)["nll"])
-    except (IdentificationError, ValueError, FloatingPointError, np.linalg.LinAlgError):
-        return float("inf")
+    """Eq. (1) at a starting point (inf where the predictor does not exist or its
+    equations are ill-conditioned: a bad start, not a warning for the user)."""
+    st = _trial(lambda th, _: _evaluate(lay.model(th, dt, m), sp, derivatives=False),
+                lay.theta(v), False)  # fmt: skip
+    return float("inf") if st is None else float(st["nll"])
 
 
 def _predictor_radius(lay: _Layout, v: np.ndarray, dt: float, m: float | None) -> float | None:
     """Spectral radius of the Kalman predictor ``A - K C`` at ``v`` (None if none)."""
     try:
-        model = lay.model(lay.theta(v), dt, m)
-        K = steady_state_predictor(model.A, model.C, model.Q, model.R)[0]
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", sla.LinAlgWarning)
+            model = lay.model(lay.theta(v), dt, m)
+            K = steady_state_predictor(model.A, model.C, model.Q, model.R)[0]
         return float(np.max(np.abs(np.linalg.eigvals(model.A - K @ model.C))))
-    except (IdentificationError, ValueError, FloatingPointError, np.linalg.LinAlgError):
+    except (
+        IdentificationError,
+        ValueError,
+        FloatingPointError,
+        np.linalg.LinAlgError,
+        sla.LinAlgWarning,
+    ):
         return None
 
 
