@@ -15,6 +15,7 @@ import pytest
 from maglevid.cli.main import main
 from maglevid.diagnose.levitator import LAW_INDEPENDENT
 from maglevid.diagnose.pipeline import diagnose
+from maglevid.exceptions import DataError
 from maglevid.experiments.rigs import PUBLISHED, simulate_pd_dither_levitator
 from maglevid.identify.greybox import fit_equilibrium_line
 from maglevid.physics.levitator import unstable_pole
@@ -74,6 +75,14 @@ def test_a_dither_only_rig_log_is_diagnosed_without_a_baseline():
     assert lo < truth < hi
     assert d.verdict_code == "no_change" and d.baseline["source"] == "none"
     assert "nothing to compare with" in d.reasons[0]
+
+
+def test_a_levitator_refuses_a_baseline_of_values():
+    # An AMB baseline file given for a levitator log was ignored without a word and the
+    # published physics used instead (found from outside, issue 16, thirteenth session).
+    log = simulate_pd_dither_levitator(3000, rng=np.random.default_rng(5))
+    with pytest.raises(DataError, match="a baseline of parameter values is not supported"):
+        diagnose(log, baseline={"m": 1.8, "R1": 17.5})
 
 
 def test_too_little_levitation_cannot_be_diagnosed():

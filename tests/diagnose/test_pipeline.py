@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -101,6 +102,24 @@ def test_too_little_excitation_cannot_be_diagnosed():
                             rng=5, plant_model="linear")  # fmt: skip
     d = diagnose(rec, baseline="nominal")
     assert d.verdict_code == "cannot_diagnose" and "too little excitation" in d.verdict
+
+
+@pytest.mark.parametrize(
+    ("baseline", "words"),
+    [
+        ({"R1": "abc"}, "R1 is 'abc': it must be a finite positive number"),  # was a traceback
+        ({"R1": float("nan")}, "R1 is nan: it must be a finite positive"),  # was "unchanged"
+        ({"R1": -17.5}, "R1 is -17.5"),  # was a -200 % fault
+        ({"Rx": 17.5}, "'Rx' is not a parameter of the bearing"),  # was ignored: green
+        ({"R1": 17.5, "Ls_1": 0.086}, "did you mean 'Ls1'"),
+        ({}, "names no parameters"),  # was "No significant change"
+    ],
+)
+def test_a_bad_baseline_is_the_callers_error(baseline, words):
+    # Found from outside (issue 16, thirteenth session): each of these gave a traceback
+    # or a verdict that compared nothing; now a DataError before any fitting.
+    with pytest.raises(maglevid.DataError, match=re.escape(words)):
+        diagnose(_rec(n=3000), baseline=baseline)
 
 
 def test_a_fit_that_did_not_converge_is_not_diagnosed():

@@ -148,18 +148,19 @@ def _start(
 
 
 def _quality(run: DiagnosisRun, stages: DiagnosisStages) -> Diagnosis | None:
-    """Stage 1: the kind's data-quality checks; a failed blocking one ends the diagnosis."""
+    """Stage 1: the kind resolves the baseline (a bad one is the caller's error, raised
+    before anything else: a record that also fails its checks must not hide it), then
+    the kind's data-quality checks; a failed blocking one ends the diagnosis."""
+    stages.baseline(run)
     run.quality = stages.quality(run)
     failed = [q for q in run.quality if not q.passed and q.blocking]
     return cannot_diagnose(run, [q.message for q in failed]) if failed else None
 
 
 def _identify(run: DiagnosisRun, stages: DiagnosisStages) -> Diagnosis | None:
-    """Stage 2: the kind resolves the baseline (a bad one is the caller's error, raised
-    before any fitting), then the method identifies the plant."""
+    """Stage 2: the method identifies the plant."""
     from maglevid.identify.registry import get_method
 
-    stages.baseline(run)
     try:
         run.result = get_method(run.method)(run.data, **run.identify_options)
     except MaglevidError as exc:

@@ -16,6 +16,7 @@ baseline and not isolated (no v-space model of its faults).
 
 from __future__ import annotations
 
+import difflib
 from collections.abc import Mapping
 from dataclasses import dataclass, fields, replace
 from types import MappingProxyType
@@ -411,12 +412,49 @@ class _Compared:
 _Values = dict[str, tuple[float, float]]
 
 
+#: The names a given baseline may hold: the parameters, those derived from them, v1..v9.
+_BASELINE_NAMES = frozenset(_physical_dict(AMBParameters.nominal())) | {"ks_sum"}
+
+
+def _checked_baseline(baseline: Mapping[str, Any]) -> dict[str, float]:
+    """A given baseline's values, each a known name with a finite positive value.
+
+    A misspelt name was ignored and a NaN compared as "unchanged" (both gave a green
+    "No significant change" that compared nothing), a string raised a traceback, a
+    negative value a -200 % "fault" (found from outside, thirteenth session of issue
+    16): each is the caller's error, said before any fitting."""
+    if not baseline:
+        raise DataError(
+            "the baseline names no parameters; give the bearing's values, e.g. "
+            '{"R1": 17.5, "R2": 17.5, ...} (maglevid diagnose --help lists the names)'
+        )
+    out = {}
+    for k, v in baseline.items():
+        if k not in _BASELINE_NAMES:
+            close = difflib.get_close_matches(str(k), sorted(_BASELINE_NAMES), n=1)
+            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            raise DataError(
+                f"the baseline's {k!r} is not a parameter of the bearing{hint}; known: "
+                + ", ".join(sorted(_BASELINE_NAMES, key=str.lower))
+            )
+        try:
+            x = float(v)
+        except (TypeError, ValueError):
+            x = float("nan")
+        if not (np.isfinite(x) and x > 0.0) or isinstance(v, bool):
+            raise DataError(
+                f"the baseline's {k} is {v!r}: it must be a finite positive number (SI units)"
+            )
+        out[k] = x
+    return out
+
+
 def _given_baseline(baseline: Any, notes: list[str]) -> tuple[AMBParameters | None, _Values, str]:
     """The baseline the caller gave: parameters, or values (a full set also isolates)."""
     if isinstance(baseline, AMBParameters):
         values = {k: (v, 0.0) for k, v in _physical_dict(baseline).items()}
         return baseline, values, "given parameters"
-    base_vals = {k: (float(v), 0.0) for k, v in baseline.items()}
+    base_vals = {k: (v, 0.0) for k, v in _checked_baseline(baseline).items()}
     try:
         params = AMBParameters(
             **{k: float(v) for k, v in baseline.items() if k in _BASELINE_FIELDS}

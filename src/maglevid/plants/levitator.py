@@ -64,7 +64,17 @@ class LevitatorStages:
         return quality
 
     def baseline(self, run: DiagnosisRun) -> None:
-        """An earlier identification from the history (filtered once identified)."""
+        """An earlier identification from the history (filtered once identified), else
+        the rig's published physics; a baseline of parameter values is refused (an AMB
+        baseline file was silently ignored: found from outside, issue 16, thirteenth
+        session)."""
+        if run.baseline not in ("history", "nominal", None):
+            raise DataError(
+                "a levitator is compared with its history (baseline 'history') or with its "
+                "rig's published physics (baseline 'nominal', from the recording's "
+                "metadata); a baseline of parameter values is not supported for it (got "
+                f"{_described(run.baseline)})"
+            )
         stored: dict[str, Any] = {}
         if run.baseline == "history" and run.store is not None and run.machine is not None:
             try:
@@ -455,3 +465,11 @@ class Levitator(BaseKind):
 
 
 KIND = Levitator()
+
+
+def _described(baseline: Any) -> str:
+    """A given baseline in a few words (its keys, or its type)."""
+    if isinstance(baseline, Mapping):
+        keys = list(baseline)
+        return "a mapping of " + ", ".join(map(str, keys[:6])) + (" ..." if len(keys) > 6 else "")
+    return type(baseline).__name__
