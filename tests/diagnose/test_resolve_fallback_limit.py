@@ -50,3 +50,24 @@ def test_without_a_logged_excitation_the_fallback_states_the_limit():
     text = kept[0].advice()
     assert "if the amplifiers allow it (limit 2.5 V rms" in text
     assert math.isfinite(kept[0].more_seconds)
+
+
+def test_the_advised_level_is_the_nearest_that_resolves():
+    # The smallest resolving level overall was 0 V on records a 2-5 N force disturbance
+    # excites (the disturbance alone informs, the model error grows with the level):
+    # "raise it to 0 V rms" (found from outside, issue 16, thirteenth session).
+    # Reference: the grid and the conditions below, by hand.
+    from maglevid.diagnose.resolve import _nearest_resolving
+
+    grid = [0.04 * 1.25**k for k in range(21)]  # 0.04 ... 3.47 V
+    up = _nearest_resolving(grid, lambda a: a >= 2.5, 1.0)  # more excitation resolves
+    assert up is not None and 2.5 <= up < 2.5 * 1.001
+    down = _nearest_resolving(grid, lambda a: a <= 0.5, 1.0)  # only less does
+    assert down == max(a for a in grid if a <= 0.5)
+    assert _nearest_resolving(grid, lambda a: True, 1.0) is None  # the plan sees it resolved
+    assert _nearest_resolving(grid, lambda a: False, 1.0) is None
+    lower = replace(
+        _straddling(2.0, factor=0.5),
+        length_factor=math.inf, more_seconds=math.inf, plan_seconds=3.0, plan_excitation=1.0,
+    )  # fmt: skip
+    assert "lower it to 1 V rms at this length" in lower.advice()

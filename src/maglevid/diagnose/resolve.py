@@ -233,7 +233,8 @@ class Unresolved:
                 f"record about {format_seconds(self.more_seconds)} more of the same excitation"
             )
         if self.excitation_rms is not None and math.isfinite(self.excitation_factor):
-            parts.append(f"raise it to {self.excitation_rms:.3g} V rms at this length")
+            how = "raise" if self.excitation_factor >= 1.0 else "lower"
+            parts.append(f"{how} it to {self.excitation_rms:.3g} V rms at this length")
         same = self.plan_excitation == self.excitation_rms  # "raise it" says it already
         if self.plan_seconds is not None and math.isfinite(self.plan_seconds) and not same:
             parts.append(
@@ -479,15 +480,19 @@ def with_cramer_rao_plan(
     S_b = None if baseline_covariance is None else np.asarray(baseline_covariance, float)
     e_now = design.excursion(excitation_std) if excursion is None else excursion
     grid = _ExcitationGrid(design, amp, disp, excitation_std, e_now, splits, S_b)
+    limit = min(planning.amplifier_limits(amp))  # what the scaling rule's advice keeps to
     out = []
     for u in unresolved:
         h = singles.get(u.parameter) if len(u.hypothesis) <= 1 else None  # a pair: scaling rule
         if h is None or not h.noise_std_errors or u.baseline_limited or u.target_percent <= 0:
-            out.append(u)
+            out.append(replace(u, amplifier_limit=limit))
             continue
         need = grid.needs(h, u.target_percent / 100 / z, n_samples)
-        if need is None:
-            out.append(u)
+        if need is None or need.samples_now <= n_samples:
+            # no plan, or one whose model sees this very record resolve it: it disagrees
+            # with the isolation's interval (a large force disturbance, which excites the
+            # bearing itself: it advised 0 V rms there), so the scaling rule advises
+            out.append(replace(u, amplifier_limit=limit))
             continue
         present = (design.spectrum, 0.5)
         best = min(need.seconds, key=lambda c: need.seconds[c][0])
@@ -641,16 +646,35 @@ class _ExcitationGrid:
         def resolved_at(a: float) -> bool:
             return self._var(g, kappa * self._inverse(a) / n_samples, self.eps(a)) <= t2
 
-        # The smallest resolving level at this length: the first grid level that
-        # resolves, refined between it and the level below.
         levels = [a for a, _, _ in self.levels[(self.design.spectrum, 0.5)]]
-        first = next((a for a in levels if resolved_at(a)), None)
-        if first is not None:
-            lo = max([a for a in levels if a < first], default=0.0)
-            first = smallest_satisfying(resolved_at, lo, first, xtol=1e-3 * first)
+        first = _nearest_resolving(levels, resolved_at, self.exc_now)
         eps_min = min([self.eps(0.0), *(e for rows in self.levels.values() for *_, e in rows)])
         floor_std = f * math.sqrt(self._var(g, np.zeros((9, 9)), eps_min))
         return _Need(seconds, first, now, floor_std, eps_min)
+
+
+def _nearest_resolving(levels: list[float], resolved_at: Any, now: float) -> float | None:
+    """The level at this length nearest the present one that resolves: the smallest at or
+    above it (refined down to it), else the largest on the grid below it.
+
+    Not the smallest resolving level overall: on a record that a large force
+    disturbance excites, the disturbance alone carries information while the model
+    error grows with the excitation, so that level was 0 V ("raise it to 0 V rms",
+    found from outside, issue 16, thirteenth session) where 4 V resolved the same
+    record too. The least change to the experiment is what is advised; None where the
+    plan's model already sees the present level resolve it (its model and the
+    isolation's interval disagree: the scaling rule's length is advised instead)."""
+    from maglevid.identify.planning import smallest_satisfying
+
+    if resolved_at(now):  # the plan's model sees the record resolved: no level to advise
+        return None
+    ok = [a for a in levels if resolved_at(a)]
+    above = [a for a in ok if a > now]
+    if above:
+        a = min(above)
+        lo = max([b for b in levels if b < a] + [now])
+        return smallest_satisfying(resolved_at, lo, a, xtol=1e-3 * a)
+    return max(ok) if ok else None
 
 
 def plan_unresolved(
