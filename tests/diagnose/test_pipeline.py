@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import re
 
@@ -120,6 +121,22 @@ def test_a_bad_baseline_is_the_callers_error(baseline, words):
     # or a verdict that compared nothing; now a DataError before any fitting.
     with pytest.raises(maglevid.DataError, match=re.escape(words)):
         diagnose(_rec(n=3000), baseline=baseline)
+
+
+def test_a_record_in_the_wrong_time_unit_is_not_called_a_fault():
+    # A user's file timed in ms read as s (Ts 1000x too long; no stated controller
+    # period to check it against): every R and L came out ~1e-6 - 1e-9 of the baseline
+    # and the verdict was "Significant change" in all 13 (found from outside, issue 16,
+    # thirteenth session). Reference: the simulated healthy bearing, its dt x 1000.
+    rec = _rec(n=6000)
+    wrong = dataclasses.replace(rec, dt=rec.dt * 1000, loop={"operating_point": {
+        "m": NOMINAL.m, "i0": NOMINAL.i0, "x0": NOMINAL.x0}})  # fmt: skip
+    base = {k: getattr(NOMINAL, k) for k in ("m", "i0", "x0", "R1", "R2", "Ls1", "Ls2",
+                                             "K1", "K2", "kw1", "kw2")}  # fmt: skip
+    d = diagnose(wrong, baseline=base, method="pbsid")
+    assert d.verdict_code == "cannot_diagnose", d.verdict
+    assert "orders of magnitude" in d.verdict and "in seconds" in d.verdict
+    assert diagnose(rec, baseline=base, method="pbsid").verdict_code == "no_change"
 
 
 def test_a_fit_that_did_not_converge_is_not_diagnosed():

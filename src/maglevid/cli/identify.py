@@ -56,10 +56,13 @@ STREAM_THRESHOLD_BYTES = 256 * 2**20
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "recording",
-        nargs="+",
+        nargs="*",
         help="recording file (.npz, .csv + .json, .mat, .parquet); several sessions of one "
-        "rig give one answer and the per-session ones",
+        "rig give one answer and the per-session ones (none with `--method list`)",
     )
+    # `--method list` needs no recording, every other use at least one: checked in run(),
+    # as argparse would (usage on stderr, exit code 2).
+    parser.set_defaults(_identify_parser=parser)
     parser.add_argument(
         "--recover-excitation",
         action="store_true",
@@ -191,6 +194,10 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             "descriptions": described,
             "options": describe_method_options(),
         }
+    if not args.recording:
+        args._identify_parser.error(
+            "the following arguments are required: recording (only `--method list` needs none)"
+        )
     _check_option_syntax(args.option)
     if _should_stream(args):
         return _run_streamed(args)
@@ -256,23 +263,14 @@ def _unidentifiable(data: Any) -> str | None:
     return unidentifiable_reason(data)
 
 
-def _finite(v: Any) -> Any:
-    """JSON-safe: NaN and inf become None."""
-    import numpy as np
-
-    if isinstance(v, dict):
-        return {k: _finite(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [_finite(x) for x in v]
-    if isinstance(v, float) and not np.isfinite(v):
-        return None
-    return v
-
-
 def _add_consensus(out: dict[str, Any], result: Any) -> None:
+    """The levitator's consensus, its candidates and excluded pieces, JSON-safe as the
+    rest of the result (NaN -> None, +-inf -> "inf"/"-inf": :mod:`maglevid.jsonable`)."""
+    from maglevid.jsonable import to_jsonable
+
     for key in ("consensus", "candidates", "segments_excluded"):
-        out[key] = _finite(result.extras[key])
-    out["ci95"]["pole_rad_s"] = list(result.extras["consensus"]["ci95"])
+        out[key] = to_jsonable(result.extras[key])
+    out["ci95"]["pole_rad_s"] = to_jsonable(list(result.extras["consensus"]["ci95"]))
 
 
 def _recover(data: Any, method: str, options: dict[str, Any]) -> tuple[Any, list[str]]:
@@ -422,24 +420,23 @@ def format_text(result: dict[str, Any]) -> str:
     ci = result.get("ci95") or {}
     lines.append(f"{'parameter':>14} {'estimate':>14} {'std. error':>12}   95 % interval")
     for k, v in result["parameters"].items():
-        e = se.get(k)
         lo, hi = ci.get(k) or (None, None)
-        band = f"[{lo:.6g}, {hi:.6g}]" if isinstance(lo, float) and isinstance(hi, float) else ""
-        lines.append(
-            f"{k:>14} {v:>14.6g} {(e if e is not None else float('nan')):>12.3g}   {band}"
-        )
+        band = "" if lo is None or hi is None else f"[{_num(lo, '.6g')}, {_num(hi, '.6g')}]"
+        lines.append(f"{k:>14} {_num(v, '.6g'):>14} {_num(se.get(k), '.3g'):>12}   {band}")
     if result.get("poles") is not None:
         p = result["poles"]
         re, im = (p["re"], p["im"]) if isinstance(p, dict) else (p, [0.0] * len(p))
-        lines.append("discrete poles: " + ", ".join(f"{a:.6g}{b:+.3g}j" for a, b in zip(re, im)))
+        poles = (f"{_num(a, '.6g')}{_num(b, '+.3g')}j" for a, b in zip(re, im))
+        lines.append("discrete poles: " + ", ".join(poles))
     for k, v in (result.get("fit") or {}).items():
-        lines.append(f"fit {k}: {v:.6g}")
+        lines.append(f"fit {k}: {_num(v, '.6g')}")
     num = result.get("intersample_numerators")
     if num:
         ses = num["std_error"] or [[None] * len(b) for b in num["B"]]
         for j, b, e in zip(num["j"], num["B"], ses):
             terms = ", ".join(
-                f"{c:.4g}" + (f" ± {s:.2g}" if s is not None else "") for c, s in zip(b, e)
+                _num(c, ".4g") + (f" ± {_num(s, '.2g')}" if s is not None else "")
+                for c, s in zip(b, e)
             )
             lines.append(f"B_{j} (z^0..z^-{len(b) - 1}): {terms}")
     warned = set(result.get("warnings", []))
@@ -447,6 +444,16 @@ def format_text(result: dict[str, Any]) -> str:
     lines.extend(f"note: {n}" for n in result.get("notes", []) if n not in warned)
     lines.extend(_consensus_lines(result))
     return "\n".join(lines)
+
+
+def _num(v: Any, spec: str, missing: str = "nan") -> str:
+    """``v`` formatted by ``spec`` when it is a number; else as text: ``missing`` for
+    None (a NaN in the JSON-safe result), the string itself for "inf"/"-inf" (signed
+    when ``spec`` asks for a sign)."""
+    if isinstance(v, (int, float)) and not isinstance(v, bool):
+        return format(v, spec)
+    text = missing if v is None else str(v)
+    return "+" + text if spec.startswith("+") and not text.startswith("-") else text
 
 
 def _method_list_text(result: dict[str, Any]) -> str:
@@ -478,16 +485,16 @@ def _consensus_lines(result: dict[str, Any]) -> list[str]:
     c = result["consensus"]
     lo, hi = c["ci95"]
     lines = [
-        f"consensus unstable pole: {c['pole_rad_s']:.4g} rad/s, 95 % interval "
-        f"[{lo:.4g}, {hi:.4g}] (model: {c['chosen_model']})",
+        f"consensus unstable pole: {_num(c['pole_rad_s'], '.4g')} rad/s, 95 % interval "
+        f"[{_num(lo, '.4g')}, {_num(hi, '.4g')}] (model: {c['chosen_model']})",
         f"{'model':>28} {'held-out fit %':>15} {'supported':>9} {'pole':>8}   95 % interval",
     ]
     for row in result["candidates"]:
         ci = row["ci95"]
-        band = f"[{ci[0]:.4g}, {ci[1]:.4g}]" if ci else row["note"] or "-"
-        pole = f"{row['pole_rad_s']:.4g}" if row["pole_rad_s"] is not None else "-"
+        band = f"[{_num(ci[0], '.4g')}, {_num(ci[1], '.4g')}]" if ci else row["note"] or "-"
+        pole = _num(row["pole_rad_s"], ".4g", missing="-")
         hof = row["held_out_fit_percent"]
-        hof_s = f"{hof:.1f}" if hof is not None and hof == hof else "-"
+        hof_s = _num(hof, ".1f", missing="-") if hof == hof else "-"
         lines.append(f"{row['model']:>28} {hof_s:>15} {row['supported']!s:>9} {pole:>8}   {band}")
     for ex in result.get("segments_excluded", []):
         lines.append(f"segments: {ex['range']}")
@@ -500,7 +507,7 @@ def _consensus_lines(result: dict[str, Any]) -> list[str]:
         if sc:
             lo, hi = sc["ci95"]
             lines.append(
-                f"session {s['recording']}: {sc['pole_rad_s']:.4g} rad/s [{lo:.4g}, {hi:.4g}] "
-                f"({sc['chosen_model']})"
+                f"session {s['recording']}: {_num(sc['pole_rad_s'], '.4g')} rad/s "
+                f"[{_num(lo, '.4g')}, {_num(hi, '.4g')}] ({sc['chosen_model']})"
             )
     return lines

@@ -3,18 +3,18 @@
 from __future__ import annotations
 
 import argparse
-import json
+import contextlib
 import logging
 import os
 import sys
-from collections.abc import Sequence
+import warnings
+from collections.abc import Iterator, Sequence
 from typing import Any
-
-import numpy as np
 
 import maglevid
 from maglevid._plugins import modules_with
 from maglevid.exceptions import MaglevidError
+from maglevid.jsonable import to_json_text
 
 __all__ = ["build_parser", "main"]
 
@@ -81,23 +81,11 @@ def _add_common_options(parser: argparse.ArgumentParser) -> None:
         )
 
 
-def _json_default(o: Any) -> Any:
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, complex):
-        return {"re": o.real, "im": o.imag}
-    if hasattr(o, "to_dict"):
-        return o.to_dict()
-    return str(o)
-
-
 def _default_text(result: dict[str, Any]) -> str:
     lines = []
     for k, v in result.items():
         if isinstance(v, (dict, list)):
-            v = json.dumps(v, default=_json_default)
+            v = to_json_text(v)
         lines.append(f"{k}: {v}")
     return "\n".join(lines)
 
@@ -105,7 +93,7 @@ def _default_text(result: dict[str, Any]) -> str:
 def _error(args: argparse.Namespace, exc: BaseException) -> int:
     """One line (or one JSON object) for an error, exit code 1."""
     if args.json:
-        print(json.dumps({"error": type(exc).__name__, "message": str(exc)}))
+        print(to_json_text({"error": type(exc).__name__, "message": str(exc)}))
     else:
         print(f"maglevid {args.command}: error: {exc}", file=sys.stderr)
     return 1
@@ -113,11 +101,36 @@ def _error(args: argparse.Namespace, exc: BaseException) -> int:
 
 def _print(args: argparse.Namespace, result: Any) -> None:
     if args.json:
-        print(json.dumps(result, default=_json_default, indent=2, allow_nan=True))
+        # Always JSON (RFC 8259): NaN -> null, +-inf -> "inf"/"-inf" (maglevid.jsonable).
+        print(to_json_text(result, indent=2))
     else:
         fmt = args._format or _default_text
         print(fmt(result))
     sys.stdout.flush()
+
+
+@contextlib.contextmanager
+def _numerical_warnings_logged() -> Iterator[None]:
+    """NumPy's RuntimeWarnings (overflow, "Mean of empty slice") go to the log, not stderr.
+
+    The commands turn what such a warning announces (a record too short, a value
+    that overflows) into one clear message or a note; the raw warning with its
+    source line would only bury that message. ``-v`` shows them, one log line
+    each. Other warnings (maglevid's own, for marginal problems) are unchanged.
+    """
+    log = logging.getLogger("maglevid.cli")
+    shown = warnings.showwarning
+
+    def show(message: Any, category: Any, filename: str, lineno: int, *rest: Any) -> None:
+        if issubclass(category, RuntimeWarning):
+            log.info("numerical warning (%s:%d): %s", filename, lineno, message)
+        else:
+            shown(message, category, filename, lineno, *rest)
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("default", RuntimeWarning)
+        warnings.showwarning = show
+        yield
 
 
 def _reader_went_away() -> int:
@@ -145,7 +158,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
-        result = args._run(args)
+        with _numerical_warnings_logged():
+            result = args._run(args)
         if result is not None:
             _print(args, result)
     except BrokenPipeError:

@@ -152,7 +152,11 @@ def check_levitation(
     frac = float(np.max(np.abs(x)) / float(x0))
     stuck = bool(np.ptp(x) == 0.0)
     ok = frac <= max_fraction and not stuck
-    msg = f"largest displacement {100 * frac:.3g} % of the air gap"
+    msg = (
+        f"largest displacement {100 * frac:.3g} % of the air gap"
+        if frac <= 100.0
+        else f"largest displacement {frac:.2g} air gaps (no rotor moves that far)"
+    )
     if stuck:
         msg += ": the displacement does not move at all (rotor resting or sensor dead)"
     elif not ok:
@@ -160,6 +164,20 @@ def check_levitation(
     return QualityCheck(
         name="levitation", passed=ok, value=frac, threshold=max_fraction, message=msg
     )
+
+
+def _relative_rms(d: np.ndarray, ref: np.ndarray) -> float:
+    """``rms(d) / rms(ref)``, each scaled by its largest entry first (no overflow of the
+    squares for values up to the largest float; inf where ``d`` itself is not finite)."""
+
+    def rms(x: np.ndarray) -> float:
+        top = float(np.max(np.abs(x))) if x.size else 0.0
+        if not np.isfinite(top):
+            return float("inf")
+        return top * float(np.sqrt(np.mean((x / top) ** 2))) if top > 0 else 0.0
+
+    num = rms(d)
+    return num / max(rms(ref), 1e-300) if np.isfinite(num) else float("inf")
 
 
 def check_feedback_consistency(
@@ -184,6 +202,13 @@ def check_feedback_consistency(
             message="no logged feedback or no stated controller: consistency not checked",
             blocking=False,
         )
+    if data.n_samples <= 2 * skip:  # (the record length check says what is needed)
+        return QualityCheck(
+            name="feedback consistency", passed=True, value=float("nan"),
+            threshold=max_mismatch, blocking=False,
+            message=f"{data.n_samples} samples: too few to check the feedback against the "
+            f"stated controller (its first {skip} are the observer's start-up)",
+        )  # fmt: skip
     from maglevid.control import IntegralStateFeedback, Observer
     from maglevid.simulate.loop import replay_feedback
 
@@ -203,11 +228,15 @@ def check_feedback_consistency(
             message=f"the stated controller cannot be replayed on this recording: {exc}",
         )
     d = (np.asarray(data.u_f) - replay)[skip:]
-    d = d - d.mean(axis=0)
     ref = np.asarray(data.u_f)[skip:]
-    mismatch = float(
-        np.sqrt(np.mean(d**2)) / max(np.sqrt(np.mean((ref - ref.mean(0)) ** 2)), 1e-300)
-    )
+    mismatch = _relative_rms(d - d.mean(axis=0), ref - ref.mean(axis=0))
+    if not np.isfinite(mismatch):
+        return QualityCheck(
+            name="feedback consistency", passed=False, value=float("inf"),
+            threshold=max_mismatch,
+            message="the stated controller's replay on the logged y overflows: the logged "
+            "signals are far outside the loop's range (units, or a corrupt sample)",
+        )  # fmt: skip
     ok = mismatch <= max_mismatch
     return QualityCheck(
         name="feedback consistency",
@@ -315,6 +344,17 @@ def check_output_response(
         cols.extend((u[lags - j : n - j]).T)
     phi = np.column_stack(cols)
     target = y[lags:]
+    # each column scaled to its largest value: R^2 does not change, and a sample of
+    # 1e300 no longer overflows the variances ("predicts nan %" before)
+    top = np.max(np.abs(phi), axis=0)
+    phi = phi / np.where(top > 0, top, 1.0)
+    ttop = np.max(np.abs(target), axis=0)
+    target = target / np.where(ttop > 0, ttop, 1.0)
+    if not (np.all(np.isfinite(phi)) and np.all(np.isfinite(target))):
+        return QualityCheck(
+            name=name, passed=False, value=float("nan"), threshold=alpha,
+            message="the outputs or inputs hold values beyond the float range",
+        )  # fmt: skip
     coef, *_ = np.linalg.lstsq(phi, target, rcond=None)
     var = np.var(target, axis=0)
     safe = np.where(var > 0, var, 1.0)
