@@ -79,6 +79,24 @@ def test_report_refused_before_anything_is_stored(tmp_path, capsys, amb_record):
     assert not store.exists()
 
 
+def test_a_failed_diagnosis_leaves_no_new_store_behind(tmp_path, capsys, amb_record):
+    # A missing recording (or one that cannot be read) left an empty SQLite store with
+    # the schema behind (found from outside, issue 16, thirteenth session). A store that
+    # existed before is kept as it was, even when this diagnosis fails.
+    store = tmp_path / "s.sqlite"
+    args = ["-q", "diagnose", "--store", str(store), "--machine", "M"]
+    assert main([*args, str(tmp_path / "nope.npz")]) == 1
+    assert "no such file" in _one_error_line(capsys)
+    assert not list(tmp_path.glob("s.sqlite*"))
+    rec = write_recording(amb_record, tmp_path / "x.npz")
+    assert main([*args, str(rec)]) == 0
+    capsys.readouterr()
+    before = store.stat().st_size
+    assert main([*args, str(tmp_path / "nope.npz")]) == 1
+    _one_error_line(capsys)
+    assert store.exists() and store.stat().st_size == before
+
+
 def test_fleet_summary_page_needs_overwrite(tmp_path, capsys):
     from maglevid.report.fleet import write_fleet_summary
 

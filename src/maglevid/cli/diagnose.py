@@ -170,19 +170,51 @@ def _inputs(args: argparse.Namespace) -> list[str | None]:
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
-    from maglevid.diagnose.pipeline import diagnose
-
     if args.report:
         # Refused before the (slow) diagnosis and before anything is stored.
         from maglevid.io import check_output
 
         check_output(args.report, overwrite=args.overwrite, inputs=_inputs(args))
-    store = None
+    store, fresh = None, None
     if args.store is not None:
         from maglevid.diagnose.history import open_history
 
+        fresh = _new_sqlite_file(args.store)
         store = open_history(args.store)
+    try:
+        return _diagnosed(args, store)
+    except BaseException:
+        _drop_if_unused(store, fresh)
+        raise
+
+
+def _new_sqlite_file(location: str) -> Path | None:
+    """The SQLite file ``--store`` names, if it does not exist yet (else None)."""
+    if "://" in location and not location.startswith("sqlite:///"):
+        return None
+    path = Path(location[len("sqlite:///") :] if location.startswith("sqlite:///") else location)
+    return None if path.exists() else path
+
+
+def _drop_if_unused(store: Any, fresh: Path | None) -> None:
+    """A failed diagnosis leaves no store behind that it created and never wrote to (a
+    missing recording left an empty SQLite file: found from outside, issue 16,
+    thirteenth session); a store that existed, or holds a machine, is kept."""
+    if store is None:
+        return
+    try:
+        unused = fresh is not None and not store.machines()
+    finally:
+        store.close()
+    if unused:
+        for suffix in ("", "-wal", "-shm", "-journal"):
+            Path(str(fresh) + suffix).unlink(missing_ok=True)
+
+
+def _diagnosed(args: argparse.Namespace, store: Any) -> dict[str, Any]:
+    """The diagnosis, its report, and the result the command prints."""
     from maglevid.cli._progress import stages
+    from maglevid.diagnose.pipeline import diagnose
 
     method_options = _method_options(args, store)
     steps = stages(("diagnosing", "writing the report"), desc="diagnose", args=args)
