@@ -54,6 +54,20 @@ def test_fault_named_with_its_cause(fault, cause, words):
     assert any("chi2" in r for r in d.reasons)
 
 
+def test_a_fault_lists_no_advice_for_causes_the_data_reject():
+    # Beside "Fault: R1 +49.8 %" the advice listed "gi1 -5 % straddles its tolerance",
+    # from gi1's own fit with chi2 = 53074 (found from outside, issue 16, thirteenth
+    # session): a cause the data reject needs no deciding.
+    # the nonlinear plant (the simulator's and the CLI's default), where it was found
+    rec = simulate_amb_loop(NOMINAL.with_fault(R1=1.5), nominal=NOMINAL, n_samples=30_000, rng=7)
+    d = diagnose(rec, baseline="nominal")
+    assert d.verdict_code == "fault" and d.isolation.best.parameters == ("R1",)
+    iso = d.isolation
+    rejected = {h.parameters[0] for h in iso.singles if h.p_value < iso.alpha} - {"R1"}
+    assert rejected  # every other single cause fails to explain an R1 fault
+    assert not {u["parameter"] for u in d.resolution} & rejected
+
+
 def test_healthy_bearing_is_not_flagged():
     for seed in (1, 2, 3):
         d = diagnose(_rec(seed=seed), baseline="nominal")
