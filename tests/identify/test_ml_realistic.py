@@ -127,17 +127,26 @@ def test_a_saturated_record_is_a_data_error(realistic):
     contract's saturated record): the logged u is no longer what drove the
     bearing. Where the Kalman predictor's equations fail inside scipy, ML says
     so with one DataError at its own boundary (never a LinAlgError/ValueError,
-    the contract test's case); where they do not (this record), no optimum
-    exists and the result says it did not converge."""
+    the contract test's case); where they do not (this record), the result says it
+    did not converge, or (since the force disturbance's restart, thirteenth session
+    of issue 16) that it converged only from a nonzero force, the clipped input read
+    as a force on the rotor (R1 2.1 instead of 21 ohm). Either way the quality gate
+    refuses such a record before `identify` or `diagnose` reads it."""
+    from maglevid.diagnose.checks import run_checks
+
     d = realistic
     lim = 0.3 * float(np.max(np.abs(d.u)))
     u = np.clip(d.u, -lim, lim)
+    sat = d.replace(u=u, u_f=u - d.r)
+    assert any(q.name == "saturation" and not q.passed and q.blocking for q in run_checks(sat))
     try:
-        res = fit_ml(d.replace(u=u, u_f=u - d.r))
+        res = fit_ml(sat)
     except DataError:
         return
-    assert not res.extras["converged"]
-    assert any("without converging" in n for n in res.notes)
+    if res.extras["converged"]:
+        assert any("restarted with it at" in n for n in res.notes)
+    else:
+        assert any("without converging" in n for n in res.notes)
 
 
 def test_a_record_without_its_loop_starts_from_the_closed_loop_subspace_fit():
@@ -156,5 +165,22 @@ def test_a_record_without_its_loop_starts_from_the_closed_loop_subspace_fit():
     res = fit_ml(user)
     assert res.extras["converged"]
     assert any("PBSID-opt structured fit (higher likelihood" in n for n in res.notes)
+    z = (_v(res) - _settled(d)) / _se(res)
+    assert np.max(np.abs(z)) < 3.0, z
+
+
+def test_a_large_force_disturbance_is_found_from_a_nonzero_start():
+    # A 2 N force disturbance (20x the simulator's default; rotor 2.3 um rms): from the
+    # disturbance at 0, stage 1 fitted the dynamics without it and they absorbed the
+    # force (R1 +42 % on this healthy bearing); every start then stopped after 60
+    # iterations at -2 log L = -6.2e5, and diagnose said "Unexplained change" (found
+    # from outside, issue 16, thirteenth session). Restarted with the disturbance at
+    # 0.5 % of the rotor's weight it converges. Reference: the simulated force and the
+    # settled point's v1..v9; measured 2.004 N and within 1.6 standard errors.
+    d = simulate_amb_loop(NOM, nominal=NOM, n_samples=30_000, rng=62, force_std=2.0)
+    res = fit_ml(d)
+    assert res.extras["converged"]
+    assert any("restarted with it at 0.088 N (converged)" in n for n in res.notes)
+    assert abs(res.extras["force_std"] / 2.0 - 1) < 0.05
     z = (_v(res) - _settled(d)) / _se(res)
     assert np.max(np.abs(z)) < 3.0, z

@@ -223,6 +223,10 @@ def _fit_ml(
             )
         if run[3]:
             break
+        if k == 0 and est_force:  # first the force disturbance's start (the usual cause)
+            best = _force_restarts(sp, y, best, noise, estimate_noise, data.dt, m, max_iter, notes)
+            if best[0][3]:
+                break
         if k == len(starts) - 1 and start_kind == "physical" and kind != "subspace":
             vs = _subspace_v(y, u, data.dt)  # the last resort: the closed-loop subspace fit
             if vs is not None and all(kd != "subspace" for _, kd in starts):
@@ -293,6 +297,45 @@ def _ordered_starts(data, sp, lay, v0, start_kind, m, notes, y, u):  # type: ign
         notes[:] = [note if n.startswith("started from the physical") else n for n in notes]
         return [alt, starts[0]]
     return [starts[0], alt]
+
+
+#: Force disturbance levels [share of the rotor's weight] the scoring restarts from
+#: when no start converged with it at 0 (:func:`_force_restarts`).
+_FORCE_RESTARTS = (0.005, 0.05)
+
+
+def _force_restarts(sp, y, best, noise, est_noise, dt, m, max_iter, notes):  # type: ignore[no-untyped-def]
+    """The scoring again from the best start's v1..v9 with the force disturbance started
+    at 0.5 % and then 5 % of the rotor's weight (an acceleration of that share of g
+    without the mass), where the first start did not converge from 0 (tried before the
+    other starts: a 2 N force stalled all three of them).
+
+    From 0, stage 1 fits the dynamics with no disturbance at all; on a record a 2 N
+    force drives (20x the simulator's default, rotor 2.3 um rms) the dynamics absorb
+    the force there (R1 +42 % on a healthy bearing), and from that point a small force
+    is not downhill: every start stopped after 60 iterations at -2 log L = -6.2e5,
+    where the disturbance started at 0.09 N converges in 15 to 2.0 N and -9.8e5
+    (found from outside, issue 16, thirteenth session; docs/gosiewski.md)."""
+    vs, kind = best[1], best[2]
+    weight = (m if m else 1.0) * 9.81
+    for share in _FORCE_RESTARTS:
+        f0 = share * weight
+        lay_f = _Layout(
+            NoiseModel(noise.sensor_std, force_std=f0, amplifier_std=noise.amplifier_std),
+            est_noise,
+            True,
+        )
+        run = _optimise(sp, y, vs, lay_f, dt=dt, m=m, max_iter=max_iter)
+        notes.append(
+            f"the start did not converge with the force disturbance from 0; restarted with it at "
+            f"{f0:.2g} {'N' if m else 'm/s^2'} "
+            f"({'converged' if run[3] else 'did not converge either'})"
+        )
+        if run[3] or run[4] < best[0][4]:
+            best = (run, vs, kind)
+        if run[3]:
+            break
+    return best
 
 
 def _subspace_v(y: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray | None:
