@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from maglevid.diagnose.checks import (
+    check_channels_move,
     check_excitation,
     check_feedback_consistency,
     check_length,
@@ -79,3 +80,15 @@ def test_feedback_inconsistent_with_stated_controller(clean):
     # Swapped output channels are caught the same way.
     swapped = clean.replace(y=np.asarray(clean.y)[:, [0, 2, 1]])
     assert not check_feedback_consistency(swapped).passed
+
+
+def test_a_dead_channel_is_named(clean):
+    # An all-zero coil current (a dead sensor) was reported only as "logged feedback
+    # differs from the stated controller by 47 %", and a constant levitator current as
+    # "Singular matrix" (found from outside, issue 16, thirteenth session).
+    y = np.array(clean.y, copy=True)
+    y[:, 1] = 0.0
+    q = check_channels_move(clean.replace(y=y))
+    assert not q.passed and q.blocking
+    assert q.message.startswith("constant channel(s): i1 = 0 throughout")
+    assert check_channels_move(clean).passed

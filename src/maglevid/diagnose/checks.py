@@ -17,6 +17,7 @@ from maglevid.diagnose.diagnosis import QualityCheck
 
 __all__ = [
     "MIN_SAMPLES",
+    "check_channels_move",
     "check_excitation",
     "check_feedback_consistency",
     "check_input_identity",
@@ -524,10 +525,44 @@ def check_units(data: ClosedLoopData) -> QualityCheck:
     )  # fmt: skip
 
 
+def check_channels_move(data: ClosedLoopData) -> QualityCheck:
+    """Every output and input channel varies: a constant one is a dead sensor, an
+    unplugged amplifier or a column that was not logged.
+
+    A constant coil current on a levitator log gave "levitator: Singular matrix", and an
+    all-zero i1 on a bearing "logged feedback differs from the stated controller by
+    47 %" (found from outside, issue 16, thirteenth session): neither named the channel.
+    """
+    dead = []
+    for group, arr in (("y", data.y), ("u", data.u)):
+        if arr is None:
+            continue
+        a = np.asarray(arr, dtype=float)
+        names = data.channel_names(group)
+        for j in range(a.shape[1]):
+            col = a[:, j]
+            if col.size and np.all(col == col[0]):
+                dead.append(f"{names[j]} = {col[0]:.6g} throughout")
+    ok = not dead
+    return QualityCheck(
+        name="channels move",
+        passed=ok,
+        value=float(len(dead)),
+        threshold=0.0,
+        message=(
+            "every output and input channel varies"
+            if ok
+            else "constant channel(s): " + "; ".join(dead) + " (a dead sensor, an unplugged "
+            "amplifier, or a column that was not logged)"
+        ),
+    )
+
+
 def run_checks(data: ClosedLoopData, **options: Any) -> tuple[QualityCheck, ...]:
     """All checks, in the order a person would want to read them."""
     return (
         check_length(data, **{k: v for k, v in options.items() if k == "min_samples"}),
+        check_channels_move(data),
         check_sample_time(data),
         check_units(data),
         check_input_identity(data),
