@@ -163,6 +163,12 @@ def _transposed(table: Table, key: Key, shape: tuple[int, ...], layout: str) -> 
     if len(shape) < 2:
         return False
     rows, cols = shape
+    if rows == 0 or cols == 0:
+        raise table.error(
+            f"is an empty variable ({rows}x{cols}: 0 samples); a recording needs at least "
+            f"{MIN_SAMPLES} samples",
+            column=name,
+        )
     if layout == "channels_first":
         return True
     if layout == "time_first":
@@ -174,9 +180,10 @@ def _transposed(table: Table, key: Key, shape: tuple[int, ...], layout: str) -> 
             f"has shape {tuple(shape)} ({rows} rows x {cols} columns). maglevid wants time "
             "along the rows (samples x channels); this looks like channels x samples, as "
             "MATLAB users often store signals. It is not transposed silently: store the "
-            f"transpose ({key}.' in MATLAB), or read with mapping={{'layout': "
-            f"'channels_first'}} (or 'time_first' if it really holds {rows} samples of "
-            f"{cols} channels)",
+            f"transpose ({key}.' in MATLAB), or read it with a mapping "
+            '{"layout": "channels_first"} (mapping= in Python, --mapping FILE.json on the '
+            f'command line), or "time_first" if it really holds {rows} samples of {cols} '
+            "channels",
             column=name,
         )
     return False
@@ -193,6 +200,13 @@ def orient(table: Table, key: Key, value: Any, layout: str) -> np.ndarray:
     """
     name = table.label(key)
     a = np.asarray(value)
+    if a.dtype.kind == "c":
+        raise table.error(
+            f"holds complex numbers ({a.dtype}); a recording's signals must be real. Store "
+            "the real part (real(x) in MATLAB, x.real in numpy) or whichever real quantity "
+            "was measured",
+            column=name,
+        )
     if a.dtype.kind not in "biuf":
         raise table.error(
             f"holds {a.dtype} data, not numbers (a MATLAB cell/struct/char variable?)",

@@ -35,15 +35,32 @@ _EXTENSIONS = {
 }
 
 
+#: How users choose a format, in the Python API and on the command line.
+_FORMAT_HOW = {
+    False: "format= in Python, --format on the command line",
+    True: "format= in Python, --to with maglevid convert",
+}
+
+
 def format_from_path(path: Path, fmt: str | None, *, writing: bool) -> str:
-    """The format named by ``fmt`` or, when ``None``, by the file's extension."""
+    """The format named by ``fmt`` or, when ``None``, by the file's extension.
+
+    A folder is refused first, whatever its name: it is not a recording.
+    """
     allowed = WRITE_FORMATS if writing else (*READ_FORMATS, "mat73")
+    if path.is_dir():
+        raise FileFormatError(
+            "is a folder, not a file; give the path of the file to write"
+            if writing
+            else "is a folder, not a recording; give the path of a recording file in it",
+            path=str(path),
+        )
     if fmt is not None:
         key = str(fmt).lower().lstrip(".")
         key = {"pq": "parquet", "txt": "text", "mat5": "mat", "mat7.3": "mat73"}.get(key, key)
         if key not in allowed:
             raise FileFormatError(
-                f"unknown format {fmt!r}; expected one of {allowed}", path=str(path)
+                f"unknown format {fmt!r}; expected one of {', '.join(allowed)}", path=str(path)
             )
         if writing and key == "text":  # pragma: no cover - excluded above
             raise FileFormatError("text logs are read-only; write 'csv'", path=str(path))
@@ -58,7 +75,8 @@ def format_from_path(path: Path, fmt: str | None, *, writing: bool) -> str:
     if suffix not in _EXTENSIONS:
         raise FileFormatError(
             f"cannot tell the format from the extension {suffix or '(none)'!r}; known: "
-            f"{sorted(_EXTENSIONS)}; pass format= (one of {allowed})",
+            f"{', '.join(sorted(_EXTENSIONS))}. Name the format, one of "
+            f"{', '.join(allowed)} ({_FORMAT_HOW[writing]})",
             path=str(path),
         )
     key = _EXTENSIONS[suffix]
@@ -69,6 +87,98 @@ def format_from_path(path: Path, fmt: str | None, *, writing: bool) -> str:
             path=str(path),
         )
     return key
+
+
+#: Signatures of binary files a user may hand over by mistake: (offset, bytes,
+#: what it is, the format that reads it or ``None``). HDF5 sits at byte 512 in a
+#: MATLAB v7.3 file (after MATLAB's text header).
+_MAGIC: tuple[tuple[int, bytes, str, str | None], ...] = (
+    (0, b"PK\x03\x04", "an NPZ/zip archive", "npz"),
+    (0, b"PK\x05\x06", "an empty zip archive", None),
+    (0, b"\x93NUMPY", "a single NumPy .npy array (not an NPZ archive of named arrays)", None),
+    (0, b"MATLAB 7.3 MAT-file", "a MATLAB v7.3 .mat file", "mat"),
+    (0, b"MATLAB 5.0 MAT-file", "a MATLAB .mat file", "mat"),
+    (0, b"\x89HDF\r\n\x1a\n", "an HDF5 file (a MATLAB v7.3 .mat?)", "mat"),
+    (512, b"\x89HDF\r\n\x1a\n", "a MATLAB v7.3 .mat (HDF5) file", "mat"),
+    (0, b"PAR1", "a Parquet file", "parquet"),
+    (0, b"\x1f\x8b", "a gzip-compressed file (decompress it first)", None),
+    (0, b"\xfd7zXZ\x00", "an xz-compressed file (decompress it first)", None),
+    (0, b"%PDF", "a PDF document", None),
+)
+
+#: Bytes read to tell what a file holds.
+SNIFF_BYTES = 8192
+
+
+def read_head(path: Path, n: int = SNIFF_BYTES) -> bytes:
+    """The first ``n`` bytes of ``path`` (an unreadable file is a :class:`FileFormatError`)."""
+    try:
+        with open(path, "rb") as fh:
+            return fh.read(n)
+    except OSError as exc:
+        raise FileFormatError(f"cannot be read: {exc.strerror or exc}", path=str(path)) from None
+
+
+def known_binary(head: bytes) -> tuple[str, str | None] | None:
+    """``(what it is, format that reads it)`` when ``head`` starts a known binary file.
+
+    A signature that is plain text (``PAR1``, ``MATLAB 5.0 MAT-file``) counts
+    only with a NUL byte in ``head`` too: a text log may well begin "PAR1,PAR2".
+    """
+    for offset, magic, what, fmt in _MAGIC:
+        if head[offset : offset + len(magic)] == magic:
+            if magic.isascii() and magic.decode().isprintable() and b"\x00" not in head:
+                continue
+            return what, fmt
+    return None
+
+
+def read_as(fmt: str) -> str:
+    """How to read a file as ``fmt``, in the Python API and on the command line."""
+    return (
+        f"read it as {fmt} (rename it to .{fmt}, or name the format: format={fmt!r} in "
+        f"Python, --format {fmt} on the command line)"
+    )
+
+
+def describe_content(head: bytes) -> str:
+    """What the first bytes of a file look like, for messages: a known format, text or binary.
+
+    Examples
+    --------
+    >>> describe_content(b"t,y\n0,1\n")
+    'text (a CSV or text log?)'
+    >>> describe_content(bytes(range(256)))
+    'binary data of an unknown kind'
+    """
+    known = known_binary(head)
+    if known is not None:
+        what, fmt = known
+        return what if fmt is None else f"{what}: {read_as(fmt)}"
+    if not head:
+        return "an empty file (0 bytes)"
+    if head.startswith((b"\xff\xfe", b"\xfe\xff")):
+        return "UTF-16 text"
+    if b"\x00" in head:
+        return "binary data of an unknown kind"
+    controls = sum(b < 32 and b not in b"\t\n\r\f\x1a" for b in head)
+    if controls > len(head) // 100:
+        return "binary data of an unknown kind"
+    return "text (a CSV or text log?)"
+
+
+def not_readable(path: Path, what: str, fmt: str, exc: Exception) -> FileFormatError:
+    """A file the reader of ``fmt`` failed on: damaged, or another kind of file (which)."""
+    head = read_head(path)
+    known = known_binary(head)
+    if known is not None and known[1] == fmt:
+        return FileFormatError(
+            f"not a readable {what}: it starts like one but is damaged or truncated ({exc})",
+            path=str(path),
+        )
+    looks = describe_content(head)
+    detail = f" ({exc})" if looks.startswith("binary") else ""
+    return FileFormatError(f"not a readable {what}{detail}: it looks like {looks}", path=str(path))
 
 
 def sidecar_path(csv_path: Path) -> Path:
@@ -175,7 +285,8 @@ def check_output(
         raise FileFormatError(f"is {kind}, not a file", path=str(target))
     if target.exists() and not overwrite:
         raise FileFormatError(
-            "exists; refusing to overwrite it (pass overwrite=True, or --overwrite)",
+            "exists; refusing to overwrite it (overwrite=True in Python, --overwrite on the "
+            "command line)",
             path=str(target),
         )
     if not target.parent.is_dir():
@@ -223,7 +334,7 @@ def write_output(
     ...     write_output(out, "again")
     ... except FileFormatError as exc:
     ...     print(str(exc).split(": ", 1)[1])
-    exists; refusing to overwrite it (pass overwrite=True, or --overwrite)
+    exists; refusing to overwrite it (overwrite=True in Python, --overwrite on the command line)
     """
     target = check_output(target, overwrite=overwrite, inputs=inputs)
     with atomic_path(target, overwrite=overwrite) as tmp:

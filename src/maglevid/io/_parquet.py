@@ -23,6 +23,7 @@ from maglevid.data import MIN_SAMPLES, ClosedLoopData
 from maglevid.exceptions import FileFormatError
 from maglevid.io import _native
 from maglevid.io._engine import ArrayTable, Table, assemble, check_time
+from maglevid.io._files import not_readable
 from maglevid.io.mapping import ColumnMapping
 
 log = logging.getLogger(__name__)
@@ -48,7 +49,7 @@ def _open(path: Path, *, pre_buffer: bool = True) -> Any:
     try:
         return pq.ParquetFile(path, pre_buffer=pre_buffer)
     except (pa.ArrowInvalid, pa.ArrowIOError, OSError) as exc:
-        raise FileFormatError(f"not a readable Parquet file: {exc}", path=str(path)) from None
+        raise not_readable(path, "Parquet file", "parquet", exc) from None
 
 
 def _column_to_numpy(path: Path, name: str, column: Any) -> np.ndarray:
@@ -133,8 +134,9 @@ def _mapping(path: Path, pf: Any, mapping: ColumnMapping | None) -> tuple[Column
     if desc is None:
         raise FileFormatError(
             "not a maglevid recording (no 'maglevid' key in the schema metadata); to import "
-            f"its columns {pf.schema_arrow.names[:20]} pass mapping= (see "
-            "docs/recording-format.md)",
+            f"its columns {pf.schema_arrow.names[:20]}, read it through a column mapping "
+            "(--mapping FILE.json or a preset name on the command line, mapping= in Python; "
+            "see docs/recording-format.md)",
             path=str(path),
         )
     native = _native.row_mapping(desc, origin="parquet schema metadata")

@@ -19,10 +19,23 @@ from maglevid.data import ClosedLoopData
 from maglevid.exceptions import FileFormatError
 from maglevid.io import _native
 from maglevid.io._engine import Key, Table, assemble
-from maglevid.io._files import check_input_file, dumps_json, sidecar_path
+from maglevid.io._files import (
+    SNIFF_BYTES,
+    check_input_file,
+    dumps_json,
+    known_binary,
+    read_as,
+    read_head,
+    sidecar_path,
+)
 from maglevid.io.mapping import ColumnMapping, TextOptions
 
 log = logging.getLogger(__name__)
+
+#: Encodings in which a delimiter or newline byte is always that character.
+_ASCII_SAFE = {"utf-8", "utf-8-sig", "ascii", "iso8859-1", "cp1252"}
+#: Bytes read at a time by the check of every row's field count.
+_BLOCK_BYTES = 1 << 23
 
 _UNIT_IN_HEADER = re.compile(r"^(?P<name>.*?)\s*[\[(](?P<unit>[^\])]*)[\])]\s*$")
 
@@ -46,6 +59,49 @@ def _is_number(field: str, opts: TextOptions) -> bool:
     return True
 
 
+def check_text_file(path: Path, encoding: str = "utf-8") -> None:
+    """Refuse a binary file before reading it as text, naming its format when known.
+
+    A file is binary when it starts with a known signature (zip/NPZ, MATLAB,
+    HDF5, Parquet, ...) or has NUL bytes in its first :data:`SNIFF_BYTES` bytes
+    (which no 8-bit or UTF-8 text has; UTF-16/32 text, declared by the
+    mapping's ``text.encoding``, is exempt).
+    """
+    head = read_head(path)
+    known = known_binary(head)
+    if known is not None:
+        what, fmt = known
+        hint = "" if fmt is None else f": {read_as(fmt)}"
+        raise FileFormatError(
+            f"is a binary file, not text: it looks like {what}{hint}", path=str(path)
+        )
+    wide = codecs.lookup(encoding).name.startswith(("utf-16", "utf-32"))
+    if head.startswith((b"\xff\xfe", b"\xfe\xff")) and not wide:
+        raise FileFormatError(
+            'is UTF-16 text: set the mapping\'s text.encoding to "utf-16"', path=str(path)
+        )
+    if b"\x00" in head and not wide:
+        raise FileFormatError(
+            f"is a binary file, not text (it has NUL bytes in its first {SNIFF_BYTES} bytes) "
+            "and of no format maglevid knows; a recording is .csv (+ .json side-car), .npz, "
+            ".mat or .parquet",
+            path=str(path),
+        )
+
+
+def _k_per_line(marks: np.ndarray, starts: np.ndarray, ends: np.ndarray, k: int) -> bool:
+    """Whether each line ``[starts[i], ends[i])`` holds exactly ``k`` of the sorted ``marks``.
+
+    With ``k * n_lines`` marks in all, line ``i`` holds exactly ``k`` when its
+    share ``marks[i*k : (i+1)*k]`` starts and ends inside it: O(lines), no counting.
+    """
+    if marks.size != k * starts.size:
+        return False
+    if k == 0:
+        return True
+    return bool(np.all(marks[::k] >= starts) and np.all(marks[k - 1 :: k] < ends))
+
+
 class TextTable(Table):
     """A delimited text file: optional skipped lines, comments, a header, numeric rows."""
 
@@ -62,6 +118,7 @@ class TextTable(Table):
         if codecs.lookup(opts.encoding).name == "utf-8":
             # Excel and Notepad put a byte-order mark before UTF-8 text; it is not data.
             opts = replace(opts, encoding="utf-8-sig")
+        check_text_file(path, opts.encoding)
         self.opts = opts
         self._comment = opts.comment
         comments: list[str] = []
@@ -224,6 +281,7 @@ class TextTable(Table):
             ) from None
         except ValueError as exc:
             raise self._diagnose(idx, str(exc)) from None
+        self._check_row_widths()  # loadtxt with usecols ignores extra fields: refuse them
         return {k: arr[:, idx.index(self._index(k))] for k in keys}
 
     def _data_lines(self) -> Iterator[tuple[int, str]]:
@@ -238,16 +296,98 @@ class TextTable(Table):
                 if s.strip():
                     yield no, s
 
+    def _n_fields(self, line: str) -> int:
+        """Number of fields of one data line (its comment already cut off)."""
+        opts = self.opts
+        if opts.delimiter is not None and opts.quote is None:
+            return line.count(opts.delimiter) + 1
+        return len(_split(line.rstrip("\r\n"), opts))
+
+    def _width_error(self, row: int, no: int, n: int) -> FileFormatError:
+        """A data row with another number of fields than the header (or first row)."""
+        message = f"data row {row} (line {no}) has {n} field(s); expected {self.n_columns}"
+        if n > self.n_columns:
+            why = "two rows joined on one line" if n >= 2 * self.n_columns - 1 else "extra values"
+            message += (
+                f" ({why}?); extra fields are never dropped silently: fix or remove that line"
+            )
+        return self.error(message)
+
+    def _widths_look_right(self) -> bool:
+        """Fast pass: does every data line have ``n_columns`` fields? ``False``: look closely.
+
+        Counts delimiters (or white-space separated tokens) per line on the raw
+        bytes with numpy, a block at a time; only lines whose count is off
+        (comments, blank lines, bad rows) are decoded and looked at. Anything
+        unusual (quoted fields, an encoding that is not ASCII-compatible, a
+        lone carriage return) leaves the decision to the exact pass.
+        """
+        opts = self.opts
+        if (
+            opts.quote is not None
+            or codecs.lookup(opts.encoding).name not in _ASCII_SAFE
+            or not (opts.delimiter or "").isascii()
+        ):
+            return False
+        d = None if opts.delimiter is None else ord(opts.delimiter)
+        with open(self.path, "rb") as fh:
+            for _ in range(self.skiprows):
+                if b"\r" in fh.readline().rstrip(b"\r\n"):
+                    return False
+            rest = b""
+            while True:  # whole lines at a time; the last one may lack its newline
+                block = fh.read(_BLOCK_BYTES)
+                data = rest + block
+                cut = len(data) if not block else data.rfind(b"\n") + 1
+                rest = data[cut:]
+                if cut and not self._block_widths_right(data[:cut], d):
+                    return False
+                if not block:
+                    return True
+
+    def _block_widths_right(self, raw: bytes, d: int | None) -> bool:
+        """Whether every line of ``raw`` (whole lines) has ``n_columns`` fields."""
+        buf = np.frombuffer(raw if raw.endswith(b"\n") else raw + b"\n", dtype=np.uint8)
+        cr = np.flatnonzero(buf == 13)
+        if cr.size and np.any(buf[np.minimum(cr + 1, buf.size - 1)] != 10):
+            return False  # a lone \r is a line break to Python: let the exact pass count
+        ends = np.flatnonzero(buf == 10)
+        starts = np.concatenate(([0], ends[:-1] + 1))
+        if d is not None:
+            marks, k = np.flatnonzero(buf == d), self.n_columns - 1  # delimiters
+        else:
+            if buf.max() >= 128 or buf.min() < 9 or np.any((buf > 13) & (buf < 28)):
+                return False  # non-ASCII white space (NBSP...) or odd control bytes
+            ws = buf <= 32  # now exactly the ASCII white space str.split() splits on
+            token = ~ws
+            token[1:] &= ws[:-1]  # a field starts where white space ends
+            marks, k = np.flatnonzero(token), self.n_columns  # field starts
+        if _k_per_line(marks, starts, ends, k):
+            return True
+        counts = np.bincount(np.searchsorted(ends, marks), minlength=ends.size)
+        for j in np.flatnonzero(counts != k):
+            line = bytes(buf[starts[j] : ends[j]]).decode(self.opts.encoding, "replace")
+            if self._comment and self._comment in line:
+                line = line.split(self._comment, 1)[0]
+            if line.strip() and self._n_fields(line) != self.n_columns:
+                return False
+        return True
+
+    def _check_row_widths(self) -> None:
+        """Every data row has exactly ``n_columns`` fields; else name the first that has not."""
+        if self._widths_look_right():
+            return
+        for row, (no, line) in enumerate(self._data_lines()):
+            n = self._n_fields(line)
+            if n != self.n_columns:
+                raise self._width_error(row, no, n)
+
     def _diagnose(self, idx: list[int], numpy_message: str) -> FileFormatError:
         """Find the first row that does not parse (slow path, only after an error)."""
-        width = max(idx) + 1
         for row, (no, line) in enumerate(self._data_lines()):
             fields = _split(line.rstrip("\r\n"), self.opts)
-            if len(fields) < width:
-                return self.error(
-                    f"data row {row} (line {no}) has {len(fields)} field(s); expected "
-                    f"{self.n_columns}"
-                )
+            if len(fields) != self.n_columns:
+                return self._width_error(row, no, len(fields))
             for i in idx:
                 if not _is_number(fields[i], self.opts):
                     return self.error(
@@ -325,12 +465,14 @@ def _read_sidecar(path: Path) -> dict[str, Any]:
 
 def read_native_csv(path: Path, options: ColumnMapping | None) -> ClosedLoopData:
     """A maglevid CSV recording (``rec.csv`` + ``rec.json``)."""
+    check_text_file(path)
     side_path = sidecar_path(path)
     if not side_path.is_file():
         raise FileFormatError(
             f"no metadata side-car {side_path.name} beside it: a maglevid CSV recording has "
-            "one (see docs/recording-format.md). If this is your own log, read it with "
-            "mapping= (a column mapping)",
+            "one (see docs/recording-format.md). If this is your own log, read it through a "
+            "column mapping (mapping= in Python, --mapping FILE.json or a preset name on the "
+            "command line)",
             path=str(path),
         )
     side = _read_sidecar(side_path)

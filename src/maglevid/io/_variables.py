@@ -39,7 +39,8 @@ from maglevid.data import SIGNALS, ClosedLoopData
 from maglevid.exceptions import FileFormatError
 from maglevid.io import _native
 from maglevid.io._engine import ArrayTable, assemble, oriented_width
-from maglevid.io.mapping import ColumnMapping
+from maglevid.io._files import describe_content, not_readable, read_head
+from maglevid.io.mapping import ColumnMapping, presets_for_variables
 
 log = logging.getLogger(__name__)
 
@@ -129,6 +130,7 @@ def read_variables(
                     )
         if not layout_given:
             layout = _native_layout(table, shapes, desc)
+        _check_widths(table, shapes, desc, layout)
     else:
         desc = _plain_description(path, table, arrays, shapes, layout, matlab=matlab, fmt=fmt)
     native = _native.variable_mapping(desc, origin=f"{fmt} variables", present=set(arrays))
@@ -186,10 +188,32 @@ def _native_layout(
             raise table.error(
                 f"has shape {shape}, but the metadata describes {width} channel(s): it is "
                 "stored channels x samples. It is not transposed silently: store the "
-                "transpose, or read with mapping={'layout': 'channels_first'}",
+                'transpose, or read it with a mapping {"layout": "channels_first"} (mapping= '
+                "in Python, --mapping FILE.json on the command line)",
                 column=sig,
             )
     return "time_first"
+
+
+def _check_widths(
+    table: ArrayTable,
+    shapes: Mapping[str, tuple[int, ...]],
+    desc: _native.Description,
+    layout: str,
+) -> None:
+    """Each signal's variable has as many channels as the metadata names: none is dropped."""
+    for sig in desc.signals:
+        width = desc.width(sig)
+        got = oriented_width(table, sig, shapes[sig], layout)
+        if got != width:
+            names = ", ".join(desc.signals[sig][0])
+            dropped = " (extra channels are never dropped silently)" if got > width else ""
+            raise table.error(
+                f"has {got} channel(s) (shape {tuple(shapes[sig])}), but the metadata "
+                f"describes {width} ({names}): the arrays and the metadata do not belong "
+                f"together; was the file edited?{dropped} Store matching arrays and metadata",
+                column=sig,
+            )
 
 
 def _plain_description(
@@ -206,10 +230,18 @@ def _plain_description(
     missing = [k for k in ("y", "dt") if k not in arrays]
     if missing:
         shown = ", ".join(sorted(arrays)[:20])
+        presets = presets_for_variables(arrays, fmt)
+        hint = "".join(
+            f" The preset {name!r} shipped with maglevid reads these variables: "
+            f"--mapping {name} on the command line, mapping={name!r} in Python."
+            for name in presets
+        )
         raise FileFormatError(
-            f"not a maglevid recording: no variable(s) {missing} (it has: {shown}). A "
-            f"recording holds y (samples x channels), dt and optionally u, r, u_f, p, t0; "
-            f"to import other variables pass mapping= (see docs/recording-format.md)",
+            f"not a maglevid recording: no variable(s) {missing} (it has: {shown}).{hint} A "
+            "recording holds y (samples x channels), dt and optionally u, r, u_f, p, t0; "
+            "to import other variables, read the file through a column mapping (--mapping "
+            "FILE.json or a preset name on the command line, mapping= in Python; see "
+            "docs/recording-format.md)",
             path=str(path),
             column=missing[0],
         )
@@ -250,15 +282,36 @@ def _npy_shape(npz: Any, name: str) -> tuple[int, ...]:
     return tuple(shape)
 
 
+def _check_zip(path: Path) -> None:
+    """An NPZ file is a zip archive; anything else is named, never handed to ``np.load``.
+
+    ``np.load`` takes any other file for pickled data and advises loading it
+    unsafely; that advice must never reach a user.
+    """
+    head = read_head(path)
+    if head.startswith(b"\x93NUMPY"):
+        raise FileFormatError(
+            "is a single .npy array, not an NPZ archive of named arrays (y, dt, ...); save "
+            "it with numpy.savez(file, y=..., dt=...)",
+            path=str(path),
+        )
+    if not head.startswith((b"PK\x03\x04", b"PK\x05\x06")):
+        raise FileFormatError(
+            "is not an NPZ archive (NPZ files are zip archives of .npy arrays): it looks like "
+            f"{describe_content(head)}",
+            path=str(path),
+        )
+
+
 def read_npz(path: Path, mapping: ColumnMapping | None) -> ClosedLoopData:
+    _check_zip(path)
     try:
         npz = np.load(path, allow_pickle=False)
     except (zipfile.BadZipFile, ValueError, OSError, EOFError) as exc:
-        raise FileFormatError(f"not a readable NPZ archive: {exc}", path=str(path)) from None
-    if not hasattr(npz, "files"):
+        why = "" if "pickle" in str(exc) else f": {exc}"
         raise FileFormatError(
-            "is a single .npy array, not an NPZ archive of named arrays", path=str(path)
-        )
+            f"is a damaged NPZ archive (truncated or corrupted zip){why}", path=str(path)
+        ) from None
     with npz:
         cache: dict[str, np.ndarray] = {}
 
@@ -267,9 +320,13 @@ def read_npz(path: Path, mapping: ColumnMapping | None) -> ClosedLoopData:
                 if name not in cache:
                     try:
                         cache[name] = npz[name]
-                    except ValueError as exc:  # object arrays need pickle: refused
+                    except ValueError:  # object arrays need pickle: refused
                         raise FileFormatError(
-                            f"cannot be loaded safely: {exc}", path=str(path), column=name
+                            "holds Python objects (a pickled object array), not numbers; "
+                            "maglevid never loads pickled data (loading it can run code): "
+                            "save plain numeric arrays",
+                            path=str(path),
+                            column=name,
                         ) from None
                 return cache[name]
 
@@ -278,8 +335,11 @@ def read_npz(path: Path, mapping: ColumnMapping | None) -> ClosedLoopData:
         arrays = {name: loader(name) for name in npz.files}
         try:
             shapes = {name: _npy_shape(npz, name) for name in npz.files}
-        except (KeyError, ValueError, OSError) as exc:
-            raise FileFormatError(f"not a readable NPZ archive: {exc}", path=str(path)) from None
+        except (KeyError, ValueError, OSError, zipfile.BadZipFile) as exc:
+            raise FileFormatError(
+                f"is a damaged NPZ archive (a member is not a readable .npy array: {exc})",
+                path=str(path),
+            ) from None
         return read_variables(path, "npz", arrays, shapes, mapping, matlab=False)
 
 
@@ -322,9 +382,7 @@ def read_mat(path: Path, mapping: ColumnMapping | None) -> ClosedLoopData:
     try:
         info = sio.whosmat(str(path))
     except Exception as exc:  # scipy raises several types for a broken file
-        raise FileFormatError(
-            f"not a readable MATLAB .mat file (v4/v5/v7 or v7.3): {exc}", path=str(path)
-        ) from None
+        raise not_readable(path, "MATLAB .mat file (v4/v5/v7 or v7.3)", "mat", exc) from None
     shapes = {name: tuple(shape) for name, shape, _ in info}
     classes = {name: cls for name, _, cls in info}
     cache: dict[str, Any] = {}
@@ -410,10 +468,17 @@ def _mat73_loader(path: Path, name: str, obj: Any, h5py: Any) -> Callable[[], An
                 f"is a MATLAB {cls or 'group'}, not a numeric array", path=str(path), column=name
             )
         if obj.attrs.get("MATLAB_empty", 0):
-            return np.zeros((0,))
+            # MATLAB stores an empty matrix's dimensions as its data (e.g. [0, 3]).
+            dims = tuple(int(d) for d in np.asarray(obj[()]).reshape(-1))
+            return np.zeros(dims if len(dims) == 2 and 0 in dims else (0,))
         data = obj[()]
         if data.dtype.names:  # compound: complex numbers
-            raise FileFormatError("holds complex numbers", path=str(path), column=name)
+            raise FileFormatError(
+                "holds complex numbers; a recording's signals must be real. Store the real "
+                "part (real(x) in MATLAB) or whichever real quantity was measured",
+                path=str(path),
+                column=name,
+            )
         if cls == "char":
             return "".join(map(chr, np.asarray(data).T.reshape(-1).tolist()))
         return np.asarray(data).T
@@ -431,7 +496,8 @@ def write_mat(data: ClosedLoopData, tmp: Path) -> None:
         if isinstance(value, np.ndarray) and value.nbytes >= 2**31:
             raise FileFormatError(
                 f"variable {key!r} is {value.nbytes / 2**30:.1f} GiB, over the 2 GiB limit of "
-                "MAT v5; write format='mat73' (HDF5) instead",
+                "MAT v5; write MATLAB v7.3 (HDF5) instead: format='mat73' in Python, "
+                "--to mat73 with maglevid convert",
                 path=str(tmp),
             )
     with open(tmp, "wb") as fh:

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Mapping
+from collections.abc import Collection, Mapping
 from dataclasses import dataclass, field, replace
 from importlib import resources
 from pathlib import Path
@@ -242,6 +242,45 @@ def available_presets() -> dict[str, str]:
         if entry.name.endswith(".json"):
             raw = json.loads(entry.read_text(encoding="utf-8"))
             out[entry.name[:-5].replace("_", "-")] = str(raw.get("description", "")).split("\n")[0]
+    return out
+
+
+def _named_columns(m: ColumnMapping) -> set[Any]:
+    """The columns (or variables) a mapping reads: channels, inter-samples, extras, time."""
+    specs = [c for chans in m.signals.values() for c in chans] + list(m.extra)
+    cols: set[Any] = {c.column for c in specs} | {i for c in specs for i in c.intersamples}
+    if m.time is not None:
+        cols.add(m.time.column)
+    return cols
+
+
+def presets_for_variables(names: Collection[str], fmt: str) -> list[str]:
+    """The shipped presets for ``fmt`` files whose every named variable is in ``names``.
+
+    A preset is suggested only when it names its variables (not column
+    indices) and the file has them all, so a suggestion is never a guess.
+
+    Examples
+    --------
+    >>> names = ["rawMeasurements1", "rawMeasurements2", "rawMeasurements3", "u"]
+    >>> presets_for_variables(names, "mat")
+    ['maggy-ntnu']
+    >>> presets_for_variables(["y", "dt"], "mat")
+    []
+    """
+    have = set(names)
+    fmt = {"mat73": "mat"}.get(fmt, fmt)
+    out = []
+    for name in available_presets():
+        try:
+            m = load_mapping(name)
+        except FileFormatError:  # pragma: no cover - shipped presets are checked by tests
+            continue
+        if m.alternatives or not m.has_signals or m.format not in (None, fmt):
+            continue
+        cols = _named_columns(m)
+        if all(isinstance(c, str) for c in cols) and cols <= have:
+            out.append(name)
     return out
 
 

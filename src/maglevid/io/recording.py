@@ -65,11 +65,12 @@ def _choose(path: Path, fmt: str, m: ColumnMapping) -> ColumnMapping:
             f"columns; it does not apply to a {fmt} file",
             path=str(path),
         )
-    from maglevid.io._text import TextTable, resolve_text_options
+    from maglevid.io._text import TextTable, check_text_file, resolve_text_options
 
     seen = []
     for alt in m.alternatives:
         opts = resolve_text_options(alt.text, path, csv_default=fmt == "csv")
+        check_text_file(path, opts.encoding)  # a binary file is named as such, not skipped
         try:
             n = TextTable(path, opts).n_columns
         except FileFormatError:
@@ -157,12 +158,14 @@ def read_recording(
             else read_native_csv(p, m)
         )
     elif fmt == "text":
-        from maglevid.io._text import read_text
+        from maglevid.io._text import check_text_file, read_text
 
         if m is None or not m.has_signals:
+            check_text_file(p)
             raise FileFormatError(
-                "a text log is read through a column mapping: pass mapping= (a dict, a "
-                ".json/.toml mapping file or a preset name; see docs/recording-format.md)",
+                "a text log is read through a column mapping: a .json/.toml mapping file or "
+                "a preset name (--mapping on the command line; mapping=, also a dict, in "
+                "Python; see docs/recording-format.md)",
                 path=str(p),
             )
         data = read_text(p, m, csv_default=False)
