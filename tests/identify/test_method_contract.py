@@ -167,3 +167,12 @@ def test_excitation_logged_but_not_applied_is_refused(records, method):
     d = records["amb"]
     out = _outcome(method, d.replace(u=d.u_f))
     assert isinstance(out, DataError) and "u differs from u_f + r" in str(out)
+
+
+@pytest.mark.parametrize("name", ["levitator", "greybox-levitator"])
+def test_a_method_for_another_plant_kind_refuses_the_record(name):
+    # The levitator's grey box on a two-coil bearing "identified" a 36 rad/s pole with
+    # the 18 g ball's mass (found from outside, issue 16, thirteenth session).
+    with pytest.raises(DataError, match=f"{name}: the method is made for a levitator record; "
+                                        "this one is amb-two-coil"):  # fmt: skip
+        get_method(name)(_amb())

@@ -171,7 +171,8 @@ def test_a_new_kind_goes_through_the_pipelines_stages(five_axis, tmp_path):
     data = ClosedLoopData(y=np.zeros((50, 10)), u=np.zeros((50, 5)), dt=1e-3)
     assert infer_kind(data) == ("five-axis-rotor", "ten outputs, five inputs")
     diag = diagnose(data, machine="rotor-1", history=tmp_path / "h.sqlite")
-    assert calls == ["quality", "baseline", "compare", "isolate"]
+    # the baseline first: a bad one is the caller's error, not hidden by a failed check
+    assert calls == ["baseline", "quality", "compare", "isolate"]
     assert fits == [{"order": 2}]  # what the kind's quality stage asked the method for
     assert diag.verdict == "omega +10 %" and diag.method == "n4sid"
     assert "plant kind five-axis-rotor" in diag.method_reason

@@ -380,12 +380,22 @@ def quality_gate(data: Any, *, force: bool) -> list[str]:
     records (the inter-sampled suspension of Sun et al., driven by noise)
     need none, and the methods that do need r refuse it themselves.
     """
-    from maglevid.diagnose.checks import check_sample_time, check_units, run_checks
+    from maglevid.diagnose.checks import (
+        check_channels_move,
+        check_sample_time,
+        check_units,
+        run_checks,
+    )
     from maglevid.diagnose.levitator import is_levitator, levitator_checks
     from maglevid.exceptions import DataError
 
     if is_levitator(data):
-        checks = (*levitator_checks(data)[0], check_sample_time(data), check_units(data))
+        checks = (
+            check_channels_move(data),
+            *levitator_checks(data)[0],
+            check_sample_time(data),
+            check_units(data),
+        )
     else:
         checks = run_checks(data)
     failed = [

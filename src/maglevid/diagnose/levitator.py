@@ -97,10 +97,7 @@ def levitator_checks(
     lost = rep.excluded_by_reason()
     why = ", ".join(f"{k} {v:.1f} s" for k, v in lost.items() if v > 0) or "nothing"
     ok = seconds >= MIN_LEVITATING_SECONDS
-    from maglevid.diagnose.checks import check_channels_move
-
     checks = (
-        check_channels_move(data),
         QualityCheck(
             name="levitation",
             passed=ok,

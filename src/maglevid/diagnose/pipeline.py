@@ -166,11 +166,11 @@ def _identify(run: DiagnosisRun, stages: DiagnosisStages) -> Diagnosis | None:
     except MaglevidError as exc:
         return cannot_diagnose(run, [str(exc)], prefix="identification failed: ")
     run.notes.extend(run.result.notes)
-    if run.result.extras.get("converged") is False:
+    if (getattr(run.result, "extras", None) or {}).get("converged") is False:
         # not an optimum: its intervals promise nothing, and a verdict read off them
         # named every parameter changed on a healthy bearing (a user's .mat whose IV
         # start was far off; docs/diagnosis.md)
-        it = run.result.extras.get("iterations")
+        it = run.result.extras.get("iterations")  # (a fit that says it did not converge)
         why = (
             f"the {run.method} fit did not converge"
             + (f" ({it} iterations)" if it is not None else "")

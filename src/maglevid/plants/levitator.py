@@ -30,6 +30,7 @@ from scipy import special
 
 from maglevid.data import ClosedLoopData
 from maglevid.diagnose import levitator as lev
+from maglevid.diagnose.checks import check_channels_move
 from maglevid.diagnose.compare import DEFAULT_TOLERANCE, compare_parameters
 from maglevid.diagnose.diagnosis import Diagnosis, QualityCheck
 from maglevid.diagnose.resolve import bounds_side
@@ -61,7 +62,7 @@ class LevitatorStages:
     def quality(self, run: DiagnosisRun) -> tuple[QualityCheck, ...]:
         quality, segments = lev.levitator_checks(run.data)
         run.identify_options = {"segments": segments, **dict(run.method_options or {})}
-        return quality
+        return (check_channels_move(run.data), *quality)
 
     def baseline(self, run: DiagnosisRun) -> None:
         """An earlier identification from the history (filtered once identified), else
