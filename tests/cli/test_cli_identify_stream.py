@@ -62,3 +62,15 @@ def test_large_parquet_streams_by_default_with_method_physical(parquet, capsys, 
 def test_stream_refuses_a_method_without_a_streamed_form(parquet, capsys):
     assert main(["identify", str(parquet), "--stream", "--method", "deadbeat-arx"]) != 0
     assert "cannot be streamed" in capsys.readouterr().err
+
+
+def test_a_small_chunk_is_not_judged_too_short(parquet, capsys):
+    # The quality gate read only the first chunk: --chunk-size 10 was refused as "10
+    # control periods: too short" on a 12000-sample record (found from outside, issue
+    # 16, thirteenth session). It now reads the first 2000 periods at least; the fit
+    # is the same as with large chunks (rounding).
+    small = _run(capsys, str(parquet), "--method", "physical", "--stream", "--chunk-size", "500")
+    large = _run(capsys, str(parquet), "--method", "physical", "--stream", "--chunk-size", "6000")
+    assert small["streamed"]["chunk_size"] == 500
+    for name, value in large["parameters"].items():
+        assert small["parameters"][name] == pytest.approx(value, rel=1e-8, abs=1e-12), name

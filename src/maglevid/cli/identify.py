@@ -167,8 +167,12 @@ def _run_streamed(args: argparse.Namespace) -> dict[str, Any]:
             f"{', '.join(sorted(STREAMED_METHODS))}); use --no-stream to read the whole file"
         )
     options = _typed_options(method, args.option)
-    # The quality gate on the first chunk (the whole record when it fits in one).
-    first = next(iter_recording_chunks(args.recording, args.chunk_size, mapping=args.mapping))
+    # The quality gate on the record's first MIN_SAMPLES control periods at least (the
+    # whole record when shorter): a first chunk of 10 was refused as "too short".
+    from maglevid.diagnose.checks import MIN_SAMPLES
+
+    head = max(args.chunk_size, MIN_SAMPLES)
+    first = next(iter_recording_chunks(args.recording, head, mapping=args.mapping))
     warnings = quality_gate(first, force=args.force)
     passes = {"n": 0}
 
