@@ -72,3 +72,16 @@ def test_unstable_closed_loop_start_is_refused(rng):
     with pytest.raises(IdentificationError, match="stable closed loop"):
         fit_indirect(d, controller=position_pid(), controller_inputs=["r:0", "y:0"], n=2,
                      initial=bad)  # fmt: skip
+
+
+def test_a_bearing_record_gets_the_methods_that_fit_it():
+    # The simulated two-coil bearing's controller is a state feedback with integral
+    # action and an observer, not one state-space model: the error said only "missing
+    # ['A', 'B', 'C']" (found from outside, issue 16, thirteenth session).
+    from maglevid.physics.amb import AMBParameters
+    from maglevid.simulate.amb import simulate_amb_loop
+
+    nom = AMBParameters.nominal()
+    d = simulate_amb_loop(nom, nominal=nom, n_samples=2000, rng=1, plant_model="linear")
+    with pytest.raises(DataError, match="For a two-coil bearing use method ml, physical"):
+        fit_indirect(d)

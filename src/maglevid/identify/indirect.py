@@ -90,6 +90,17 @@ def resolve_controller(
         K = c
         default_inputs = None
     elif isinstance(c, Mapping):
+        if not {"A", "B", "C"} <= set(map(str, c)):
+            # e.g. the simulated bearing's state feedback with integral action and observer
+            # (eqs. (42)-(43)): a bare "missing ['A', 'B', 'C']" was all it said (found
+            # from outside, issue 16, thirteenth session)
+            kind = f" (a {c['kind']!r} description)" if "kind" in c else ""
+            raise DataError(
+                f"the indirect method needs the controller as one discrete state-space model "
+                f"u = K(z) [inputs] (A, B, C, D); this record's loop['controller'] is not "
+                f"one{kind}. For a two-coil bearing use method ml, physical, pbsid or ssarx "
+                "(they need no controller model); or pass `controller=` as a StateSpace"
+            )
         K = StateSpace.from_dict(dict(c))
         default_inputs = None
     else:
