@@ -71,3 +71,13 @@ def test_the_advised_level_is_the_nearest_that_resolves():
         length_factor=math.inf, more_seconds=math.inf, plan_seconds=3.0, plan_excitation=1.0,
     )  # fmt: skip
     assert "lower it to 1 V rms at this length" in lower.advice()
+
+
+def test_an_unresolvable_cause_names_the_half_width_that_decides_it():
+    # "the model error alone exceeds the tolerance" was said of a 0.2 % model error
+    # against a 5 % tolerance: what it exceeds is the small half-width an estimate near
+    # the boundary needs (found from outside, issue 16, thirteenth session).
+    u = replace(_straddling(1.0), length_factor=math.inf, more_seconds=math.inf)
+    text = u.advice()
+    assert "the model error alone exceeds the ±1 % that decides it" in text
+    assert "exceeds the tolerance" not in text

@@ -180,9 +180,13 @@ class Unresolved:
                 what = (
                     f"the model error and the baseline's own ±{self.baseline_percent:.2g} % exceed"
                 )
+            # (not "the tolerance": the half-width that decides it, which an estimate
+            # near the boundary makes small -- 0.2 % of model error against a 5 %
+            # tolerance read as if it exceeded the tolerance; found from outside, issue
+            # 16, thirteenth session)
             return (
-                f"{head}: {what} the tolerance; no longer record of this "
-                "kind resolves it (use a wider tolerance or a smaller excitation)"
+                f"{head}: {what} the ±{self.target_percent:.2g} % that decides it; no longer "
+                "record of this kind resolves it (use a wider tolerance or a smaller excitation)"
             )
         return (
             f"{head}: record about {self.more_seconds:.3g} s more of the same excitation"
