@@ -67,6 +67,20 @@ def test_missing_channel(user_file, fmt):
 
 
 @pytest.mark.parametrize("fmt", USER_FORMATS)
+def test_a_time_column_in_ms_is_called_that_not_non_uniform(user_file, fmt):
+    # Every step alike but 1000x the dt: "non-uniform time ... (11 bad steps)" before
+    # (found from outside, issue 16, thirteenth session).
+    cols = user_columns(12)
+    cols["t"] = cols["t"] * 1000.0
+    path, extra = user_file(fmt, cols)
+    exc = read_bad(path, mapping(extra, dt=0.01))
+    assert exc.column == "t" and "non-uniform" not in str(exc)
+    assert "uniform at 10 s, 1000 times the expected dt/p = 0.01 s (the time column in ms?)" in (
+        str(exc)
+    )
+
+
+@pytest.mark.parametrize("fmt", USER_FORMATS)
 def test_non_uniform_time_names_the_first_bad_row(user_file, fmt):
     cols = user_columns(12)
     cols["t"] = cols["t"].copy()

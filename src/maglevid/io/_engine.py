@@ -284,6 +284,23 @@ def check_time(
     # in every value, whatever the tolerance: allow it on top.
     slack = 4 * np.finfo(float).eps * max(abs(float(t[0])), abs(float(t[-1])))
     bad = np.abs(steps - ref) > tolerance * ref + slack
+    if bad.any() and step is not None and abs(mean - step) > rate_tolerance * step:
+        # every step alike but not dt: a unit or a dt, not a gap (a time column in ms
+        # against a dt in s was "non-uniform time ... 19999 bad steps": found from
+        # outside, issue 16, thirteenth session)
+        if np.all(np.abs(steps - mean) <= tolerance * mean + slack):
+            ratio = mean / step
+            unit = (
+                " (the time column in ms?)" if abs(ratio / 1000 - 1) < 0.01
+                else " (the time column in us?)" if abs(ratio * 1000 - 1) < 0.01
+                else ""
+            )  # fmt: skip
+            raise table.error(
+                f"the time steps are uniform at {mean:.9g} s, {ratio:.6g} times the expected "
+                f"dt/p = {step:.9g} s{unit}: is the time column in seconds, and the dt "
+                "right?",
+                column=column,
+            )
     if bad.any():
         k = _first_bad(bad)
         raise table.error(
