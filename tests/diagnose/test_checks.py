@@ -92,3 +92,14 @@ def test_a_dead_channel_is_named(clean):
     assert not q.passed and q.blocking
     assert q.message.startswith("constant channel(s): i1 = 0 throughout")
     assert check_channels_move(clean).passed
+
+
+def test_a_displacement_beyond_the_gap_names_the_units(clean):
+    # A displacement logged in mm (x 1000) was called a touch-down (found from outside,
+    # issue 16, thirteenth session): beyond about one air gap the backup bearing stops
+    # any rotor, so the units (or the stated gap) are what is wrong.
+    y = np.array(clean.y, copy=True)
+    y[:, 0] *= 1000.0
+    q = check_levitation(clean.replace(y=y))
+    assert not q.passed and "probably not in metres (mm?)" in q.message
+    assert "touch-down" not in q.message

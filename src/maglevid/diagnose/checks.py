@@ -130,6 +130,11 @@ def check_saturation(
     )
 
 
+#: Largest displacement, in air gaps, a rotor can physically show (the backup bearing
+#: stops it at about one gap); beyond it the units or the stated gap are wrong.
+MAX_PHYSICAL_FRACTION = 2.0
+
+
 def check_levitation(
     data: ClosedLoopData,
     *,
@@ -160,6 +165,14 @@ def check_levitation(
     )
     if stuck:
         msg += ": the displacement does not move at all (rotor resting or sensor dead)"
+    elif frac > MAX_PHYSICAL_FRACTION:
+        # beyond the gap the rotor sits on its backup bearing: a displacement in mm read
+        # as m (8.5 air gaps) was called a touch-down (found from outside, issue 16,
+        # thirteenth session)
+        msg += (
+            ": no rotor moves that far beyond its air gap (the backup bearing stops it); "
+            "the displacement is probably not in metres (mm?), or the air gap x0 is wrong"
+        )
     elif not ok:
         msg += ": levitation was lost (touch-down)"
     return QualityCheck(
