@@ -380,3 +380,14 @@ def test_streamed_identify_runs_the_quality_gate(tmp_path, capsys, amb_record):
     short = write_recording(amb_record.segment(0, 500), tmp_path / "short.parquet")
     assert main(["identify", str(short), "--stream"]) == 1
     assert "too short" in _one_error_line(capsys)
+
+
+def test_fail_on_fault_tells_a_dead_sensor_from_a_healthy_bearing(tmp_path, capsys, amb_record):
+    # "Cannot diagnose" exited 0 with --fail-on-fault, as a healthy bearing does (found
+    # from outside, issue 16, thirteenth session): now 4.
+    y = np.array(amb_record.y, copy=True)
+    y[:, 0] = 0.0  # the displacement sensor dead
+    rec = write_recording(amb_record.replace(y=y), tmp_path / "dead.npz")
+    assert main(["-q", "diagnose", str(rec), "--fail-on-fault"]) == 4
+    assert "Cannot diagnose" in capsys.readouterr().out
+    assert main(["-q", "diagnose", str(rec)]) == 0  # without the flag, as before

@@ -88,7 +88,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--fail-on-fault",
         action="store_true",
-        help="exit code 3 when the verdict is a fault, an unexplained change or a drift",
+        help="exit code 3 when the verdict is a fault, an unexplained change or a drift, "
+        "4 when the recording cannot be diagnosed (a dead sensor must not look healthy)",
     )
     parser.add_argument(
         "--option",
@@ -251,6 +252,10 @@ def _diagnosed(args: argparse.Namespace, store: Any) -> dict[str, Any]:
         store.close()
     if args.fail_on_fault and diag.verdict_code in ("fault", "unexplained_change", "drift"):
         out["exit_code"] = 3
+    elif args.fail_on_fault and diag.verdict_code == "cannot_diagnose":
+        # a monitoring script could not tell a dead sensor from a healthy bearing by the
+        # exit code (0 for both; found from outside, issue 16, thirteenth session)
+        out["exit_code"] = 4
     out["summary_text"] = diag.summary()
     return out
 
