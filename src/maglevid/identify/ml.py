@@ -362,20 +362,13 @@ def _start_likelihood(
 
 def _predictor_radius(lay: _Layout, v: np.ndarray, dt: float, m: float | None) -> float | None:
     """Spectral radius of the Kalman predictor ``A - K C`` at ``v`` (None if none)."""
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("error", sla.LinAlgWarning)
-            model = lay.model(lay.theta(v), dt, m)
-            K = steady_state_predictor(model.A, model.C, model.Q, model.R)[0]
+
+    def radius() -> float:
+        model = lay.model(lay.theta(v), dt, m)
+        K = steady_state_predictor(model.A, model.C, model.Q, model.R)[0]
         return float(np.max(np.abs(np.linalg.eigvals(model.A - K @ model.C))))
-    except (
-        IdentificationError,
-        ValueError,
-        FloatingPointError,
-        np.linalg.LinAlgError,
-        sla.LinAlgWarning,
-    ):
-        return None
+
+    return _guarded(radius)
 
 
 def _exact_finish(
@@ -1048,10 +1041,16 @@ def _trial(evaluate: Any, theta: np.ndarray, derivatives: bool) -> dict[str, Any
     An ill-conditioned predictor (Lyapunov equation, DARE) at a trial point is
     a bad point: rejected like a failed one, not warned about.
     """
+    return _guarded(lambda: evaluate(theta, derivatives))
+
+
+def _guarded(compute: Any) -> Any:
+    """``compute()``, or None where the predictor's equations fail or are ill-conditioned
+    (scipy's LinAlgWarning taken as a failure: a bad point, not a warning for the user)."""
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("error", sla.LinAlgWarning)
-            return evaluate(theta, derivatives)
+            return compute()
     except (
         IdentificationError,
         ValueError,
