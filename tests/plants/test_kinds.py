@@ -184,3 +184,23 @@ def test_a_new_kind_goes_through_the_pipelines_stages(five_axis, tmp_path):
     assert infer_kind(ClosedLoopData(y=np.zeros((50, 9)), u=np.zeros((50, 2)), dt=0.01))[0] == (
         "mimo"
     )
+
+
+def test_a_bearing_without_its_loop_is_identified_by_ml():
+    # README's own-.mat recipe (no controller recorded): `identify` chose physical, whose
+    # instruments were then lags of r: R1 3.7 against 17.5 ohm (found from outside, issue
+    # 16, thirteenth session). Reference: the plants' own choice on both records.
+    import dataclasses
+
+    from maglevid.physics.amb import AMBParameters
+    from maglevid.plants import choose_method
+    from maglevid.simulate.amb import simulate_amb_loop
+
+    nom = AMBParameters.nominal()
+    d = simulate_amb_loop(nom, nominal=nom, n_samples=500, rng=1, plant_model="linear")
+    assert choose_method(d)[0] == "physical"
+    user = dataclasses.replace(
+        d, loop={"operating_point": {"m": nom.m, "i0": nom.i0, "x0": nom.x0}}
+    )
+    method, why = choose_method(user)
+    assert method == "ml" and "instruments would be lags of r" in why

@@ -654,6 +654,24 @@ class AMBTwoCoil(BaseKind):
         "variables of `physical` scatter 80-130x the bound on R, L, ki, kw)"
     )
     former_diagnosis_method = DEFAULT_METHOD
+
+    def choose_method(self, data: ClosedLoopData) -> tuple[str, str]:
+        """``physical`` where the loop's controller and observer are recorded, else
+        ``ml``: without them ``physical``'s instruments are lags of ``r``, far too weak
+        on the bearing (a user's own .mat file, README recipe: R1 3.7 against 17.5
+        ohm, and -115 to -11 ohm on simulated healthy bearings with the loop removed,
+        the model 200-420 off the structure of eq. (4) against 11-23 with the loop's
+        instruments; found from outside, issue 16, thirteenth session)."""
+        loop = data.loop if hasattr(data.loop, "get") else {}
+        if isinstance(loop.get("observer"), Mapping) and isinstance(
+            loop.get("controller"), Mapping
+        ):
+            return self.default_method, self.method_reason
+        return "ml", (
+            "the loop's controller and observer are not recorded, so physical's instruments "
+            "would be lags of r, too weak on a bearing; " + self.diagnosis_reason
+        )
+
     methods = (
         DEFAULT_METHOD, "ml", "deadbeat-arx", "deadbeat-iv", "okid-era", "indirect",
         "two-stage", "pem", "n4sid", "moesp", "pbsid", "ssarx",
