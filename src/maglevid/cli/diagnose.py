@@ -191,9 +191,12 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
 
 def _new_sqlite_file(location: str) -> Path | None:
     """The SQLite file ``--store`` names, if it does not exist yet (else None)."""
-    if "://" in location and not location.startswith("sqlite:///"):
+    from maglevid.diagnose.history import parse_target
+
+    dialect, target = parse_target(location)
+    if dialect != "sqlite" or target == ":memory:":
         return None
-    path = Path(location[len("sqlite:///") :] if location.startswith("sqlite:///") else location)
+    path = Path(target)
     return None if path.exists() else path
 
 

@@ -180,20 +180,6 @@ def check_levitation(
     )
 
 
-def _relative_rms(d: np.ndarray, ref: np.ndarray) -> float:
-    """``rms(d) / rms(ref)``, each scaled by its largest entry first (no overflow of the
-    squares for values up to the largest float; inf where ``d`` itself is not finite)."""
-
-    def rms(x: np.ndarray) -> float:
-        top = float(np.max(np.abs(x))) if x.size else 0.0
-        if not np.isfinite(top):
-            return float("inf")
-        return top * float(np.sqrt(np.mean((x / top) ** 2))) if top > 0 else 0.0
-
-    num = rms(d)
-    return num / max(rms(ref), 1e-300) if np.isfinite(num) else float("inf")
-
-
 def check_feedback_consistency(
     data: ClosedLoopData, *, max_mismatch: float = MAX_FEEDBACK_MISMATCH, skip: int = 50
 ) -> QualityCheck:
@@ -243,7 +229,7 @@ def check_feedback_consistency(
         )
     d = (np.asarray(data.u_f) - replay)[skip:]
     ref = np.asarray(data.u_f)[skip:]
-    mismatch = _relative_rms(d - d.mean(axis=0), ref - ref.mean(axis=0))
+    mismatch = _rms(d) / max(_rms(ref), 1e-300)
     if not np.isfinite(mismatch):
         return QualityCheck(
             name="feedback consistency", passed=False, value=float("inf"),
@@ -284,7 +270,13 @@ OUTPUT_RESPONSE_ALPHA = 1e-4
 
 
 def _rms(x: np.ndarray) -> float:
-    return float(np.sqrt(np.mean(np.square(x - x.mean(axis=0)))))
+    """RMS about each column's mean, scaled by the largest entry before squaring (no
+    overflow for values up to the largest float; inf where ``x`` is not finite)."""
+    x = x - x.mean(axis=0)
+    top = float(np.max(np.abs(x))) if x.size else 0.0
+    if not np.isfinite(top):
+        return float("inf")
+    return top * float(np.sqrt(np.mean(np.square(x / top)))) if top > 0 else 0.0
 
 
 def check_input_identity(
