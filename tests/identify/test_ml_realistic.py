@@ -160,7 +160,9 @@ def test_a_record_without_its_loop_starts_from_the_closed_loop_subspace_fit():
     # settled point's v1..v9 (as above); measured within 1.6 standard errors.
     d = simulate_amb_loop(NOM, nominal=NOM, n_samples=20_000, rng=5)
     user = dataclasses.replace(d, loop={"operating_point": dict(NOM_OP)})
-    iv = fit_physical(user)
+    with pytest.raises(DataError, match="instruments='lags'"):  # physical alone refuses
+        fit_physical(user)
+    iv = fit_physical(user, instruments="lags")  # ml's weak start, asked for by name
     assert abs(iv.parameters["R1"] / NOM.R1 - 1) > 0.5  # the weak start this is about
     res = fit_ml(user)
     assert res.extras["converged"]

@@ -67,7 +67,7 @@ from maglevid.identify.cramer_rao import (
 )
 from maglevid.identify.options import AMB_OPTIONS, Option
 from maglevid.identify.pbsid import fit_pbsid
-from maglevid.identify.physical import fit_physical
+from maglevid.identify.physical import fit_physical, loop_recorded
 from maglevid.identify.result import IdentificationResult, propagate_covariance
 from maglevid.identify.uncertainty import one_step_fit_percent, operating_point
 from maglevid.physics.amb import (
@@ -451,7 +451,10 @@ def _start(
     elif isinstance(start, str):
         if start != "physical":
             raise DataError(f"`start` must be 'physical' or 9 numbers; got {start!r}")
-        iv = fit_physical(data, m=m, i0=i0)
+        # without the loop's controller and observer, the IV start takes lags of r (a
+        # start only: the other starts of _ordered_starts compete with it)
+        lags = not loop_recorded(data.loop)
+        iv = fit_physical(data, m=m, i0=i0, instruments="lags" if lags else "auto")
     if isinstance(start, (str, IdentificationResult)):
         v0 = np.array([iv.parameters[k] for k in V_NAMES])
         cov_w = iv.extras.get("noise_covariance")
