@@ -74,3 +74,23 @@ def test_a_small_chunk_is_not_judged_too_short(parquet, capsys):
     assert small["streamed"]["chunk_size"] == 500
     for name, value in large["parameters"].items():
         assert small["parameters"][name] == pytest.approx(value, rel=1e-8, abs=1e-12), name
+
+
+def test_a_bearing_without_its_loop_streams_by_pbsid_in_physical_coordinates(
+    parquet, tmp_path, capsys
+):
+    # `--stream` defaulted to physical, whose instruments are then lags of r: biased on
+    # the bearing (issue 16, fourteenth session). In memory such a record gets ml, which
+    # has no streamed form; the stream takes PBSID-opt in physical coordinates and says
+    # why. --method physical is refused there, naming what to use.
+    from maglevid.io import read_recording, write_recording
+
+    data = read_recording(parquet)
+    bare = {k: v for k, v in dict(data.loop).items() if k not in ("controller", "observer")}
+    path = write_recording(data.replace(loop=bare), tmp_path / "bare.parquet")
+    out = _run(capsys, str(path), "--stream", "--chunk-size", "5000")
+    assert out["method"] == "pbsid" and out["options"]["coordinates"] == "physical"
+    assert "no streamed form" in out["method_reason"]
+    assert {f"v{i}" for i in range(1, 10)} <= set(out["parameters"])
+    assert main(["identify", str(path), "--stream", "--method", "physical"]) != 0
+    assert "loop['controller']" in capsys.readouterr().err

@@ -35,8 +35,11 @@ recordings of one rig are identified together and one by one:
 Records larger than memory are streamed: a Parquet recording above 256 MB (or
 any recording with --stream) is read in chunks of --chunk-size control periods
 and identified with memory independent of its length (methods physical, moesp,
-n4sid; physical reads the file twice). Without --method such a file gets
-method physical. --no-stream always reads the whole file.
+n4sid, pbsid, ssarx; physical reads the file twice). Without --method such a
+file gets its kind's method as in memory (from its first chunk); a bearing
+record without its loop's controller and observer, whose method in memory (ml)
+has no streamed form, gets pbsid in physical coordinates. --no-stream always
+reads the whole file.
 
   maglevid identify hour.parquet --stream --method physical --option estimator=ls
 
@@ -158,7 +161,16 @@ def _run_streamed(args: argparse.Namespace) -> dict[str, Any]:
 
         raise DataError("several recordings cannot be streamed; use --no-stream")
     args.recording = args.recording[0]
-    method = args.method or "physical"
+    # The quality gate on the record's first MIN_SAMPLES control periods at least (the
+    # whole record when shorter): a first chunk of 10 was refused as "too short".
+    from maglevid.diagnose.checks import MIN_SAMPLES
+
+    head = max(args.chunk_size, MIN_SAMPLES)
+    first = next(iter_recording_chunks(args.recording, head, mapping=args.mapping))
+    if args.method is None:
+        method, reason, defaults = _streamed_default(first)
+    else:
+        method, reason, defaults = args.method, "chosen by the user", {}
     if method not in STREAMED_METHODS:
         from maglevid.exceptions import DataError
 
@@ -166,13 +178,7 @@ def _run_streamed(args: argparse.Namespace) -> dict[str, Any]:
             f"method {method!r} cannot be streamed (streamed: "
             f"{', '.join(sorted(STREAMED_METHODS))}); use --no-stream to read the whole file"
         )
-    options = _typed_options(method, args.option)
-    # The quality gate on the record's first MIN_SAMPLES control periods at least (the
-    # whole record when shorter): a first chunk of 10 was refused as "too short".
-    from maglevid.diagnose.checks import MIN_SAMPLES
-
-    head = max(args.chunk_size, MIN_SAMPLES)
-    first = next(iter_recording_chunks(args.recording, head, mapping=args.mapping))
+    options = {**defaults, **_typed_options(method, args.option)}
     warnings = quality_gate(first, force=args.force)
     passes = {"n": 0}
 
@@ -186,8 +192,39 @@ def _run_streamed(args: argparse.Namespace) -> dict[str, Any]:
     result = identify_streamed(chunks, method, progress=bar, **options)
     out = result.to_dict()
     out["recording"] = args.recording
+    out["method_reason"] = reason
     out["streamed"] = {"chunk_size": args.chunk_size, "passes": passes["n"]}
     return _with_warnings(out, warnings)
+
+
+def _streamed_default(first: Any) -> tuple[str, str, dict[str, Any]]:
+    """``(method, why, default options)`` of a streamed record, from its first chunk: the
+    plant kind's method where it has a streamed form; on a bearing whose loop is not
+    recorded (``ml``, which has none) PBSID-opt in physical coordinates, consistent
+    under feedback without the loop (its instruments would be lags of ``r`` in
+    ``physical``: biased on the bearing, issue 16, fourteenth session)."""
+    from maglevid.identify.streaming import STREAMED_METHODS
+    from maglevid.plants import choose_method, infer_kind
+
+    method, reason = choose_method(first)
+    if method in STREAMED_METHODS:
+        return method, reason, {}
+    if infer_kind(first)[0] == "amb-two-coil":
+        return (
+            "pbsid",
+            (
+                f"{method} (the choice for this record in memory) has no streamed form, so "
+                "PBSID-opt in physical coordinates: consistent under feedback without the "
+                "loop's controller and observer, which this record does not carry"
+            ),
+            {"coordinates": "physical"},
+        )
+    from maglevid.exceptions import DataError
+
+    raise DataError(
+        f"this record's method {method!r} cannot be streamed (streamed: "
+        f"{', '.join(sorted(STREAMED_METHODS))}); pass --method, or --no-stream"
+    )
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
