@@ -60,6 +60,16 @@ def test_double_fault_found_by_pairs():
     assert "amplifier 2" in res.best.describe() and "coil 1 resistance" in res.best.describe()
 
 
+def test_the_headline_says_its_plus_minus_is_one_standard_error():
+    # The verdict's "R1 +20.0 % ± 0.1 %" was one standard error beside the report's 95 %
+    # intervals and the advice's 95 % half-widths, unlabelled (found from outside, issue
+    # 16, thirteenth session): it now says so.
+    v = NOMINAL.with_fault(R1=1.2).v()
+    best = isolate_fault(v, np.diag((1e-3 * v) ** 2), NOMINAL).best
+    se = 100 * best.factor_std_errors[0]
+    assert f"R1 {100 * (best.factors[0] - 1):+.1f} % ± {se:.2g} % s.e. (" in best.describe()
+
+
 def test_no_change_false_alarm_rate_is_about_alpha():
     # Under "no change" the chi-square(9) test rejects with probability alpha.
     rng = np.random.default_rng(7)

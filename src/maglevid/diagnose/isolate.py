@@ -294,14 +294,16 @@ class FaultHypothesis:
         return {k: 100.0 * (f - 1.0) for k, f in zip(self.parameters, self.factors)}
 
     def describe(self) -> str:
-        """Plain words, e.g. 'coil 1 resistance R1 +19.8 % (heating or a bad connection ...)'."""
+        """Plain words, e.g. 'coil 1 resistance R1 +19.8 % ± 0.4 % s.e. (heating or a bad
+        connection ...)': one standard error, labelled (the report's intervals and the
+        advice's half-widths are 95 %; an unlabelled "±" read as either)."""
         if not self.parameters:
             return "no significant change"
         parts = []
         for k, f, se in zip(self.parameters, self.factors, self.factor_std_errors):
             what, up, down = HYPOTHESES[k]
             parts.append(
-                f"{what} {100 * (f - 1):+.1f} % ± {100 * se:.2g} % ({up if f > 1 else down})"
+                f"{what} {100 * (f - 1):+.1f} % ± {100 * se:.2g} % s.e. ({up if f > 1 else down})"
             )
         return "; ".join(parts)
 

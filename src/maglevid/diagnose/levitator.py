@@ -400,17 +400,18 @@ class LevitatorFault:
         }
 
     def describe(self) -> str:
-        """Plain words, e.g. 'gap-sensor zero -2.9 mm ± 0.3 mm (the sensor reads more ...)'."""
+        """Plain words, e.g. 'gap-sensor zero -2.9 mm ± 0.3 mm s.e. (the sensor reads more
+        ...)': one standard error, labelled (as ``isolate.FaultHypothesis.describe``)."""
         if not self.parameters:
             return "no significant change"
         parts = []
         for k, v, se in zip(self.parameters, self.values, self.std_errors):
             what, up, down, kind = LEVITATOR_HYPOTHESES[k]
             if kind == "offset":
-                amount = f"{1e3 * v:+.2g} mm ± {1e3 * se:.1g} mm"
+                amount = f"{1e3 * v:+.2g} mm ± {1e3 * se:.1g} mm s.e."
                 parts.append(f"{what} {amount} ({up if v > 0 else down})")
             else:
-                amount = f"{100 * (v - 1):+.1f} % ± {100 * se:.2g} %"
+                amount = f"{100 * (v - 1):+.1f} % ± {100 * se:.2g} % s.e."
                 parts.append(f"{what} {amount} ({up if v > 1 else down})")
         return "; ".join(parts)
 
