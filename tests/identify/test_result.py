@@ -28,6 +28,28 @@ def test_intervals_and_dict():
     assert "assumed x" in res.summary() and "<table>" in res._repr_html_()
 
 
+def test_dict_is_strict_json_and_reads_back_nan_and_inf():
+    # to_dict() said "JSON-safe" but wrote NaN and inf in parameters, covariance, fit and
+    # singular values, which json.dumps writes as invalid JSON (the CLI's output was
+    # strict; the API's was not: found from outside, issue 16, thirteenth session).
+    nan, inf = float("nan"), float("inf")
+    res = IdentificationResult(
+        method="m",
+        model=None,
+        parameters={"a": nan, "b": 1.0, "c": inf},
+        covariance=np.array([[nan, 1.0, 0.0], [1.0, inf, 0.0], [0.0, 0.0, 1.0]]),
+        fit={"f": nan, "g": -inf},
+        singular_values=np.array([1.0, nan]),
+    )
+    d = json.loads(json.dumps(res.to_dict(), allow_nan=False))
+    assert d["parameters"] == {"a": None, "b": 1.0, "c": "inf"}
+    back = IdentificationResult.from_dict(d)
+    assert np.isnan(back.parameters["a"]) and back.parameters["c"] == inf
+    assert np.isnan(back.covariance[0, 0]) and back.covariance[1, 1] == inf
+    assert np.isnan(back.fit["f"]) and back.fit["g"] == -inf
+    assert back.to_dict() == res.to_dict()
+
+
 def test_no_covariance_means_nan_not_zero():
     res = IdentificationResult(method="m", model=None, parameters={"a": 1.0})
     assert np.isnan(res.std_errors()["a"])

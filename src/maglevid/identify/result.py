@@ -189,26 +189,28 @@ class IdentificationResult:
         )
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-safe, versioned dictionary."""
+        """JSON-safe, versioned dictionary: strict JSON (``json.dumps(..., allow_nan=False)``
+        writes it), NaN as ``None`` and +-inf as ``"inf"``/``"-inf"`` (:func:`to_jsonable`;
+        :meth:`from_dict` reads them back as numbers)."""
         return {
             "format": "maglevid-identification",
             "version": RESULT_VERSION,
             "method": self.method,
             "n_samples": self.n_samples,
             "options": to_jsonable(self.options),
-            "parameters": dict(self.parameters),
+            "parameters": to_jsonable(dict(self.parameters)),
             "std_errors": to_jsonable(self.std_errors()),
             "ci95": to_jsonable({k: list(v) for k, v in self.confidence_intervals(0.95).items()}),
-            "covariance": None if self.covariance is None else self.covariance.tolist(),
+            "covariance": None if self.covariance is None else to_jsonable(self.covariance),
             "model": None if self.model is None else self.model.to_dict(),
             "continuous_model": None
             if self.continuous_model is None
             else self.continuous_model.to_dict(),
             "poles": None if self.model is None else to_jsonable(self.model.poles()),
-            "fit": dict(self.fit),
+            "fit": to_jsonable(dict(self.fit)),
             "singular_values": None
             if self.singular_values is None
-            else np.asarray(self.singular_values).tolist(),
+            else to_jsonable(np.asarray(self.singular_values)),
             "notes": list(self.notes),
         }
 
@@ -236,7 +238,7 @@ class IdentificationResult:
         def model(key: str) -> StateSpace | None:
             return None if d.get(key) is None else StateSpace.from_dict(d[key])
 
-        params = {k: float("nan") if v is None else v for k, v in d["parameters"].items()}
+        params = {k: _number(v) for k, v in d["parameters"].items()}
         sv = d.get("singular_values")
         return cls(
             method=d["method"],
@@ -245,11 +247,21 @@ class IdentificationResult:
             covariance=None if d.get("covariance") is None else np.asarray(d["covariance"], float),
             n_samples=int(d.get("n_samples", 0)),
             options=dict(d.get("options") or {}),
-            fit=dict(d.get("fit") or {}),
+            fit={k: _number(v) for k, v in (d.get("fit") or {}).items()},
             singular_values=None if sv is None else np.asarray(sv, dtype=float),
             notes=tuple(d.get("notes") or ()),
             continuous_model=model("continuous_model"),
         )
+
+
+def _number(v: Any) -> Any:
+    """A number written by :func:`to_jsonable` read back: ``None`` NaN, ``"inf"``/``"-inf"``
+    infinite; anything else as it is."""
+    if v is None:
+        return float("nan")
+    if isinstance(v, str) and v in ("inf", "-inf"):
+        return float(v)
+    return v
 
 
 def propagate_covariance(
