@@ -185,6 +185,30 @@ def test_recording_hash_depends_on_content_only():
     assert recording_hash(a) != recording_hash(_rec(n=3000, seed=2))
 
 
+def test_a_history_without_design_values_compares_nothing_and_says_so(tmp_path):
+    # A user's own file (no loop['nominal'], no controller; the operating point stated)
+    # first diagnosed with baseline="history": "No significant change", code no_change,
+    # exit 0 under --fail-on-fault, on a bearing with R1 +20 % -- nothing had been
+    # compared (found from outside, issue 16, fourteenth session). It now cannot be
+    # judged and says why; it is stored, and the next record is judged against it, with
+    # m and i0 from the recording (a TypeError about them leaked into the notes, and the
+    # fault was no longer isolated: "Significant change: R1").
+    def own(rec, when):
+        loop = {"operating_point": dict(thaw(rec.loop)["operating_point"])}
+        return rec.replace(loop=loop).with_metadata(machine="B9", recorded_at=when)
+
+    store = open_history(tmp_path / "h.sqlite")
+    first = diagnose(own(_rec(seed=31), "2026-03-01T00:00:00+00:00"), baseline="history",
+                     history=store)  # fmt: skip
+    assert first.verdict_code == "cannot_diagnose"
+    assert "nothing was compared" in first.verdict and "--baseline FILE.json" in first.verdict
+    assert len(store.diagnoses("B9")) == 1  # the machine's first reference
+    later = diagnose(own(_rec(seed=32, R1=1.2), "2026-03-02T00:00:00+00:00"),
+                     baseline="history", history=store)  # fmt: skip
+    assert later.verdict_code == "fault" and later.isolation.best.parameters == ("R1",)
+    assert not any("TypeError" in n or "positional" in n for n in later.notes)
+
+
 def test_nominal_baseline_needs_design_values():
     rec = _rec(n=3000)
     bare = rec.replace(loop={k: v for k, v in thaw(rec.loop).items() if k != "nominal"})

@@ -173,8 +173,9 @@ class Diagnosis:
         )
         if self.changes:
             lines.append(
-                "free estimates (every parameter fitted; the verdict's number is the "
-                "constrained fit of its cause):"
+                "free estimates (every parameter fitted, m and i0 at the baseline's: a "
+                "change of m scales every coil and amplifier parameter alike; the "
+                "verdict's number is the constrained fit of its cause):"
             )
             lines.append(
                 f"{'parameter':>10} {'baseline':>12} {'estimate':>12} {'change %':>10} "

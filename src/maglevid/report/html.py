@@ -411,7 +411,8 @@ def _isolation_table(d: Diagnosis) -> str:
             else ""
         )
         + ". Its fitted change is the verdict's number; the parameter table holds the free "
-        "estimates (every parameter fitted at once).</p>"
+        "estimates (every parameter fitted at once, the mass and bias current at the "
+        "baseline's: a change of m scales every coil and amplifier parameter alike).</p>"
         '<table class="data"><thead><tr><th>hypothesis</th><th>fitted change</th>'
         '<th class="r">χ²</th><th class="r">dof</th><th class="r">p</th><th></th></tr>'
         f"</thead><tbody>{''.join(body)}</tbody></table>{tie}"
