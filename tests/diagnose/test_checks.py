@@ -12,6 +12,7 @@ from maglevid.diagnose.checks import (
     check_length,
     check_levitation,
     check_saturation,
+    check_units,
     run_checks,
 )
 from maglevid.physics.amb import AMBParameters
@@ -103,3 +104,14 @@ def test_a_displacement_beyond_the_gap_names_the_units(clean):
     q = check_levitation(clean.replace(y=y))
     assert not q.passed and "probably not in metres (mm?)" in q.message
     assert "touch-down" not in q.message
+
+
+def test_coil_currents_in_ma_read_as_a_are_refused(clean):
+    # Currents logged in mA under a label of A passed every check and identified R1 =
+    # 1.7e-5 ohm +- 0.4 % (found from outside, issue 16, fourteenth session): a coil
+    # current i0 + di stays within about [0, 2 i0], so ten bias currents is no bearing.
+    y = np.array(clean.y, copy=True)
+    y[:, 1:] *= 1000.0
+    q = check_units(clean.replace(y=y))
+    assert not q.passed and "probably logged in mA" in q.message and "'i1'" in q.message
+    assert check_units(clean).passed

@@ -522,12 +522,44 @@ def check_units(data: ClosedLoopData) -> QualityCheck:
                 f"the air gap {x0:.3g} m: it is probably logged in mm (or um) while the unit "
                 "says m"
             )
+    problems += _current_unit_problems(data, y, op)
     ok = not problems
     return QualityCheck(
         name=name, passed=ok, value=float(len(problems)), threshold=0.0,
-        message="position channels in metres, of a size that fits the air gap" if ok
-        else "; ".join(problems),
+        message="position and current channels of a size that fits the air gap and the "
+        "bias current" if ok else "; ".join(problems),
     )  # fmt: skip
+
+
+#: Largest swing of a bearing's coil current, in bias currents, a record may show:
+#: the coil current ``i0 + di`` of a bias-controlled bearing stays within about
+#: ``[0, 2 i0]``; 10 bias currents is no bearing in A (a log in mA read as A shows
+#: ~1000 x its swing: found from outside, issue 16, fourteenth session, where such a
+#: record passed and identified R1 = 1.7e-5 ohm +- 0.4 %).
+MAX_CURRENT_SWING = 10.0
+
+
+def _current_unit_problems(data: ClosedLoopData, y: np.ndarray, op: Any) -> list[str]:
+    """The coil-current channels of a two-coil bearing record (``y = [x, i1, i2]``, the
+    operating point stating ``i0``) that swing by more than :data:`MAX_CURRENT_SWING`
+    bias currents."""
+    i0 = op.get("i0") if hasattr(op, "get") else None
+    if not isinstance(i0, (int, float)) or not i0 > 0 or y.shape[1] != 3:
+        return []
+    units, names = data.channel_units("y"), data.channel_names("y")
+    out = []
+    for j in (1, 2):
+        if units[j] not in ("A", ""):
+            continue
+        size = float(np.max(np.abs(y[:, j] - np.median(y[:, j]))))
+        if size > MAX_CURRENT_SWING * i0:
+            label = names[j] if names else f"y{j}"
+            out.append(
+                f"y channel {label!r} moves by up to {size:.3g} A, {size / i0:.3g} times the "
+                f"bias current i0 = {i0:.3g} A: no coil current swings that far; it is "
+                "probably logged in mA (maglevid reads A), or i0 is wrong"
+            )
+    return out
 
 
 def check_channels_move(data: ClosedLoopData) -> QualityCheck:
