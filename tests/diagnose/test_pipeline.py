@@ -153,6 +153,23 @@ def test_a_record_in_the_wrong_time_unit_is_not_called_a_fault():
     assert diagnose(rec, baseline=base, method="pbsid").verdict_code == "no_change"
 
 
+def test_a_record_with_the_voltage_sign_flipped_names_the_sign_convention():
+    # u and r logged with the opposite sign: kw1, kw2 come out x-1 -- called "orders of
+    # magnitude ... a unit or time-scale error" (found from outside, issue 16,
+    # fourteenth session).
+    rec = _rec(n=6000)
+    op = {"m": NOMINAL.m, "i0": NOMINAL.i0, "x0": NOMINAL.x0}  # a user's file: no loop
+    flipped = dataclasses.replace(
+        rec, u=-np.asarray(rec.u), r=-np.asarray(rec.r), u_f=-np.asarray(rec.u_f),
+        loop={"operating_point": op},
+    )  # fmt: skip
+    base = {k: getattr(NOMINAL, k) for k in ("m", "i0", "x0", "R1", "R2", "Ls1", "Ls2",
+                                             "K1", "K2", "kw1", "kw2")}  # fmt: skip
+    d = diagnose(flipped, baseline=base, method="pbsid")
+    assert d.verdict_code == "cannot_diagnose", d.verdict
+    assert "opposite sign" in d.verdict and "u (and r)" in d.verdict
+
+
 def test_a_fit_that_did_not_converge_is_not_diagnosed():
     # A verdict is read off the fit's intervals; a fit stopped before its optimum has
     # none worth reading (a user's .mat file whose IV start was far off: all 13
