@@ -235,3 +235,19 @@ def test_a_mass_change_is_said_to_scale_every_free_estimate():
     assert d.isolation.best.parameters == ("m",)
     assert "the mass, not a change of each" in d.reasons[1]
     assert "reads about -16.7 %" in d.reasons[1]
+
+
+def test_an_unexplained_change_gives_no_tolerance_advice_on_rejected_causes():
+    # Three faults at once: no cause or pair fits, "Unexplained change". Its "to
+    # resolve the tolerance" list named R2 +5.1 % and gi2 -5.1 %, neither changed, from
+    # single-cause fits the verdict rejects (found from outside, issue 16, fourteenth
+    # session): read as leads. The free estimates carry the evidence instead.
+    rec = simulate_amb_loop(
+        NOMINAL.with_fault(R1=1.15, kw2=0.88, Ls1=1.15), nominal=NOMINAL,
+        plant_model="nonlinear", rng=7151, n_samples=30_000,
+    )  # fmt: skip
+    d = diagnose(rec, baseline="nominal")
+    assert d.verdict_code == "unexplained_change", d.verdict
+    assert d.resolution == ()
+    changed = {c.name for c in d.changes if c.status == "changed"}
+    assert {"R1", "Ls1", "kw2"} <= changed

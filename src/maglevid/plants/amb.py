@@ -750,6 +750,11 @@ class AMBStages:
             )  # fmt: skip
             run.notes.extend([why] if why else [])
         verdict, code, reasons = _verdict(c.changes, iso, tol, unresolved, run.level)
+        if code == "unexplained_change":
+            # no cause (or pair) fits: advice on resolving a rejected cause's tolerance
+            # reads as a lead (found from outside, issue 16, fourteenth session: R2 and
+            # gi2, neither changed, listed beside a triple fault)
+            unresolved = []
         op = c.operating_point
         if op is not None:
             reasons.append(
