@@ -49,8 +49,16 @@ def test_scenario_nonlinear_and_two_excitation_levels():
 
 def test_bad_fault_is_a_data_error():
     args = _args("--fault", "R9=1.2", "--n-samples", "100")
-    with pytest.raises(DataError, match="unknown parameter 'R9'"):
+    # The accepted names include the sensor gains, and a factor is judged as a factor
+    # (the list left out gx, gi1, gi2 and R1=-1 read "got -17.5": found from outside,
+    # issue 16, fourteenth session).
+    with pytest.raises(
+        DataError, match=r"R9=1.2: unknown name \(did you mean R[12]\?\).*gi1, gi2, gx"
+    ):
         args._scenario(args)
+    bad = _args("--fault", "R1=-1", "--n-samples", "100")
+    with pytest.raises(DataError, match="R1=-1: the factor must be a positive number"):
+        bad._scenario(bad)
     with pytest.raises(SystemExit):
         _args("--fault", "R1")  # no factor: argparse usage error
 
@@ -60,7 +68,7 @@ def test_bad_fault_is_one_clear_line(capsys):
     code = main(["simulate", "amb", "--out", "x.npz", "--fault", "R9=1.2", "--n-samples", "100"])
     assert code == 1
     err = capsys.readouterr().err
-    assert "unknown parameter 'R9'" in err and "Traceback" not in err
+    assert "--fault R9=1.2: unknown name" in err and "Traceback" not in err
 
 
 def test_command_writes_a_readable_recording(tmp_path):

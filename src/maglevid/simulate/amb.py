@@ -35,11 +35,12 @@ diagnostic setting where the fault is unknown.
 from __future__ import annotations
 
 import argparse
+import difflib
 import inspect
 import logging
 import math
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 from typing import Any
 
 import numpy as np
@@ -1031,6 +1032,23 @@ def parse_fault(text: str) -> tuple[str, float]:
         raise argparse.ArgumentTypeError(f"--fault {text!r}: FACTOR must be a number") from None
 
 
+def _check_faults(faults: dict[str, float], nominal: AMBParameters) -> None:
+    """``--fault`` names and factors, as the user wrote them: the accepted names include
+    the sensor gains, and a factor is judged as a factor (found from outside, issue 16,
+    fourteenth session: the list left out gx, gi1, gi2, and R1=-1 was refused as
+    "got -17.5", the resistance it would have made)."""
+    names = sorted({f.name for f in fields(nominal)} | set(SENSOR_GAINS))
+    for k, f in faults.items():
+        if k not in names:
+            close = difflib.get_close_matches(k, names, n=1, cutoff=0.5)
+            hint = f" (did you mean {close[0]}?)" if close else ""
+            raise DataError(f"--fault {k}={f:g}: unknown name{hint}; one of {', '.join(names)}")
+        if not (math.isfinite(f) and f > 0):
+            raise DataError(
+                f"--fault {k}={f:g}: the factor must be a positive number (1.2 for +20 %)"
+            )
+
+
 def parse_floats(text: str) -> list[float]:
     """argparse type: comma-separated numbers, e.g. ``1e-7,1e-4,1e-4``."""
     try:
@@ -1123,6 +1141,7 @@ def run_scenario(
     """
     nominal = AMBParameters.nominal()
     faults = dict(args.fault)
+    _check_faults(faults, nominal)
     gains = {k: faults.pop(k) for k in SENSOR_GAINS if k in faults}
     plant = nominal.with_fault(**faults) if faults else nominal
     exc = args.excitation_std
