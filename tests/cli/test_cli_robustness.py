@@ -391,3 +391,31 @@ def test_fail_on_fault_tells_a_dead_sensor_from_a_healthy_bearing(tmp_path, caps
     assert main(["-q", "diagnose", str(rec), "--fail-on-fault"]) == 4
     assert "Cannot diagnose" in capsys.readouterr().out
     assert main(["-q", "diagnose", str(rec)]) == 0  # without the flag, as before
+
+
+def test_identify_warns_on_coil_values_no_bearing_has(tmp_path, capsys, amb_record):
+    # A user's own file timed in ms while read as s (no stated controller period or
+    # nominal plant to check dt against): identify printed R1 = 1.75e-8 ohm +- 0.4 % as a
+    # result (found from outside, issue 16, fourteenth session). It now warns.
+    import dataclasses
+
+    op = dict(amb_record.loop["operating_point"])
+    rec = dataclasses.replace(amb_record, dt=amb_record.dt * 1000, loop={"operating_point": op})
+    path = write_recording(rec, tmp_path / "ms.npz")
+    assert main(["--json", "identify", str(path)]) == 0
+    warnings = json.loads(capsys.readouterr().out)["warnings"]
+    assert any("no magnetic bearing's coil has that" in w and "seconds" in w for w in warnings)
+    assert main(["--json", "identify", str(write_recording(amb_record, tmp_path / "ok.npz"))]) == 0
+    ok = json.loads(capsys.readouterr().out).get("warnings", [])
+    assert not any("coil has that" in w for w in ok)
+
+
+def test_identify_warns_when_the_fit_did_not_converge(tmp_path, capsys, amb_record):
+    # A fit stopped before its optimum was printed as a normal result table with 95 %
+    # intervals, "did not converge" only in a note at the end (found from outside, issue
+    # 16, fourteenth session). Forced here by one scoring iteration.
+    path = write_recording(amb_record, tmp_path / "x.npz")
+    argv = ["--json", "identify", str(path), "--method", "ml", "--option", "max_iter=1"]
+    assert main(argv) == 0
+    warnings = json.loads(capsys.readouterr().out).get("warnings", [])
+    assert any("did not converge" in w and "intervals mean nothing" in w for w in warnings)
