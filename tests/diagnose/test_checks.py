@@ -115,3 +115,15 @@ def test_coil_currents_in_ma_read_as_a_are_refused(clean):
     q = check_units(clean.replace(y=y))
     assert not q.passed and "probably logged in mA" in q.message and "'i1'" in q.message
     assert check_units(clean).passed
+
+
+def test_outputs_in_another_order_are_named_not_only_the_units(clean):
+    # y saved as [i1, i2, x]: the refusal blamed the units ("mm?") only (found from
+    # outside, issue 16, fourteenth session); the displacement-sized third channel is
+    # now named as the likely first one.
+    y = np.asarray(clean.y)[:, [1, 2, 0]]
+    q = check_levitation(clean.replace(y=y))
+    assert not q.passed and "another order" in q.message and "'x'" not in q.message
+    y_mm = np.array(clean.y, copy=True)
+    y_mm[:, 0] *= 1000.0  # the units indeed: no order hint
+    assert "another order" not in check_levitation(clean.replace(y=y_mm)).message

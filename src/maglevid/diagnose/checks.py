@@ -135,6 +135,23 @@ def check_saturation(
 MAX_PHYSICAL_FRACTION = 2.0
 
 
+def _displacement_elsewhere(data: ClosedLoopData, x0: float) -> str:
+    """A hint when another output channel moves like a displacement (within a tenth
+    of the gap) while the first does not: the channels' order, not the
+    units (a user's .mat with y = [i1, i2, x] was blamed on units: found from outside,
+    issue 16, fourteenth session)."""
+    y = np.asarray(data.y, dtype=float)
+    swing = np.max(np.abs(y - np.median(y, axis=0)), axis=0)
+    names = data.channel_names("y") or tuple(f"y{j + 1}" for j in range(y.shape[1]))
+    like_x = [names[j] for j in range(1, y.shape[1]) if 0 < swing[j] < 0.1 * x0]
+    if not like_x:
+        return ""
+    return (
+        f"; or the channels are in another order: {', '.join(like_x)} moves like a "
+        "displacement in metres (the first output must be the displacement: y = [x, i1, i2])"
+    )
+
+
 def check_levitation(
     data: ClosedLoopData,
     *,
@@ -173,6 +190,7 @@ def check_levitation(
             ": no rotor moves that far beyond its air gap (the backup bearing stops it); "
             "the displacement is probably not in metres (mm?), or the air gap x0 is wrong"
         )
+        msg += _displacement_elsewhere(data, float(x0))
     elif not ok:
         msg += ": levitation was lost (touch-down)"
     return QualityCheck(
