@@ -228,3 +228,22 @@ def test_against_a_history_of_the_same_quality_the_advice_names_the_baseline(tmp
     # is +21 %: the 4.1 % that decides it is a little more than the baseline's 3.9 %,
     # and with the model error no record of the present state decides it).
     assert f"baseline's own ±{r1['baseline_percent']:.2g} %" in r1["advice"]
+
+
+def test_same_excitation_advice_respects_a_limit_the_record_already_exceeds():
+    # A record at 1 V rms with --max-excitation-std 0.8: "record about 12.3 s more of
+    # the same excitation" asked for 1 V, beyond the stated limit (found from outside,
+    # issue 16, fourteenth session). Reference: information ~ level^2 x length, so at
+    # 0.8 V the 3 s record needs k (1/0.8)^2 times its length: 3 (5.1 x 1.5625 - 1).
+    from maglevid.diagnose.resolve import Unresolved
+
+    k = 5.1
+    u = Unresolved(
+        parameter="m", tolerance_percent=5.0, half_width_percent=6.0, length_factor=k,
+        more_seconds=(k - 1) * 3.0, excitation_factor=k**0.5, excitation_rms=k**0.5 * 1.0,
+        estimate_percent=2.3, needed_percent=2.7, amplifier_limit=0.8,
+    )  # fmt: skip
+    text = u.advice()
+    assert "own 1 V rms is above the stated 0.8 V rms limit" in text
+    assert f"about {3.0 * (k * 1.5625 - 1):.3g} s more" in text
+    assert "above the stated" not in replace(u, amplifier_limit=1.5).advice()

@@ -190,7 +190,28 @@ class Unresolved:
             )
         return (
             f"{head}: record about {self.more_seconds:.3g} s more of the same excitation"
+            + self._over_the_limit()
             + self._raise_advice()
+        )
+
+    def _over_the_limit(self) -> str:
+        """Where the record's own level already exceeds the stated amplifier limit, "the
+        same excitation" is not allowed: the length at the limit instead (the
+        information grows with the level squared and the length; found from outside,
+        issue 16, fourteenth session: "12.3 s more of the same excitation" at 1 V under a
+        stated 0.8 V limit)."""
+        f, exc, lim, k = (self.excitation_factor, self.excitation_rms, self.amplifier_limit,
+                          self.length_factor)  # fmt: skip
+        if lim is None or exc is None or not (math.isfinite(k) and k > 1 and f > 0):
+            return ""
+        own = exc / f
+        if own <= lim:
+            return ""
+        duration = self.more_seconds / (k - 1)
+        at_limit = duration * (k * (own / lim) ** 2 - 1)
+        return (
+            f" (but the record's own {own:.3g} V rms is above the stated {lim:.3g} V rms "
+            f"limit: at the limit, about {at_limit:.3g} s more)"
         )
 
     def _raise_advice(self) -> str:
@@ -235,6 +256,7 @@ class Unresolved:
         if math.isfinite(self.more_seconds) and self.more_seconds > 0:
             parts.append(
                 f"record about {format_seconds(self.more_seconds)} more of the same excitation"
+                + self._over_the_limit()
             )
         if self.excitation_rms is not None and math.isfinite(self.excitation_factor):
             how = "raise" if self.excitation_factor >= 1.0 else "lower"
