@@ -419,3 +419,17 @@ def test_identify_warns_when_the_fit_did_not_converge(tmp_path, capsys, amb_reco
     assert main(argv) == 0
     warnings = json.loads(capsys.readouterr().out).get("warnings", [])
     assert any("did not converge" in w and "intervals mean nothing" in w for w in warnings)
+
+
+def test_identify_prints_the_units(tmp_path, capsys, amb_record):
+    # The text table had no unit column for any method (the README promises tables with
+    # units; found from outside, issue 16, fourteenth session): now a column and a
+    # "units" field in the JSON, from the plant kind's table (PARAMETER_INFO).
+    path = write_recording(amb_record, tmp_path / "x.npz")
+    assert main(["identify", str(path), "-q"]) == 0
+    text = capsys.readouterr().out
+    assert next(ln for ln in text.splitlines() if ln.split()[:1] == ["parameter"]).endswith("unit")
+    assert next(ln for ln in text.splitlines() if ln.split()[:1] == ["R1"]).endswith("Ω")
+    assert main(["--json", "identify", str(path), "-q"]) == 0
+    units = json.loads(capsys.readouterr().out)["units"]
+    assert units["R1"] == "Ω" and units["x0"] == "m"

@@ -282,7 +282,7 @@ def _run_one(path: str, args: argparse.Namespace) -> dict[str, Any]:
     if result.extras.get("B_intersample") is not None:
         out["intersample_numerators"] = _intersample_numerators(result.extras)
     out.update(recording=path, plant_kind=kind, plant_kind_reason=kind_reason,
-               method_reason=reason)  # fmt: skip
+               method_reason=reason, units=_units(kind, result.parameters))  # fmt: skip
     if kind == "mimo":
         why = _unidentifiable(data)
         if why is not None:
@@ -296,6 +296,22 @@ def _run_one(path: str, args: argparse.Namespace) -> dict[str, Any]:
 
     warnings += [n for n in result.notes if n.startswith(UNSUPPORTED_POLE_NOTE)]
     return _with_warnings(out, warnings + _result_warnings(result, kind))
+
+
+def _units(kind: str, names: Any) -> dict[str, str]:
+    """SI unit of each named parameter that has one: the plant kind's own table
+    (``PlantKind.parameters``), else :func:`maglevid.physics.units.parameter_unit` (the
+    text table had no unit column: found from outside, issue 16, fourteenth session)."""
+    from maglevid.physics.units import parameter_unit
+    from maglevid.plants.base import KINDS
+
+    stated = getattr(KINDS.get(kind), "parameters", None) or {}
+    out = {}
+    for k in names:
+        unit = stated.get(k) or parameter_unit(k)
+        if unit:
+            out[k] = unit
+    return out
 
 
 #: Coil resistance [ohm] and inductance [H] of any magnetic bearing, with three orders
@@ -502,11 +518,14 @@ def format_text(result: dict[str, Any]) -> str:
     lines.append(f"samples: {result['n_samples']}")
     se = result.get("std_errors") or {}
     ci = result.get("ci95") or {}
-    lines.append(f"{'parameter':>14} {'estimate':>14} {'std. error':>12}   95 % interval")
+    units = result.get("units") or {}
+    head = f"{'parameter':>14} {'estimate':>14} {'std. error':>12}   95 % interval"
+    lines.append(f"{head:<74} unit" if units else head)
     for k, v in result["parameters"].items():
         lo, hi = ci.get(k) or (None, None)
         band = "" if lo is None or hi is None else f"[{_num(lo, '.6g')}, {_num(hi, '.6g')}]"
-        lines.append(f"{k:>14} {_num(v, '.6g'):>14} {_num(se.get(k), '.3g'):>12}   {band}")
+        row = f"{k:>14} {_num(v, '.6g'):>14} {_num(se.get(k), '.3g'):>12}   {band}"
+        lines.append(f"{row:<74} {units[k]}" if k in units else row)
     if result.get("poles") is not None:
         p = result["poles"]
         re, im = (p["re"], p["im"]) if isinstance(p, dict) else (p, [0.0] * len(p))
