@@ -135,13 +135,18 @@ def check_saturation(
 MAX_PHYSICAL_FRACTION = 2.0
 
 
+def _swings(y: np.ndarray) -> np.ndarray:
+    """Each channel's largest departure from its median (the size the unit checks read)."""
+    return np.max(np.abs(y - np.median(y, axis=0)), axis=0)
+
+
 def _displacement_elsewhere(data: ClosedLoopData, x0: float) -> str:
     """A hint when another output channel moves like a displacement (within a tenth
     of the gap) while the first does not: the channels' order, not the
     units (a user's .mat with y = [i1, i2, x] was blamed on units: found from outside,
     issue 16, fourteenth session)."""
     y = np.asarray(data.y, dtype=float)
-    swing = np.max(np.abs(y - np.median(y, axis=0)), axis=0)
+    swing = _swings(y)
     names = data.channel_names("y") or tuple(f"y{j + 1}" for j in range(y.shape[1]))
     like_x = [names[j] for j in range(1, y.shape[1]) if 0 < swing[j] < 0.1 * x0]
     if not like_x:
@@ -511,7 +516,7 @@ def check_units(data: ClosedLoopData) -> QualityCheck:
     """
     name = "units"
     units = data.channel_units("y")
-    y = np.asarray(data.y_control, dtype=float)
+    swings = _swings(np.asarray(data.y_control, dtype=float))
     op = data.loop.get("operating_point") if hasattr(data.loop, "get") else None
     x0 = op.get("x0") if hasattr(op, "get") else None
     x0 = float(x0) if isinstance(x0, (int, float)) and x0 > 0 else None
@@ -519,7 +524,7 @@ def check_units(data: ClosedLoopData) -> QualityCheck:
     for j, unit in enumerate(units):
         if unit not in LENGTH_UNITS:
             continue
-        size = float(np.max(np.abs(y[:, j] - np.median(y[:, j]))))
+        size = float(swings[j])
         label = data.channel_names("y")[j] if data.channel_names("y") else f"y{j}"
         if unit != "m":
             cause = ""
@@ -540,7 +545,7 @@ def check_units(data: ClosedLoopData) -> QualityCheck:
                 f"the air gap {x0:.3g} m: it is probably logged in mm (or um) while the unit "
                 "says m"
             )
-    problems += _current_unit_problems(data, y, op)
+    problems += _current_unit_problems(data, swings, op)
     ok = not problems
     return QualityCheck(
         name=name, passed=ok, value=float(len(problems)), threshold=0.0,
@@ -557,19 +562,19 @@ def check_units(data: ClosedLoopData) -> QualityCheck:
 MAX_CURRENT_SWING = 10.0
 
 
-def _current_unit_problems(data: ClosedLoopData, y: np.ndarray, op: Any) -> list[str]:
+def _current_unit_problems(data: ClosedLoopData, swings: np.ndarray, op: Any) -> list[str]:
     """The coil-current channels of a two-coil bearing record (``y = [x, i1, i2]``, the
-    operating point stating ``i0``) that swing by more than :data:`MAX_CURRENT_SWING`
-    bias currents."""
+    operating point stating ``i0``) whose swing (:func:`_swings`) exceeds
+    :data:`MAX_CURRENT_SWING` bias currents."""
     i0 = op.get("i0") if hasattr(op, "get") else None
-    if not isinstance(i0, (int, float)) or not i0 > 0 or y.shape[1] != 3:
+    if not isinstance(i0, (int, float)) or not i0 > 0 or swings.shape[0] != 3:
         return []
     units, names = data.channel_units("y"), data.channel_names("y")
     out = []
     for j in (1, 2):
         if units[j] not in ("A", ""):
             continue
-        size = float(np.max(np.abs(y[:, j] - np.median(y[:, j]))))
+        size = float(swings[j])
         if size > MAX_CURRENT_SWING * i0:
             label = names[j] if names else f"y{j}"
             out.append(

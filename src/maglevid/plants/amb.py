@@ -47,6 +47,7 @@ from maglevid.diagnose.resolve import (
     unresolved_parameters,
 )
 from maglevid.exceptions import DataError, MaglevidError
+from maglevid.identify.physical import loop_recorded
 from maglevid.identify.result import central_jacobian
 from maglevid.identify.uncertainty import operating_point
 from maglevid.jsonable import thaw
@@ -126,9 +127,7 @@ def _baseline_from_history(
     # m and i0 (eq. (4) needs them; not estimated): the design's, else the recording's
     # operating point (a user's own file states it there; a TypeError naming the missing
     # arguments leaked into the notes: found from outside, fourteenth session of issue 16)
-    held = {"m": op_m_i0[0], "i0": op_m_i0[1]}
-    if fallback is not None:
-        held = {k: getattr(fallback, k) for k in ("m", "i0")}
+    held = dict(zip(("m", "i0"), op_m_i0 if fallback is None else (fallback.m, fallback.i0)))
     missing = [k for k, v in held.items() if v is None]
     try:
         if missing:
@@ -456,6 +455,7 @@ def _at_design_point(
     se: dict[str, float],
     ref: AMBParameters | None,
     op: MeasuredOperatingPoint | None,
+    ratio: np.ndarray,
     notes: list[str],
 ) -> tuple[dict[str, float], dict[str, float]]:
     """The free physical estimates referred to the design operating point.
@@ -463,17 +463,16 @@ def _at_design_point(
     eq. (4) inverted as it stands reads v1..v9 at the design bias ``i0``; a record's
     v_i are those of the point the bearing settled at, which a fault moves (the
     nominal bias voltages hold the design point only in the nominal bearing). Each
-    v_i is divided by the baseline's own change between the two points
-    (:func:`_operating_ratio`, first order in the fault) before inverting, the
+    v_i is divided by the baseline's own change between the two points (``ratio``,
+    :func:`_operating_ratio`, first order in the fault) before inverting, the
     covariance alike. Found from outside (issue 16, fourteenth session): on
     simulated nonlinear bearings an R1 x1.7 fault read x0, K1, K2 +6.9 / +7.5 / +7.1 %
     "changed" (now 0.1 / 0.7 / 0.3 %) and a K1 x0.9 fault K1 -1.8 % and Ls2 +11 % (now
     -9.7 % and -0.3 %). v1..v9 themselves, and the hypotheses fitted to them, are
     left as identified (those are linearised at the measured point instead).
     """
-    ratio = None if ref is None else _operating_ratio(ref, op)
     have_v = all(k in est for k in V_NAMES) and result.covariance is not None
-    if ratio is None or not have_v or np.allclose(ratio, 1.0, rtol=0, atol=1e-12):
+    if ref is None or op is None or not have_v or np.allclose(ratio, 1.0, rtol=0, atol=1e-12):
         return est, se
     idx = [list(result.parameters).index(k) for k in V_NAMES]
     v = np.array([est[k] for k in V_NAMES]) / ratio
@@ -690,7 +689,8 @@ class AMBStages:
         ref = base.params or base.design
         est, se = _physical_estimates(result, ref, run.notes)
         op = measured_operating_point(data)
-        free, free_se = _at_design_point(result, est, se, ref, op, run.notes)
+        ratio = np.ones(9) if ref is None else _operating_ratio(ref, op)
+        free, free_se = _at_design_point(result, est, se, ref, op, ratio, run.notes)
         compared = {k: (free[k], free_se[k]) for k in DIAGNOSED_PARAMETERS if k in free}
         if not compared:
             return cannot_diagnose(run, [_no_physical_parameters(run.method, est)])
@@ -701,7 +701,7 @@ class AMBStages:
         model_errors: dict[str, float] = {}
         has_v = all(k in est for k in V_NAMES)
         if has_v and ref is not None:
-            v_now = np.array([est[k] for k in V_NAMES]) / _operating_ratio(ref, op)
+            v_now = np.array([est[k] for k in V_NAMES]) / ratio
             try:
                 model_errors = _physical_model_errors(v_now, eps, ref.m, ref.i0)
             except MaglevidError as exc:
@@ -818,10 +818,7 @@ class AMBTwoCoil(BaseKind):
         ohm, and -115 to -11 ohm on simulated healthy bearings with the loop removed,
         the model 200-420 off the structure of eq. (4) against 11-23 with the loop's
         instruments; found from outside, issue 16, thirteenth session)."""
-        loop = data.loop if hasattr(data.loop, "get") else {}
-        if isinstance(loop.get("observer"), Mapping) and isinstance(
-            loop.get("controller"), Mapping
-        ):
+        if loop_recorded(data.loop):
             return self.default_method, self.method_reason
         return "ml", (
             "the loop's controller and observer are not recorded, so physical's instruments "
