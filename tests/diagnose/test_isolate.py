@@ -102,3 +102,30 @@ def test_compare_requires_both_tests():
     assert ch["m"].status == "unchanged"
     lo, hi = ch["R1"].change_ci
     assert lo < 3.5 < hi
+
+
+def test_joint_intervals_hold_for_every_compared_parameter_at_once(rng):
+    # 13 unchanged parameters, each estimated with its own noise: at their own 95 %
+    # level some read "changed" by chance (Ls1 +6.1 % on a healthy bearing under a 1 N
+    # force, found from outside, issue 16, fifteenth session); joint intervals
+    # (Bonferroni over the 13) keep that to <= 5 % of healthy records. Reference:
+    # P(any of 13 independent N(0, 1) beyond 1.96) = 1 - 0.95^13 = 0.49; beyond
+    # ndtri(1 - 0.05/26) = 2.89: <= 0.05.
+    names = [f"p{j}" for j in range(13)]
+    base = dict.fromkeys(names, 1.0)
+    any_own = any_joint = 0
+    trials = 400
+    for _ in range(trials):
+        est = {k: (1.0 + 0.03 * rng.standard_normal(), 0.03) for k in names}
+        own = compare_parameters(est, base, tolerances=0.0)
+        joint = compare_parameters(est, base, tolerances=0.0, joint=True)
+        any_own += any(c.significant for c in own)
+        any_joint += any(c.significant for c in joint)
+    assert 0.40 < any_own / trials < 0.58
+    assert any_joint / trials < 0.08  # 0.05 + 3 binomial s.e. (0.011)
+    c = joint[0]
+    assert c.joint_over == 13 and c.interval_label == "joint CI (all 13)"
+    assert (c.change_ci[1] - c.change_ci[0]) / 2 == pytest.approx(2.8905 * 0.03, rel=1e-4)
+    # a single parameter is its own family: the marginal interval
+    one = compare_parameters({"R1": (21.0, 0.1)}, {"R1": 17.5}, joint=True)[0]
+    assert one.joint_over == 1 and one.interval_label == "CI"

@@ -172,10 +172,18 @@ class Diagnosis:
             + ("all checks passed" if not failed else "; ".join(q.message for q in failed))
         )
         if self.changes:
+            joint = max(c.joint_over for c in self.changes)
             lines.append(
                 "free estimates (every parameter fitted, m and i0 at the baseline's: a "
                 "change of m scales every coil and amplifier parameter alike; the "
-                "verdict's number is the constrained fit of its cause):"
+                "verdict's number is the constrained fit of its cause"
+                + (
+                    f"; the intervals hold for all {joint} at once, so a healthy machine "
+                    "shows none 'changed' by chance"
+                    if joint > 1
+                    else ""
+                )
+                + "):"
             )
             lines.append(
                 f"{'parameter':>10} {'baseline':>12} {'estimate':>12} {'change %':>10} "

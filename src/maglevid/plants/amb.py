@@ -213,7 +213,7 @@ def _free_estimate_reasons(changes: list[Any]) -> list[str]:
         f"free estimate (every parameter fitted, m and i0 at the baseline's): {c.name} = "
         f"{c.estimate:.5g} vs baseline "
         f"{c.baseline:.5g}, {c.change_percent:+.1f} % "
-        f"(95 % CI {100 * c.change_ci[0] / c.baseline:+.1f} … "
+        f"(95 % {c.interval_label} {100 * c.change_ci[0] / c.baseline:+.1f} … "
         f"{100 * c.change_ci[1] / c.baseline:+.1f} %, tolerance ±{100 * c.tolerance:.0f} %)"
         for c in changes
         if c.significant
@@ -708,7 +708,7 @@ class AMBStages:
                 run.notes.append(f"no model-error term for the parameters: {exc}")
         changes = compare_parameters(
             compared, base.values, tolerances=run.tolerances, level=run.level,
-            model_errors=model_errors,
+            model_errors=model_errors, joint=True,
         )  # fmt: skip
         run.compared = _Compared(changes, est, op, eps, has_v)
         return None

@@ -154,7 +154,9 @@ class LevitatorStages:
                 run.notes.append(
                     "no earlier diagnosis in the history: compared with the published physics"
                 )
-        changes = compare_parameters(estimates, values, tolerances=run.tolerances, level=run.level)
+        changes = compare_parameters(
+            estimates, values, tolerances=run.tolerances, level=run.level, joint=True
+        )
         run.compared = _Compared(changes, values, source, y_ref, params, driver)
         return None
 

@@ -302,7 +302,8 @@ def _key_facts(d: Diagnosis) -> str:
                 (
                     "Largest change (free estimate)",
                     f"{_e(biggest.name)} {_pct(biggest.change_percent, 1)}",
-                    f"95 % CI {_pct(lo, 1)} … {_pct(hi, 1)}; {_e(biggest.status)}",
+                    f"95 % {_e(biggest.interval_label)} {_pct(lo, 1)} … {_pct(hi, 1)}; "
+                    f"{_e(biggest.status)}",
                 )
             )
         facts.append(
@@ -459,13 +460,21 @@ def _parameters_section(d: Diagnosis) -> str:
         )
     from maglevid.plotting.diagnosis import plot_parameter_changes
 
+    joint = max(c.joint_over for c in d.changes)
+    together = (
+        f" The intervals hold for all {joint} parameters at once (Bonferroni), so a healthy "
+        "machine shows none changed by chance."
+        if joint > 1
+        else ""
+    )
     fig, _ = _figure_html(
         lambda: plot_parameter_changes(d.changes, labels={c.name: c.name for c in d.changes}),
         "Forest plot of the change of every parameter from its baseline",
         "Change of each parameter from the baseline, in % of the baseline, with the 95 % "
         "confidence interval of the change (identified and baseline uncertainty combined). "
         "The shaded band is the engineering tolerance. A parameter is <b>changed</b> only "
-        "when its change is significant statistically <em>and</em> exceeds the tolerance.",
+        "when its change is significant statistically <em>and</em> exceeds the tolerance."
+        + together,
     )
     rows = []
     for c in d.changes:
@@ -490,8 +499,8 @@ def _parameters_section(d: Diagnosis) -> str:
     table = (
         '<table class="data"><thead><tr><th>parameter</th><th>unit</th>'
         '<th class="r">baseline</th><th class="r">identified ± s.e.</th>'
-        '<th class="r">change</th><th class="r">95 % CI of change</th>'
-        '<th class="r">tolerance</th><th>status</th></tr></thead>'
+        f'<th class="r">change</th><th class="r">95 % {_e(d.changes[0].interval_label)} of '
+        'change</th><th class="r">tolerance</th><th>status</th></tr></thead>'
         f"<tbody>{''.join(rows)}</tbody></table>"
     )
     return _section("parameters", 2, "Identified vs baseline parameters", fig + table)
