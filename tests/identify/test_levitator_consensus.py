@@ -14,7 +14,13 @@ from maglevid.data import ClosedLoopData
 from maglevid.exceptions import DataError
 from maglevid.experiments.rigs import simulate_pd_dither_levitator
 from maglevid.identify.greybox import fit_greybox_levitator
-from maglevid.identify.levitator import find_levitator_segments, fit_levitator
+from maglevid.identify.levitator import (
+    _constants_hull,
+    _widened,
+    find_levitator_segments,
+    fit_levitator,
+)
+from maglevid.identify.result import IdentificationResult
 
 
 @pytest.fixture(scope="module")
@@ -84,3 +90,52 @@ def test_segments_and_range_are_learned_with_every_exclusion_explained():
 def test_bad_frame_is_refused(log):
     with pytest.raises(DataError, match="frame"):
         fit_levitator(log, frame="voltage")
+
+
+def _fit_with(values, se, identified=True):
+    cov = np.diag([*(s**2 for s in se), 1.0, 0.01])
+    cov[0, 1] = cov[1, 0] = 0.5 * se[0] * se[1]  # a correlation the widening must keep
+    return IdentificationResult(
+        method="greybox-levitator", model=None,
+        parameters={**values, "pole_rad_s": 50.0, "current_gain": 40.0}, covariance=cov,
+        extras={"pole_identified": identified},
+    )  # fmt: skip
+
+
+def test_constants_intervals_cover_the_folds_spread():
+    # The model's constants get the pole's treatment: the hull of the supported fits'
+    # intervals on all segments and on each fold. Before, each fit's noise interval was
+    # reported: the UAQ sessions' R (2.60 +- 0.46, 1.39 +- 0.25, 1.76 +- 0.19 ohm) excluded
+    # each other and the pooled fit's (1.459 +- 0.008) excluded all three.
+    best = _fit_with({"a": 2.0e-3, "R": 1.5}, [1e-5, 0.01])
+    other = _fit_with({"a": 2.1e-3, "R": 1.8}, [1e-5, 0.01])
+    # a fit that claims no pole (a parameter it cannot determine) widens nothing
+    blind = _fit_with({"a": 2.0e-3, "R": 1.5}, [1e3, 1e5], identified=False)
+    folds = [[{"a": (2.6e-3, 2.5e-3, 2.7e-3), "R": (1.5, 1.45, 1.55)},
+              {"a": (1.6e-3, 1.5e-3, 1.7e-3), "R": (1.52, 1.47, 1.57)}]]  # fmt: skip
+    hull = _constants_hull(best, [other, blind], folds)
+    assert set(hull) == {"a", "R"}  # the pole and the gap-dependent gain are not constants
+    assert hull["a"]["ci95"] == pytest.approx([1.5e-3, 2.7e-3])
+    assert hull["R"]["ci95"] == pytest.approx([1.45, 1.8 + 1.96 * 0.01], rel=1e-3)
+    assert hull["a"]["disagree"] and not hull["R"]["disagree"]  # a's folds exclude each other
+    wide = _widened(best, hull, n_sessions=3)
+    lo, hi = wide.confidence_intervals(0.95)["a"]
+    assert lo <= 1.5e-3 and hi >= 2.7e-3  # the symmetric reading holds the whole hull
+    assert wide.std_errors()["pole_rad_s"] == best.std_errors()["pole_rad_s"]
+    r0 = best.covariance[0, 1] / np.sqrt(best.covariance[0, 0] * best.covariance[1, 1])
+    r1 = wide.covariance[0, 1] / np.sqrt(wide.covariance[0, 0] * wide.covariance[1, 1])
+    assert r1 == pytest.approx(r0)  # scaled on both sides: correlations kept
+    assert any("the sessions disagree" in n and "a (0.0026 / 0.0016)" in n for n in wide.notes)
+    assert wide.extras["constants_disagree"] == ["a"]
+
+
+def test_consensus_reports_constants_with_their_spread(log):
+    res = fit_levitator(log, disturbance=("white",), command_delay=(False,))
+    hull = res.extras["constants_ci95"]
+    assert {"a", "k", "R", "ku"} <= set(hull)
+    ci = res.confidence_intervals(0.95)
+    for name, h in hull.items():  # the reported interval holds the hull, which holds the fit's
+        assert ci[name][0] <= h["ci95"][0] <= h["fit_ci95"][0], name
+        assert h["fit_ci95"][1] <= h["ci95"][1] <= ci[name][1], name
+        assert len(h["folds"]) == 2
+    assert any(n.startswith("intervals of the model's constants") for n in res.notes)

@@ -282,7 +282,7 @@ def _run_one(path: str, args: argparse.Namespace) -> dict[str, Any]:
     if result.extras.get("B_intersample") is not None:
         out["intersample_numerators"] = _intersample_numerators(result.extras)
     out.update(recording=path, plant_kind=kind, plant_kind_reason=kind_reason,
-               method_reason=reason, units=_units(kind, result.parameters))  # fmt: skip
+               method_reason=reason, units=_units(kind, result))  # fmt: skip
     if kind == "mimo":
         why = _unidentifiable(data)
         if why is not None:
@@ -298,17 +298,19 @@ def _run_one(path: str, args: argparse.Namespace) -> dict[str, Any]:
     return _with_warnings(out, warnings + _result_warnings(result, kind))
 
 
-def _units(kind: str, names: Any) -> dict[str, str]:
-    """SI unit of each named parameter that has one: the plant kind's own table
-    (``PlantKind.parameters``), else :func:`maglevid.physics.units.parameter_unit` (the
-    text table had no unit column: found from outside, issue 16, fourteenth session)."""
+def _units(kind: str, result: Any) -> dict[str, str]:
+    """SI unit of each parameter of ``result`` that has one: the plant kind's own table
+    (``PlantKind.parameters``), the method's (``extras["units"]``: the levitator's ``R``,
+    ``ku``, ``k0``, ``tau`` had none), else :func:`maglevid.physics.units.parameter_unit`
+    (the text table had no unit column: found from outside, issue 16, fourteenth session)."""
     from maglevid.physics.units import parameter_unit
     from maglevid.plants.base import KINDS
 
     stated = getattr(KINDS.get(kind), "parameters", None) or {}
+    own = (result.extras or {}).get("units") or {}
     out = {}
-    for k in names:
-        unit = stated.get(k) or parameter_unit(k)
+    for k in result.parameters:
+        unit = stated.get(k) or own.get(k) or parameter_unit(k)
         if unit:
             out[k] = unit
     return out
@@ -433,6 +435,7 @@ def _run_sessions(args: argparse.Namespace) -> dict[str, Any]:
         plant_kind_reason="every recording is a one-coil levitator",
         method_reason="several sessions: the model validated across sessions, one pooled fit",
         sessions=per,
+        units=_units("levitator", joint),
     )
     _add_consensus(out, joint)
     return out

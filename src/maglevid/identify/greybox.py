@@ -215,12 +215,12 @@ _LAW_PARAMETERS = {
     "permanent-magnet": ("a", "Km", "i_m"),
 }
 
-#: Units of the physical parameters (reports).
+#: SI units of the physical parameters (the result's ``extras["units"]``; the style of
+#: :data:`maglevid.physics.units.PARAMETER_INFO`); dimensionless ones (``n``, ``beta``,
+#: ``gs``, ``pole_z``) have none.
 UNITS = {
-    "a": "m", "k": "H", "n": "1", "Km": "m^n/(A^2 s^2)", "i_m": "A", "tau": "s", "beta": "1",
-    "k0": "H", "R": "ohm", "ku": "V/V", "delay": "s", "gs": "1", "pole_rad_s": "rad/s",
-    "pole_z": "1",
-    "current_gain": "m/(A s^2)", "i0": "A",
+    "a": "m", "k": "H", "Km": "mⁿ·A⁻²·s⁻²", "i_m": "A", "tau": "s", "k0": "H", "R": "Ω",
+    "ku": "V·V⁻¹", "delay": "s", "pole_rad_s": "s⁻¹", "current_gain": "m·s⁻²·A⁻¹", "i0": "A",
 }  # fmt: skip
 
 
@@ -665,8 +665,9 @@ def fit_greybox_levitator(
         fit=fit,
         notes=(*_fit_notes(gm, y_ref), *sol_notes, *verdict["notes"]),
         continuous_model=cont,
-        extras=_fit_extras(gm, theta, verdict),
-    )
+        extras={**_fit_extras(gm, theta, verdict),
+                "units": {k: UNITS[k] for k in params if k in UNITS}},
+    )  # fmt: skip
 
 
 def _physical_result(

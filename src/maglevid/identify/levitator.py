@@ -24,7 +24,10 @@ What a real levitator log needs before any fit, and how the answer is chosen:
    the hull of the 95 % intervals of the supported candidates' fits on all
    segments and on each half - it covers the spread between segments and models
    (model uncertainty), not only noise. A fit with a parameter at a bound or not
-   identifiable claims no pole and enters neither the point nor the interval.
+   identifiable claims no pole and enters neither the point nor the interval. The
+   model's constants (``a``, ``k``, ``k0``, ``R``, ``ku``, ...) get the same hull over
+   the supported candidates of the chosen force law (:func:`_constants_hull`), and the
+   folds that disagree beyond their own intervals are named.
    With no logged excitation (noise only) the pole rests on the noise model: each
    noise model is ranked on its own, the hull covers both, and when one of them
    identifies no pole the answer is "inconclusive: no excitation" (no pole, no interval).
@@ -287,6 +290,30 @@ def _pole_ci(res: IdentificationResult) -> tuple[float, float, float] | None:
     return float(p), float(lo), float(hi)
 
 
+#: Quantities each fit reports at a gap of its own (the pole at ``y_ref``; the current gain
+#: and equilibrium current at its first segment's): not constants of the model, so their
+#: folds' values are not pooled into :func:`_constants_hull`.
+_AT_A_GAP = ("pole_rad_s", "pole_z", "current_gain", "i0")
+
+
+def _constant_intervals(res: IdentificationResult) -> dict[str, tuple[float, float, float]]:
+    """``{name: (estimate, lo, hi)}``: the fit's model constants with a finite 95 % interval."""
+    ci = res.confidence_intervals(0.95)
+    out = {}
+    for k, v in res.parameters.items():
+        if k in _AT_A_GAP or k not in ci:
+            continue
+        lo, hi = ci[k]
+        if np.all(np.isfinite([v, lo, hi])):
+            out[k] = (float(v), float(lo), float(hi))
+    return out
+
+
+def _law(cand: dict[str, Any]) -> str:
+    """The force law a candidate's constants belong to (the command frame's is inverse-square)."""
+    return str(cand.get("force_law", "inverse-square"))
+
+
 def _fit(data: ClosedLoopData, segs: list, cand: dict[str, Any], common: dict[str, Any]) -> Any:
     try:
         return fit_greybox_levitator(data, segments=segs, **cand, **common)
@@ -302,13 +329,16 @@ def _evaluate(
     k_step: int,
 ) -> dict[str, Any]:
     """Fit on each fold, validate on the others; the held-out k-step fit and the fold poles."""
-    scores, fold_poles = [], []
+    scores, fold_poles, fold_params = [], [], []
     for j, (dj, sj) in enumerate(folds):
         res = _fit(dj, sj, cand, common)
         if isinstance(res, Exception):
             scores.append(float("nan"))
             continue
         fold_poles.append(_pole_ci(res))
+        # a fold that claims no pole (a parameter at a bound or not identifiable) gives
+        # no interval of its constants either (a = 2 +- 2036 m on UAQ 'senoidal')
+        fold_params.append(_constant_intervals(res) if fold_poles[-1] is not None else {})
         held = [
             validate_greybox(res, dk, sk, k_step=k_step)
             for k, (dk, sk) in enumerate(folds)
@@ -316,7 +346,7 @@ def _evaluate(
         ]
         scores.append(float(np.mean(held)))
     return {"validation": float(np.mean(scores)) if scores else float("nan"),
-            "fold_poles": fold_poles}  # fmt: skip
+            "fold_poles": fold_poles, "fold_params": fold_params}  # fmt: skip
 
 
 def fit_levitator(
@@ -479,7 +509,7 @@ def _fit_sessions(
     cands = [{**c, "disturbance": w} for w in _disturbances(disturbance) for c in cands]
     for cand in cands:
         ev = _evaluate(pooled, folds, cand, common, k_step) if len(folds) > 1 else {
-            "validation": float("nan"), "fold_poles": []}  # fmt: skip
+            "validation": float("nan"), "fold_poles": [], "fold_params": []}  # fmt: skip
         rows.append({"candidate": cand, **ev})
     quiet = [j for j, (d, sl) in enumerate(zip(sessions, seg_lists)) if sl and _noise_only(d, sl)]
     noise_only = len(quiet) == sum(bool(sl) for sl in seg_lists)
@@ -612,8 +642,101 @@ def _consensus(
     point = float(best.parameters["pole_rad_s"])
     lo = min(p[1] for p in pool)
     hi = max(p[2] for p in pool)
+    law = _law(rows[order[0]]["candidate"])
+    same = [j for j in order if support[j] and _law(rows[j]["candidate"]) == law]
+    hull = _constants_hull(
+        best, [fits[j] for j in same], [rows[j].get("fold_params", []) for j in same]
+    )
+    best = _widened(best, hull, n_sessions)
     res = _with_consensus(best, point, lo, hi, table, exclusions, n_sessions, k_step, data.dt)
     return _inconclusive(res, silent) if silent else res
+
+
+def _constants_hull(
+    best: IdentificationResult, fits: list[Any], folds: list[list[dict[str, Any]]]
+) -> dict[str, dict[str, Any]]:
+    """The model constants' intervals as the pole's: the hull of the 95 % intervals of the
+    supported candidates of the chosen force law, on all segments and on each fold.
+
+    Each fit's own interval is its noise's (sandwich): on the UAQ sessions those of ``a``,
+    ``k``, ``R``, ``ku`` excluded each other from session to session, and the three sessions'
+    pooled fit excluded every session's own estimate (``R`` 1.459 +- 0.008 against 2.60, 1.39
+    and 1.76 ohm). Fits that claim no pole enter neither hull (their intervals are those
+    of parameters the fold cannot determine). ``folds[0]`` are the chosen model's folds;
+    a constant whose folds' intervals do not overlap is marked ``"disagree"``.
+    """
+    out: dict[str, dict[str, Any]] = {}
+    own = _constant_intervals(best)
+    fits = [f for f in fits if _pole_ci(f) is not None]  # as the pole's hull
+    for name, (_, lo, hi) in own.items():
+        ivs = [(lo, hi)]
+        for f in fits:
+            c = _constant_intervals(f).get(name)
+            ivs += [c[1:]] if c else []
+        ivs += [fp[name][1:] for fl in folds for fp in fl if name in fp]
+        chosen = [fp[name] for fp in (folds[0] if folds else []) if name in fp]
+        out[name] = {
+            "ci95": [min(a for a, _ in ivs), max(b for _, b in ivs)],
+            "fit_ci95": [lo, hi],
+            "folds": [list(c) for c in chosen],
+            "disagree": len(chosen) > 1 and max(c[1] for c in chosen) > min(c[2] for c in chosen),
+        }
+    return out
+
+
+def _widened(
+    best: IdentificationResult, hull: dict[str, dict[str, Any]], n_sessions: int
+) -> IdentificationResult:
+    """``best`` with each constant's standard error read off its hull (the larger side /
+    1.96, as the pole's), its correlations kept (the covariance scaled on both sides)."""
+    if not hull or best.covariance is None:
+        return best
+    names = list(best.parameters)
+    f = np.ones(len(names))
+    se = best.std_errors()
+    for name, h in hull.items():
+        p, (lo, hi) = best.parameters[name], h["ci95"]
+        wide = max(p - lo, hi - p) / 1.959963984540054
+        if se[name] > 0 and wide > se[name]:
+            f[names.index(name)] = wide / se[name]
+    cov = np.asarray(best.covariance, dtype=float) * np.outer(f, f)
+    folds = "sessions" if n_sessions > 1 else "halves of the segments"
+    names_ = ", ".join(hull)
+    if any(h["folds"] for h in hull.values()):
+        wider = f"; up to {float(np.max(f)):.3g}x the fit's own" if np.max(f) > 1 else ""
+        notes = [
+            f"intervals of the model's constants ({names_}): the hull of the supported "
+            "models' 95 % intervals on all segments and on each fold, as the pole's - they "
+            f"cover the spread between the {folds}, not only noise (std. error = the larger "
+            f"side / 1.96{wider})"
+        ]
+    else:
+        notes = [
+            f"intervals of the model's constants ({names_}): no fold of the chosen model "
+            f"identifies them on its own, so the spread between the {folds} is not known; "
+            "the intervals are the fit's own (noise only) and need not hold another "
+            "session's value"
+        ]
+    split = [n for n, h in hull.items() if h["disagree"]]
+    if split:
+        where = "sessions" if n_sessions > 1 else "two halves of the record"
+        notes.append(
+            f"the {where} disagree beyond their own 95 % intervals on "
+            + ", ".join(f"{n} ({_fold_values(hull[n])})" for n in split)
+            + ": the rig differs between them, or the model leaves out something each "
+            "compensates for differently"
+            + ("; the pooled value is not one session's" if n_sessions > 1 else "")
+        )
+    return replace(
+        best,
+        covariance=cov,
+        notes=(*best.notes, *notes),
+        extras={**best.extras, "constants_ci95": hull, "constants_disagree": split},
+    )
+
+
+def _fold_values(h: dict[str, Any]) -> str:
+    return " / ".join(f"{c[0]:.4g}" for c in h["folds"])
 
 
 _NOISE_WORDS = {"white": "white", "ar1": "AR(1)"}
