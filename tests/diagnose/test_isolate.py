@@ -126,6 +126,9 @@ def test_joint_intervals_hold_for_every_compared_parameter_at_once(rng):
     c = joint[0]
     assert c.joint_over == 13 and c.interval_label == "joint CI (all 13)"
     assert (c.change_ci[1] - c.change_ci[0]) / 2 == pytest.approx(2.8905 * 0.03, rel=1e-4)
+    # the verdict's cause, singled out by its own test, is narrowed back to its own level
+    assert c.on_its_own().change_ci == pytest.approx(own[0].change_ci, rel=1e-12)
+    assert c.on_its_own().significant == own[0].significant
     # a single parameter is its own family: the marginal interval
     one = compare_parameters({"R1": (21.0, 0.1)}, {"R1": 17.5}, joint=True)[0]
     assert one.joint_over == 1 and one.interval_label == "CI"

@@ -32,7 +32,7 @@ caller) enter the combined interval in quadrature:
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -69,6 +69,23 @@ class ParameterChange:
     def significant(self) -> bool:
         """Both tests pass: a change worth reporting."""
         return self.statistically_significant and self.exceeds_tolerance
+
+    def on_its_own(self, level: float = 0.95) -> ParameterChange:
+        """This comparison with the interval at ``level`` for this parameter alone (a
+        joint interval narrowed back): for a cause a separate test has already singled
+        out (the verdict's), where the family is no longer all the parameters."""
+        if self.joint_over <= 1:
+            return self
+        zj = float(special.ndtri(1.0 - (1.0 - level) / (2 * self.joint_over)))
+        se_c = (self.change_ci[1] - self.change_ci[0]) / (2 * zj)
+        z = float(special.ndtri(0.5 + level / 2))
+        d = self.change
+        return replace(
+            self,
+            change_ci=(d - z * se_c, d + z * se_c),
+            statistically_significant=bool(np.isfinite(se_c) and abs(d) > z * se_c),
+            joint_over=1,
+        )
 
     @property
     def interval_label(self) -> str:

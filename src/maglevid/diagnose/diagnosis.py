@@ -179,7 +179,7 @@ class Diagnosis:
                 "verdict's number is the constrained fit of its cause"
                 + (
                     f"; the intervals hold for all {joint} at once, so a healthy machine "
-                    "shows none 'changed' by chance"
+                    "shows none 'changed' by chance, the verdict's cause's on its own"
                     if joint > 1
                     else ""
                 )

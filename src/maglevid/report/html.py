@@ -476,6 +476,7 @@ def _parameters_section(d: Diagnosis) -> str:
         "when its change is significant statistically <em>and</em> exceeds the tolerance."
         + together,
     )
+    header = max(d.changes, key=lambda c: c.joint_over).interval_label
     rows = []
     for c in d.changes:
         desc, unit = PARAMETER_INFO.get(c.name, ("", ""))
@@ -483,6 +484,8 @@ def _parameters_section(d: Diagnosis) -> str:
         if b != 0:
             lo, hi = sorted((100 * c.change_ci[0] / b, 100 * c.change_ci[1] / b))
             ci = f"{_pct(lo)} … {_pct(hi)}"
+            if joint > 1 and c.joint_over == 1:  # the verdict's cause: its own interval
+                ci += "<div class=small>on its own (the verdict's cause)</div>"
         else:
             ci = "—"
         base_se = f" ± {_num(c.baseline_std_error, 2)}" if c.baseline_std_error > 0 else ""
@@ -499,7 +502,7 @@ def _parameters_section(d: Diagnosis) -> str:
     table = (
         '<table class="data"><thead><tr><th>parameter</th><th>unit</th>'
         '<th class="r">baseline</th><th class="r">identified ± s.e.</th>'
-        f'<th class="r">change</th><th class="r">95 % {_e(d.changes[0].interval_label)} of '
+        f'<th class="r">change</th><th class="r">95 % {_e(header)} of '
         'change</th><th class="r">tolerance</th><th>status</th></tr></thead>'
         f"<tbody>{''.join(rows)}</tbody></table>"
     )
