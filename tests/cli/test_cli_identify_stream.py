@@ -92,5 +92,14 @@ def test_a_bearing_without_its_loop_streams_by_pbsid_in_physical_coordinates(
     assert out["method"] == "pbsid" and out["options"]["coordinates"] == "physical"
     assert "no streamed form" in out["method_reason"]
     assert {f"v{i}" for i in range(1, 10)} <= set(out["parameters"])
+    # the record states m and i0: R, L, ki, kw from v1..v9 (printed v only before; found
+    # from outside, issue 16, fifteenth session), equal to the whole-file fit's
+    assert out["parameters"]["R1"] == pytest.approx(1.2 * 17.5, rel=0.02)  # the R1 fault
+    whole = _run(
+        capsys, str(path), "--no-stream", "--method", "pbsid", "--option", "coordinates=physical"
+    )
+    for name in ("R1", "L2", "ki1", "kw2", "x0"):
+        assert out["parameters"][name] == pytest.approx(whole["parameters"][name], rel=1e-6)
+        assert out["std_errors"][name] == pytest.approx(whole["std_errors"][name], rel=1e-4)
     assert main(["identify", str(path), "--stream", "--method", "physical"]) != 0
     assert "loop['controller']" in capsys.readouterr().err

@@ -190,6 +190,10 @@ def _run_streamed(args: argparse.Namespace) -> dict[str, Any]:
         return progress(it, desc=f"{method}: pass {passes['n']}", args=args)
 
     result = identify_streamed(chunks, method, progress=bar, **options)
+    if method in ("pbsid", "ssarx"):  # R, L, ki, kw from v1..v9 where m and i0 are stated
+        from maglevid.identify.uncertainty import operating_point, with_physical_parameters
+
+        result = with_physical_parameters(result, *operating_point(first.loop or {}))
     out = result.to_dict()
     out["recording"] = args.recording
     out["method_reason"] = reason

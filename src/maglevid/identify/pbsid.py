@@ -80,7 +80,11 @@ from maglevid.identify.subspace import (
     _regress,
     _Stats,
 )
-from maglevid.identify.uncertainty import one_step_fit_percent
+from maglevid.identify.uncertainty import (
+    one_step_fit_percent,
+    operating_point,
+    with_physical_parameters,
+)
 from maglevid.lti import StateSpace, undiscretize
 from maglevid.physics.amb import C_AMB, V_NAMES, amb_matrices, v_from_matrices
 
@@ -1554,7 +1558,8 @@ def _method(algorithm: str, summary: str):  # type: ignore[no-untyped-def]
                 "the recording lacks"
             )
         options.setdefault("dt", data.dt)
-        return fit(data.y_control, data.u, **options)
+        res = fit(data.y_control, data.u, **options)
+        return with_physical_parameters(res, *operating_point(getattr(data, "loop", {}) or {}))
 
     run.__name__ = f"identify_{algorithm}"
     run.__doc__ = summary

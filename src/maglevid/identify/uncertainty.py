@@ -60,6 +60,7 @@ __all__ = [
     "operating_point",
     "v_from_discrete",
     "with_dc_levels",
+    "with_physical_parameters",
 ]
 
 logger = logging.getLogger(__name__)
@@ -106,6 +107,67 @@ def operating_point(loop: Mapping[str, Any]) -> tuple[float | None, float | None
     m = op.get("m")
     i0 = op.get("i0")
     return (None if m is None else float(m)), (None if i0 is None else float(i0))
+
+
+def with_physical_parameters(
+    result: IdentificationResult, m: float | None, i0: float | None
+) -> IdentificationResult:
+    """``result`` (with v1..v9 and their covariance) extended by the physical parameters
+    of eq. (4) at mass ``m`` and bias current ``i0`` (:data:`PHYSICAL_NAMES`), their
+    covariance by the delta method (central differences in v, steps of 1e-6 relative).
+
+    For methods that estimate v1..v9 without the record's operating point (PBSID-opt and
+    SSARX in physical coordinates take arrays): ``identify --method pbsid`` printed v1..v9
+    only where the recording stated ``m`` and ``i0`` (found from outside, issue 16). Returned
+    unchanged when ``m`` or ``i0`` is missing, v1..v9 or their covariance are absent, or the
+    parameters are already there.
+    """
+    p = result.parameters
+    names = list(p)
+    if (
+        m is None
+        or i0 is None
+        or result.covariance is None
+        or not all(k in p for k in V_NAMES)
+        or any(k in p for k in PHYSICAL_NAMES)
+    ):
+        return result
+    idx = [names.index(k) for k in V_NAMES]
+    v = np.array([p[k] for k in V_NAMES], dtype=float)
+
+    def derived(vv: np.ndarray) -> np.ndarray:
+        q = parameters_from_v(vv, m=m, i0=i0)
+        return np.array([q[k] for k in PHYSICAL_NAMES])
+
+    try:
+        values = derived(v)
+        J = np.empty((len(PHYSICAL_NAMES), 9))
+        for j in range(9):
+            h = 1e-6 * abs(v[j]) or 1e-12
+            vp, vm = v.copy(), v.copy()
+            vp[j] += h
+            vm[j] -= h
+            J[:, j] = (derived(vp) - derived(vm)) / (2 * h)
+    except (ModelError, ValueError, ArithmeticError):  # no physical bearing for these v
+        return result
+    cov = np.asarray(result.covariance, dtype=float)
+    n, k = cov.shape[0], len(PHYSICAL_NAMES)
+    full = np.zeros((n + k, n + k))
+    full[:n, :n] = cov
+    cross = cov[:, idx] @ J.T  # cov(theta, derived)
+    full[:n, n:] = cross
+    full[n:, :n] = cross.T
+    full[n:, n:] = J @ cov[np.ix_(idx, idx)] @ J.T
+    note = (
+        f"physical parameters from v1..v9 with m = {m:.6g} kg and i0 = {i0:.6g} A "
+        "(loop['operating_point']; eq. (4)), covariance by the delta method"
+    )
+    return replace(
+        result,
+        parameters={**p, **dict(zip(PHYSICAL_NAMES, map(float, values)))},
+        covariance=full,
+        notes=(*result.notes, note),
+    )
 
 
 def one_step_fit_percent(sum_sq_residuals: Any, sum_sq_centered: Any) -> np.ndarray:
