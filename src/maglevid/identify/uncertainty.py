@@ -36,7 +36,7 @@ import scipy.linalg as sla
 
 from maglevid.exceptions import IdentificationError, ModelError
 from maglevid.identify.arx import LinearFit
-from maglevid.identify.result import IdentificationResult
+from maglevid.identify.result import IdentificationResult, central_jacobian
 from maglevid.lti import StateSpace, undiscretize
 from maglevid.physics.amb import (
     C_AMB,
@@ -114,7 +114,7 @@ def with_physical_parameters(
 ) -> IdentificationResult:
     """``result`` (with v1..v9 and their covariance) extended by the physical parameters
     of eq. (4) at mass ``m`` and bias current ``i0`` (:data:`PHYSICAL_NAMES`), their
-    covariance by the delta method (central differences in v, steps of 1e-6 relative).
+    covariance by the delta method (:func:`~maglevid.identify.result.central_jacobian` in v).
 
     For methods that estimate v1..v9 without the record's operating point (PBSID-opt and
     SSARX in physical coordinates take arrays): ``identify --method pbsid`` printed v1..v9
@@ -140,14 +140,7 @@ def with_physical_parameters(
         return np.array([q[k] for k in PHYSICAL_NAMES])
 
     try:
-        values = derived(v)
-        J = np.empty((len(PHYSICAL_NAMES), 9))
-        for j in range(9):
-            h = 1e-6 * abs(v[j]) or 1e-12
-            vp, vm = v.copy(), v.copy()
-            vp[j] += h
-            vm[j] -= h
-            J[:, j] = (derived(vp) - derived(vm)) / (2 * h)
+        values, J = central_jacobian(derived, v)
     except (ModelError, ValueError, ArithmeticError):  # no physical bearing for these v
         return result
     cov = np.asarray(result.covariance, dtype=float)
