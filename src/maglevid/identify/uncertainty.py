@@ -110,7 +110,7 @@ def operating_point(loop: Mapping[str, Any]) -> tuple[float | None, float | None
 
 
 def with_physical_parameters(
-    result: IdentificationResult, m: float | None, i0: float | None
+    result: IdentificationResult, m: float | None, i0: float | None, *, strict: bool = False
 ) -> IdentificationResult:
     """``result`` (with v1..v9 and their covariance) extended by the physical parameters
     of eq. (4) at mass ``m`` and bias current ``i0`` (:data:`PHYSICAL_NAMES`), their
@@ -120,7 +120,8 @@ def with_physical_parameters(
     SSARX in physical coordinates take arrays): ``identify --method pbsid`` printed v1..v9
     only where the recording stated ``m`` and ``i0`` (found from outside, issue 16). Returned
     unchanged when ``m`` or ``i0`` is missing, v1..v9 or their covariance are absent, or the
-    parameters are already there.
+    parameters are already there; also when v1..v9 are those of no physical bearing,
+    unless ``strict`` (then the error is raised).
     """
     p = result.parameters
     names = list(p)
@@ -142,6 +143,8 @@ def with_physical_parameters(
     try:
         values, J = central_jacobian(derived, v)
     except (ModelError, ValueError, ArithmeticError):  # no physical bearing for these v
+        if strict:
+            raise
         return result
     cov = np.asarray(result.covariance, dtype=float)
     n, k = cov.shape[0], len(PHYSICAL_NAMES)

@@ -49,7 +49,7 @@ from maglevid.diagnose.resolve import (
 from maglevid.exceptions import DataError, MaglevidError
 from maglevid.identify.physical import loop_recorded
 from maglevid.identify.result import central_jacobian
-from maglevid.identify.uncertainty import operating_point
+from maglevid.identify.uncertainty import operating_point, with_physical_parameters
 from maglevid.jsonable import thaw
 from maglevid.lti import StateSpace
 from maglevid.physics.amb import V_NAMES, AMBParameters, amb_state_space, parameters_from_v
@@ -400,16 +400,12 @@ def _physical_estimates(
     covariance but no physical parameters (PBSID-opt and SSARX in physical coordinates),
     those follow from eq. (4) with the baseline's mass and bias current (the delta
     method for their standard errors), appended after the result's own."""
-    est, se = dict(result.parameters), result.std_errors()
-    has_v_only = all(k in est for k in V_NAMES) and not any(k in est for k in DIAGNOSED_PARAMETERS)
-    if ref is None or result.covariance is None or not has_v_only:
+    if ref is None:
+        return dict(result.parameters), result.std_errors()
+    ext = with_physical_parameters(result, ref.m, ref.i0, strict=True)
+    est, se = dict(ext.parameters), ext.std_errors()
+    if ext is result:
         return est, se
-    idx = [list(est).index(k) for k in V_NAMES]
-    v, cov = np.array([est[k] for k in V_NAMES]), result.covariance[np.ix_(idx, idx)]
-    phys, J = _physical_from_v(v, ref.m, ref.i0)
-    sd = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", J, cov, J), 0.0))
-    est.update(phys)
-    se = {**se, **dict(zip(phys, sd.tolist()))}
     notes.append(
         "physical parameters from the method's v1..v9 with the baseline's mass and bias "
         f"current (m = {ref.m:g} kg, i0 = {ref.i0:g} A), eq. (4) inverted; their standard "
