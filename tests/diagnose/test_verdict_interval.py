@@ -14,6 +14,7 @@ needed follow by arithmetic; the length factor of the scaling rule is
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import pytest
 
@@ -221,6 +222,36 @@ def test_levitator_verdict_from_the_intervals_of_the_moves(change, code):
     assert got == code, verdict
     if code == "inconclusive":
         assert "i_eq@5mm -4.5 %" in verdict and "straddle" in verdict
+
+
+@pytest.mark.parametrize(
+    ("pole", "pole_rel_se", "code"),
+    [(1.20, 0.10, "inconclusive"), (0.982, 0.004, "no_change"), (1.0, 0.004, "no_change")],
+)  # fmt: skip
+def test_levitator_without_a_cause_says_when_the_pole_cannot_be_judged(pole, pole_rel_se, code):
+    """No single cause is detected (too few observations moved beyond their noise), but
+    the pole's own interval reaches beyond the tolerance: not "No significant change"
+    (UAQ senoidal against the published physics: pole +20 %, interval -1 ... +46 %, read
+    "No significant change"). An interval that straddles because of its model-error
+    floor alone stays as it was: the healthy twin's pole -1.8 % with the ±2 % floor
+    (95 %: -5.6 ... +2.1 %) cannot be decided by any record."""
+    from test_levitator_isolation import P, _observed
+
+    from maglevid.diagnose.levitator import isolate_levitator_fault
+    from maglevid.plants.levitator import _verdict as levitator_verdict
+
+    obs = _observed({})
+    obs = replace(obs, pole=pole * obs.pole, pole_se=pole_rel_se * pole * obs.pole)
+    iso = isolate_levitator_fault(obs, P)
+    assert iso.best.parameters == ()  # nothing changed is not rejected
+    verdict, got = levitator_verdict([], iso, P, TOL)
+    assert got == code, verdict
+    if code == "inconclusive":
+        # what is undecided, its interval, and the standard error that would decide it:
+        # |log 1.2| - log 1.05 = 0.134 at 95 %, the 2 % floor on top: 6.5 %
+        assert "pole +20 % (interval" in verdict and "straddles the ±5 % tolerance" in verdict
+        assert "standard error at most 6.5 %, now 10 %" in verdict and "longer record" in verdict
+        assert "R/L" not in verdict  # its ±5 % floor alone straddles: never decidable
 
 
 def test_a_drift_is_not_hidden_by_an_inconclusive_verdict(straddling_record, monkeypatch):

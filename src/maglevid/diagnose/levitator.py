@@ -324,18 +324,25 @@ class LevitatorObservations:
         el = np.log(self.electrical) if self.electrical is not None else np.zeros(0)
         return np.r_[np.log(self.pole), np.log(self.currents), el]
 
+    def floors(self) -> np.ndarray:
+        """The model-error floor of each of :meth:`vector` (relative, log units): what no
+        record length removes (``POLE_FLOOR``, ``CURRENT_FLOOR``, ``ELECTRICAL_FLOOR``)."""
+        n_el = 2 if self.electrical is not None else 0
+        return np.r_[
+            POLE_FLOOR, np.full(len(self.currents), CURRENT_FLOOR), [ELECTRICAL_FLOOR] * n_el
+        ]
+
     def covariance(self) -> np.ndarray:
-        """Covariance of :meth:`vector`: noise plus the model-error floors."""
-        v_p = (self.pole_se / self.pole) ** 2 + POLE_FLOOR**2
-        v_i = (np.asarray(self.current_se) / np.asarray(self.currents)) ** 2 + CURRENT_FLOOR**2
+        """Covariance of :meth:`vector`: noise plus the model-error floors (:meth:`floors`)."""
+        v_p = (self.pole_se / self.pole) ** 2
+        v_i = (np.asarray(self.current_se) / np.asarray(self.currents)) ** 2
         S = np.diag(np.r_[v_p, v_i])
-        if self.electrical is None:
-            return S
-        e = np.asarray(self.electrical)
-        Se = np.asarray(self.electrical_cov) / np.outer(e, e) + ELECTRICAL_FLOOR**2 * np.eye(2)
-        out = np.zeros((S.shape[0] + 2, S.shape[0] + 2))
-        out[:-2, :-2], out[-2:, -2:] = S, Se
-        return out
+        if self.electrical is not None:
+            e = np.asarray(self.electrical)
+            out = np.zeros((S.shape[0] + 2, S.shape[0] + 2))
+            out[:-2, :-2], out[-2:, -2:] = S, np.asarray(self.electrical_cov) / np.outer(e, e)
+            S = out
+        return S + np.diag(self.floors() ** 2)
 
     def to_dict(self) -> dict[str, Any]:
         return {

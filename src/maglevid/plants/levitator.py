@@ -265,6 +265,45 @@ def _moves(
     return ("inside" if all(s == "inside" for s in sides) else "straddles"), undecided
 
 
+def _undecided_without_cause(
+    iso: lev.LevitatorIsolation, params: Any, tol: float, level: float
+) -> list[str]:
+    """The observations a "no change" verdict would misstate: their own interval
+    (noise and model-error floor, as in :func:`_moves`) lies beyond the tolerance, or
+    straddles it where the floor alone would not (a smaller noise would decide it).
+
+    An interval that straddles because of its floor alone is left out: no record
+    decides it (the coil circuit's ±5 % floor is ±9.8 % at 95 %, wider than the 5 %
+    tolerance; on the healthy 20 s twin the pole's ±2 % floor alone straddles -5 %
+    when the pole reads -1.8 %). Found from outside (issue 16, fifteenth session): UAQ
+    senoidal read "No significant change" with its pole +20 % (interval -1 ... +46 %)
+    against the published physics. Each entry says what would decide it: the
+    observation's own standard error at most ``s_need`` (the floor on top)."""
+    obs = iso.observations
+    zq = float(special.ndtri(0.5 + level / 2))
+    d = obs.vector() - lev.predict_observations(params, obs)
+    sd, floor = np.sqrt(np.diag(obs.covariance())), obs.floors()
+    up, down = np.log1p(tol), np.log1p(-tol)
+    out = []
+    for name, x, s, f in zip(obs.names, d, sd, floor):
+        lo, hi = 100 * np.expm1(x - zq * s), 100 * np.expm1(x + zq * s)
+        side = bounds_side(lo / 100, hi / 100, tol)
+        alone = bounds_side(np.expm1(x - zq * f), np.expm1(x + zq * f), tol)
+        what = f"{name} {100 * np.expm1(x):+.2g} % (interval {lo:+.2g} … {hi:+.2g} %)"
+        if side == "beyond":
+            out.append(f"{what} lies beyond the ±{100 * tol:.3g} % tolerance on its own")
+        elif side == "straddles" and alone != "straddles":
+            # the half-width (log units) that decides it, and the noise share of it
+            h = (x - up if x > up else down - x) if alone == "beyond" else min(up - x, x - down)
+            need, now = np.sqrt(max((h / zq) ** 2 - f**2, 0.0)), np.sqrt(max(s**2 - f**2, 0.0))
+            out.append(
+                f"{what} straddles the ±{100 * tol:.3g} % tolerance (deciding it needs its "
+                f"standard error at most {100 * need:.2g} %, now {100 * now:.2g} %, model "
+                f"error ±{100 * f:.2g} % on top)"
+            )
+    return out
+
+
 def _free_beyond(changes: list[Any]) -> bool:
     """Some free estimate's interval lies wholly beyond its tolerance."""
     return any(
@@ -291,11 +330,24 @@ def _verdict(
     observation's interval lies wholly inside; otherwise inconclusive.
     """
     best = iso.best
+    tol = tolerances if isinstance(tolerances, float) else DEFAULT_TOLERANCE
     if not best.parameters:
+        undecided = _undecided_without_cause(iso, params, tol, level)
+        if undecided:
+            return (
+                "Inconclusive: no single cause detected (all observations together are "
+                f"consistent with no change, p = {iso.no_change.p_value:.2g}), but "
+                + "; ".join(undecided[:3])
+                + (
+                    ": a longer record or more excitation would narrow them"
+                    if any("straddles" in u for u in undecided[:3])
+                    else ""
+                ),
+                "inconclusive",
+            )
         if any(ch.statistically_significant for ch in changes):
             return "Change within tolerance", "within_tolerance"
         return "No significant change", "no_change"
-    tol = tolerances if isinstance(tolerances, float) else DEFAULT_TOLERANCE
     side, undecided = _moves(iso, params, tol, level)
     if _free_beyond(changes):
         side = "beyond"
