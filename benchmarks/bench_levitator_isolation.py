@@ -26,8 +26,8 @@ import numpy as np
 
 from maglevid.data import ClosedLoopData
 from maglevid.diagnose.pipeline import diagnose
-from maglevid.experiments.rigs import UAQ_TWIN, simulate_uaq_twin
 from maglevid.physics.levitator import LevitatorParameters
+from maglevid.simulate.levitator import UAQ_TWIN, simulate_levitator
 
 #: Injected faults: name -> (twin parameters, gap-sensor zero [m], true value).
 CASES = {
@@ -44,22 +44,11 @@ def faulty_twin(
 ) -> ClosedLoopData:
     """20 s of the twin under its cascade, 10 s at 5 mm then 10 s at 4.5 mm (a 1 mm step
     saturates the twin's driver and drops the ball); the gap sensor's zero shifted by
-    ``offset`` (true gap = reading + offset) by running the true loop at ``yd + offset``
-    and logging the reading. The recording states the healthy twin's physics with its
-    driver (``ku``), so the coil circuit is compared too."""
-    yd = np.r_[np.full(1000, 0.005), np.full(1000, 0.0045)]
-    d = simulate_uaq_twin(yd + offset, params=params, rng=np.random.default_rng(seed))
-    y = np.array(d.y, dtype=float)
-    y[:, 0] -= offset
-    law = "L(y) = k0 + k/(1 + y/a)"
-    t = UAQ_TWIN
-    plant = {"m_kg": t.m, "R_ohm": t.R, "k0_H": t.k0, "k_H": t.k, "a_m": t.a, "ku": t.ku,
-             "inductance_model": law}  # fmt: skip
-    return ClosedLoopData(
-        y=y, u=d.u, r=yd, dt=d.dt, names={"y": ("y", "i"), "u": ("u",), "r": ("yd",)},
-        units={"y": ("m", "A"), "u": ("V",), "r": ("m",)}, loop=dict(d.loop),
-        metadata={"plant": plant},
-    )  # fmt: skip
+    ``offset`` (true gap = reading + offset). The recording states the healthy twin's
+    physics with its driver (``ku``), so the coil circuit is compared too
+    (:func:`maglevid.simulate.levitator.simulate_levitator`, ``maglevid simulate
+    levitator`` on the command line)."""
+    return simulate_levitator(params, gap_offset=offset, rng=np.random.default_rng(seed))
 
 
 def diagnose_twin(data: ClosedLoopData, **kw):
