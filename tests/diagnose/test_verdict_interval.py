@@ -254,6 +254,48 @@ def test_levitator_without_a_cause_says_when_the_pole_cannot_be_judged(pole, pol
         assert "R/L" not in verdict  # its ±5 % floor alone straddles: never decidable
 
 
+def test_a_consensus_pole_interval_holds_the_model_error_floor_once():
+    """The consensus hull already holds the spread between candidates, folds and
+    sessions that the pole's 2 % floor stands for: its variance is max(se^2, floor^2),
+    not their sum (the default path called a healthy twin's pole -0.8 % "inconclusive",
+    its hull's 1.4 % and the floor counted twice); one fit's noise-only se adds to it."""
+    from test_levitator_isolation import _observed
+
+    from maglevid.diagnose.levitator import POLE_FLOOR
+
+    obs = _observed({})
+    for rel, hull, want in [(0.01, True, POLE_FLOOR**2), (0.03, True, 0.03**2),
+                            (0.01, False, 0.01**2 + POLE_FLOOR**2)]:  # fmt: skip
+        o = replace(obs, pole_se=rel * obs.pole, pole_se_includes_model_error=hull)
+        assert o.covariance()[0, 0] == pytest.approx(want, rel=1e-12)
+
+
+@pytest.mark.parametrize(("pole", "caveat"), [(1.045, True), (0.982, False)])
+def test_levitator_change_within_tolerance_names_what_moved(pole, caveat):
+    """Without a cause, a significant move inside the tolerance is named (it was a bare
+    "Change within tolerance" for the law's length scale a x0.8, pole +4.5 %); where the
+    model's own error spans the boundary (pole +4.5 % with its ±2 % floor: 95 % +0.6 ...
+    +8.6 %), the verdict says no record decides it."""
+    from types import SimpleNamespace
+
+    from test_levitator_isolation import P, _observed
+
+    from maglevid.diagnose.levitator import isolate_levitator_fault
+    from maglevid.plants.levitator import _verdict as levitator_verdict
+
+    obs = _observed({})
+    obs = replace(obs, pole=pole * obs.pole, pole_se=0.002 * pole * obs.pole)
+    iso = isolate_levitator_fault(obs, P)
+    assert iso.best.parameters == ()
+    # the pole's comparison as compare_parameters states it (significant at 0.2 % s.e.)
+    change = SimpleNamespace(
+        name="pole_rad_s", change_percent=100 * (pole - 1), statistically_significant=True
+    )
+    verdict, code = levitator_verdict([change], iso, P, TOL)
+    assert code == "within_tolerance" and "unstable pole" in verdict, verdict
+    assert ("no longer record decides" in verdict) is caveat, verdict
+
+
 def test_a_drift_is_not_hidden_by_an_inconclusive_verdict(straddling_record, monkeypatch):
     """A history that drifts is an alarm whether or not the present interval
     decides the tolerance: the inconclusive verdict becomes ``drift``, its advice kept

@@ -313,6 +313,9 @@ class LevitatorObservations:
     current_se: tuple[float, ...]
     electrical: tuple[float, float] | None = None
     electrical_cov: tuple[tuple[float, float], tuple[float, float]] | None = None
+    #: ``pole_se`` already holds the model spread (the consensus hull over candidates,
+    #: segments and folds): the pole's floor is then a least variance, not added to it.
+    pole_se_includes_model_error: bool = False
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -333,7 +336,14 @@ class LevitatorObservations:
         ]
 
     def covariance(self) -> np.ndarray:
-        """Covariance of :meth:`vector`: noise plus the model-error floors (:meth:`floors`)."""
+        """Covariance of :meth:`vector`: noise plus the model-error floors (:meth:`floors`).
+
+        The pole's variance is ``se^2 + floor^2`` for one fit's (noise-only) standard
+        error, and ``max(se^2, floor^2)`` when the standard error is the consensus hull's
+        (``pole_se_includes_model_error``): the floor stands for the spread between
+        candidates, folds and sessions that the hull already holds (counted twice, a
+        healthy twin's pole at -0.8 % read "inconclusive" against the 5 % tolerance:
+        found from outside, issue 16, sixteenth session)."""
         v_p = (self.pole_se / self.pole) ** 2
         v_i = (np.asarray(self.current_se) / np.asarray(self.currents)) ** 2
         S = np.diag(np.r_[v_p, v_i])
@@ -342,7 +352,10 @@ class LevitatorObservations:
             out = np.zeros((S.shape[0] + 2, S.shape[0] + 2))
             out[:-2, :-2], out[-2:, -2:] = S, np.asarray(self.electrical_cov) / np.outer(e, e)
             S = out
-        return S + np.diag(self.floors() ** 2)
+        S = S + np.diag(self.floors() ** 2)
+        if self.pole_se_includes_model_error:
+            S[0, 0] = max(v_p, POLE_FLOOR**2)
+        return S
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -352,6 +365,7 @@ class LevitatorObservations:
             "currents": list(self.currents),
             "current_se": list(self.current_se),
             "electrical": None if self.electrical is None else list(self.electrical),
+            "pole_se_includes_model_error": self.pole_se_includes_model_error,
         }
 
 
@@ -744,6 +758,7 @@ def levitator_observations(
         y_ref=float(y_ref), pole=float(pole), pole_se=float(pole_se), gaps=tuple(gaps),
         currents=tuple(c for c, _ in cur), current_se=tuple(s for _, s in cur),
         electrical=None if el is None else el[0], electrical_cov=None if el is None else el[1],
+        pole_se_includes_model_error="consensus" in result.extras,
     )  # fmt: skip
 
 

@@ -847,7 +847,14 @@ def _with_consensus(
         f"model chosen by {k_step}-step prediction on held-out "
         + ("sessions" if n_sessions > 1 else "segments")
         + f": {chosen} (held-out fit {table[0]['held_out_fit_percent']:.1f} %); "
-        f"{n_sup} of {len(table)} candidates within {SUPPORT_MARGIN} points count as supported",
+        f"{n_sup} of {len(table)} candidates within {SUPPORT_MARGIN} points count as supported"
+        + (
+            " (the score ranks the candidates: below 0 % the 5-step errors exceed the "
+            "signals' own variation about their means, as on a quiet, quantised record; "
+            "not a failed fit)"
+            if table[0]["held_out_fit_percent"] < 0
+            else ""
+        ),
         f"consensus pole {point:.4g} rad/s, 95 % interval [{lo:.4g}, {hi:.4g}]: the hull of the "
         "supported models' intervals on all segments and on each fold (model uncertainty); "
         "pole_rad_s std. error = the larger side of the hull / 1.96 (symmetric, conservative)",

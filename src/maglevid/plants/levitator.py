@@ -221,7 +221,7 @@ def _verdict_without_isolation(changes: list[Any], notes: list[str]) -> tuple[st
             f"{ch.name} {ch.change_percent:+.1f} %" for ch in sig
         ), "unexplained_change"
     if any(ch.statistically_significant for ch in changes):
-        return "Change within tolerance", "within_tolerance"
+        return "Change within tolerance: " + _moved(changes), "within_tolerance"
     return "No significant change", "no_change"
 
 
@@ -279,29 +279,53 @@ def _undecided_without_cause(
     senoidal read "No significant change" with its pole +20 % (interval -1 ... +46 %)
     against the published physics. Each entry says what would decide it: the
     observation's own standard error at most ``s_need`` (the floor on top)."""
+    return _sides_without_cause(iso, params, tol, level)[0]
+
+
+def _sides_without_cause(
+    iso: lev.LevitatorIsolation, params: Any, tol: float, level: float
+) -> tuple[list[str], list[str]]:
+    """:func:`_undecided_without_cause`'s entries, and the observations whose interval
+    straddles the tolerance by their model-error floor alone (no record decides them)."""
     obs = iso.observations
     zq = float(special.ndtri(0.5 + level / 2))
     d = obs.vector() - lev.predict_observations(params, obs)
     sd, floor = np.sqrt(np.diag(obs.covariance())), obs.floors()
     up, down = np.log1p(tol), np.log1p(-tol)
-    out = []
-    for name, x, s, f in zip(obs.names, d, sd, floor):
+    out, limited = [], []
+    for j, (name, x, s, f) in enumerate(zip(obs.names, d, sd, floor)):
         lo, hi = 100 * np.expm1(x - zq * s), 100 * np.expm1(x + zq * s)
         side = bounds_side(lo / 100, hi / 100, tol)
         alone = bounds_side(np.expm1(x - zq * f), np.expm1(x + zq * f), tol)
         what = f"{name} {100 * np.expm1(x):+.2g} % (interval {lo:+.2g} … {hi:+.2g} %)"
         if side == "beyond":
             out.append(f"{what} lies beyond the ±{100 * tol:.3g} % tolerance on its own")
-        elif side == "straddles" and alone != "straddles":
-            # the half-width (log units) that decides it, and the noise share of it
+        elif side == "straddles" and alone == "straddles":
+            if abs(x) >= f:  # a move at least the model's error: near the boundary
+                limited.append(f"{what}, model error ±{100 * f:.2g} %")
+        elif side == "straddles":
+            # the half-width (log units) that decides it; the standard error it needs
             h = (x - up if x > up else down - x) if alone == "beyond" else min(up - x, x - down)
-            need, now = np.sqrt(max((h / zq) ** 2 - f**2, 0.0)), np.sqrt(max(s**2 - f**2, 0.0))
+            if j == 0 and obs.pole_se_includes_model_error:  # the hull holds the floor
+                need, now, on_top = h / zq, s, "model error included"
+            else:
+                need, now = np.sqrt(max((h / zq) ** 2 - f**2, 0.0)), np.sqrt(max(s**2 - f**2, 0))
+                on_top = f"model error ±{100 * f:.2g} % on top"
             out.append(
                 f"{what} straddles the ±{100 * tol:.3g} % tolerance (deciding it needs its "
-                f"standard error at most {100 * need:.2g} %, now {100 * now:.2g} %, model "
-                f"error ±{100 * f:.2g} % on top)"
+                f"standard error at most {100 * need:.2g} %, now {100 * now:.2g} %, {on_top})"
             )
-    return out
+    return out, limited
+
+
+def _moved(changes: list[Any]) -> str:
+    """The statistically significant changes in words ("unstable pole +4.5 %"), or ''."""
+    label = {"pole_rad_s": "unstable pole"}
+    return ", ".join(
+        f"{label.get(ch.name, ch.name)} {ch.change_percent:+.1f} %"
+        for ch in changes
+        if ch.statistically_significant
+    )
 
 
 def _free_beyond(changes: list[Any]) -> bool:
@@ -345,8 +369,15 @@ def _verdict(
                 ),
                 "inconclusive",
             )
-        if any(ch.statistically_significant for ch in changes):
-            return "Change within tolerance", "within_tolerance"
+        moved = _moved(changes)
+        if moved:
+            # the moves named; where the model's own error spans the boundary, said
+            _, limited = _sides_without_cause(iso, params, tol, level)
+            return "Change within tolerance: " + moved + (
+                f" (as measured: {'; '.join(limited[:2])} - the model's error alone spans "
+                f"the ±{100 * tol:.3g} % boundary, which no longer record decides)"
+                if limited else ""
+            ), "within_tolerance"  # fmt: skip
         return "No significant change", "no_change"
     side, undecided = _moves(iso, params, tol, level)
     if _free_beyond(changes):
