@@ -35,7 +35,6 @@ diagnostic setting where the fault is unknown.
 from __future__ import annotations
 
 import argparse
-import difflib
 import inspect
 import logging
 import math
@@ -71,6 +70,7 @@ from maglevid.physics.amb import (
     settled_operating_point,
 )
 from maglevid.simulate._amb_batch import simulate_nonlinear_batch
+from maglevid.simulate._faults import check_faults, parse_fault
 from maglevid.simulate.excitation import EXCITATION_KINDS, make_excitation
 from maglevid.simulate.loop import closed_loop_system, simulate_linear_loop
 
@@ -1021,32 +1021,10 @@ SCENARIO_HELP = (
 )
 
 
-def parse_fault(text: str) -> tuple[str, float]:
-    """``"R1=1.2"`` -> ``("R1", 1.2)`` (the ``--fault`` option of the command line)."""
-    if "=" not in text:
-        raise argparse.ArgumentTypeError(f"--fault {text!r}: expected NAME=FACTOR, e.g. R1=1.2")
-    name, value = text.split("=", 1)
-    try:
-        return name.strip(), float(value)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"--fault {text!r}: FACTOR must be a number") from None
-
-
 def _check_faults(faults: dict[str, float], nominal: AMBParameters) -> None:
     """``--fault`` names and factors, as the user wrote them: the accepted names include
-    the sensor gains, and a factor is judged as a factor (found from outside, issue 16,
-    fourteenth session: the list left out gx, gi1, gi2, and R1=-1 was refused as
-    "got -17.5", the resistance it would have made)."""
-    names = sorted({f.name for f in fields(nominal)} | set(SENSOR_GAINS))
-    for k, f in faults.items():
-        if k not in names:
-            close = difflib.get_close_matches(k, names, n=1, cutoff=0.5)
-            hint = f" (did you mean {close[0]}?)" if close else ""
-            raise DataError(f"--fault {k}={f:g}: unknown name{hint}; one of {', '.join(names)}")
-        if not (math.isfinite(f) and f > 0):
-            raise DataError(
-                f"--fault {k}={f:g}: the factor must be a positive number (1.2 for +20 %)"
-            )
+    the sensor gains (the list left out gx, gi1, gi2: issue 16, fourteenth session)."""
+    check_faults(faults.items(), sorted({f.name for f in fields(nominal)} | set(SENSOR_GAINS)))
 
 
 def parse_floats(text: str) -> list[float]:

@@ -14,7 +14,6 @@ also the ``levitator`` scenario of ``maglevid simulate`` (:data:`SCENARIO`,
 from __future__ import annotations
 
 import argparse
-import difflib
 import math
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import fields, replace
@@ -26,6 +25,7 @@ from maglevid.control.cascade_pid import CascadeGains, CascadePID
 from maglevid.data import ClosedLoopData
 from maglevid.exceptions import DataError
 from maglevid.physics.levitator import LevitatorParameters, equilibrium
+from maglevid.simulate._faults import check_faults, parse_fault
 
 __all__ = [
     "SCENARIO",
@@ -238,33 +238,12 @@ SCENARIO_HELP = (
 )
 
 
-def _fault(text: str) -> tuple[str, float]:
-    """``"R=1.3"`` -> ``("R", 1.3)``."""
-    name, sep, value = text.partition("=")
-    try:
-        if not sep:
-            raise ValueError
-        return name.strip(), float(value)
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"--fault {text!r}: expected NAME=FACTOR, e.g. R=1.3"
-        ) from None
-
-
 def faulty_parameters(faults: Iterable[tuple[str, float]]) -> LevitatorParameters:
     """:data:`UAQ_TWIN` with each named constant multiplied by its factor."""
+    faults = list(faults)
+    check_faults(faults, FAULT_NAMES)
     params = UAQ_TWIN
     for name, factor in faults:
-        if name not in FAULT_NAMES:
-            close = difflib.get_close_matches(name, FAULT_NAMES, n=1, cutoff=0.5)
-            hint = f" (did you mean {close[0]}?)" if close else ""
-            raise DataError(
-                f"--fault {name}={factor:g}: unknown name{hint}; one of {', '.join(FAULT_NAMES)}"
-            )
-        if not (math.isfinite(factor) and factor > 0):
-            raise DataError(
-                f"--fault {name}={factor:g}: the factor must be a positive number (1.3 for +30 %)"
-            )
         params = replace(params, **{name: factor * getattr(params, name)})
     return params
 
@@ -272,7 +251,7 @@ def faulty_parameters(faults: Iterable[tuple[str, float]]) -> LevitatorParameter
 def add_scenario_arguments(parser: argparse.ArgumentParser) -> None:
     """The scenario's options."""
     parser.add_argument(
-        "--fault", action="append", type=_fault, default=[], metavar="NAME=FACTOR",
+        "--fault", action="append", type=parse_fault, default=[], metavar="NAME=FACTOR",
         help=f"multiply a constant of the twin ({', '.join(FAULT_NAMES)}), e.g. --fault "
         "R=1.3 (coil resistance +30 %%) or --fault ku=0.9 (driver gain -10 %%); repeatable",
     )  # fmt: skip
