@@ -294,6 +294,30 @@ RESOLVE_HINTS: dict[frozenset[str], str] = {
 }
 
 
+_GAP_REFERENCE = (
+    "a known gap reference (a feeler gauge, or the reading with the ball on the magnet "
+    "face) fixes the gap sensor; the equilibrium currents then fix the force per ampere"
+)
+_WIDER_GAPS = (
+    "records at gaps further apart: the equilibrium line's slope separates the law's "
+    "length scale from the force per ampere"
+)
+_COIL_BENCH = (
+    "an ohmmeter reading of the coil circuit (R), or the driver's gain measured on the bench (ku)"
+)
+# Every other pair a record can tie (found from outside, issue 16, sixteenth session: a
+# k x0.85 twin tied k with "gap_offset +0.82 mm" and the advice named neither)
+for _x in ("gap_offset", "gap_gain"):
+    for _y in ("k", "m", "current_gain"):
+        RESOLVE_HINTS.setdefault(frozenset({_x, _y}), _GAP_REFERENCE)
+for _y in ("k", "m", "current_gain"):
+    RESOLVE_HINTS.setdefault(frozenset({"a", _y}), _WIDER_GAPS)
+for _x in ("R", "ku"):
+    for _y in ("gap_offset", "gap_gain", "k", "m", "current_gain", "a", "R", "ku"):
+        if _y != _x:
+            RESOLVE_HINTS.setdefault(frozenset({_x, _y}), _COIL_BENCH)
+
+
 @dataclass(frozen=True)
 class LevitatorObservations:
     """The law-independent and static quantities of one levitator record.
@@ -479,11 +503,13 @@ class LevitatorIsolation:
     def resolve_hints(self) -> list[str]:
         """What would separate the best hypothesis from those tied with it."""
         out = []
-        for h in self.indistinguishable:
-            for x in self.best.parameters:
-                for y in h.parameters:
+        best = set(self.best.parameters)
+        for h in self.indistinguishable:  # what differs between the two, not what they share
+            other = set(h.parameters)
+            for x in sorted(best - other, key=self.best.parameters.index):
+                for y in sorted(other - best, key=h.parameters.index):
                     hint = RESOLVE_HINTS.get(frozenset((x, y)))
-                    if x != y and hint and hint not in out:
+                    if hint and hint not in out:
                         out.append(hint)
         return out
 

@@ -32,7 +32,6 @@ __all__ = [
     "SCENARIO_HELP",
     "UAQ_I_STEP",
     "UAQ_TWIN",
-    "UAQ_Y_RANGE",
     "UAQ_Y_STEP",
     "add_scenario_arguments",
     "run_scenario",
@@ -43,10 +42,6 @@ __all__ = [
 #: Position and current quantisation steps of the UAQ rig (10-bit ADCs; README).
 UAQ_Y_STEP = 0.05 / 1023
 UAQ_I_STEP = 5.0 / (2.2 * 1023)
-#: The gap sensor's full scale [m]: a ball that falls rests there (the twin had no stop,
-#: and a fallen ball's gap ran to 1490 m: "range 0.00-76271.77 mm learned from the data"
-#: in the diagnosis's message; found from outside, issue 16, sixteenth session).
-UAQ_Y_RANGE = 0.05
 
 #: A twin of the UAQ rig: upstream inductance law and mass, and a driver fitted to
 #: the records (u -> i: incremental 9.8 V/A, 2.6 V offset, ~17 ms time constant;
@@ -139,9 +134,6 @@ def simulate_uaq_twin(
             v += h / 6.0 * (k1[1] + 2 * k2[1] + 2 * k3[1] + k4[1])
             cur += h / 6.0 * (k1[2] + 2 * k2[2] + 2 * k3[2] + k4[2])
             cur = max(cur, 0.0)
-            if not 0.0 < y < UAQ_Y_RANGE:  # on the magnet's face, or fallen to the stand
-                y = min(max(y, 0.0), UAQ_Y_RANGE)
-                v = 0.0
     return ClosedLoopData(
         y=Y,
         u=U,
