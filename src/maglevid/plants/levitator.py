@@ -265,10 +265,12 @@ def _moves(
     return ("inside" if all(s == "inside" for s in sides) else "straddles"), undecided
 
 
-def _undecided_without_cause(
+def _sides_without_cause(
     iso: lev.LevitatorIsolation, params: Any, tol: float, level: float
-) -> list[str]:
-    """The observations a "no change" verdict would misstate: their own interval
+) -> tuple[list[str], list[str]]:
+    """The observations a "no change" verdict would misstate, and those near the boundary.
+
+    First list: the observations whose own interval
     (noise and model-error floor, as in :func:`_moves`) lies beyond the tolerance, or
     straddles it where the floor alone would not (a smaller noise would decide it).
 
@@ -278,15 +280,9 @@ def _undecided_without_cause(
     when the pole reads -1.8 %). Found from outside (issue 16, fifteenth session): UAQ
     senoidal read "No significant change" with its pole +20 % (interval -1 ... +46 %)
     against the published physics. Each entry says what would decide it: the
-    observation's own standard error at most ``s_need`` (the floor on top)."""
-    return _sides_without_cause(iso, params, tol, level)[0]
-
-
-def _sides_without_cause(
-    iso: lev.LevitatorIsolation, params: Any, tol: float, level: float
-) -> tuple[list[str], list[str]]:
-    """:func:`_undecided_without_cause`'s entries, and the observations whose interval
-    straddles the tolerance by their model-error floor alone (no record decides them)."""
+    observation's own standard error at most ``s_need`` (the floor on top). Second
+    list: the observations that moved by at least their floor and straddle by the
+    floor alone (said beside "within tolerance")."""
     obs = iso.observations
     zq = float(special.ndtri(0.5 + level / 2))
     d = obs.vector() - lev.predict_observations(params, obs)
@@ -356,7 +352,7 @@ def _verdict(
     best = iso.best
     tol = tolerances if isinstance(tolerances, float) else DEFAULT_TOLERANCE
     if not best.parameters:
-        undecided = _undecided_without_cause(iso, params, tol, level)
+        undecided, limited = _sides_without_cause(iso, params, tol, level)
         if undecided:
             return (
                 "Inconclusive: no single cause detected (all observations together are "
@@ -372,7 +368,6 @@ def _verdict(
         moved = _moved(changes)
         if moved:
             # the moves named; where the model's own error spans the boundary, said
-            _, limited = _sides_without_cause(iso, params, tol, level)
             return "Change within tolerance: " + moved + (
                 f" (as measured: {'; '.join(limited[:2])} - the model's error alone spans "
                 f"the ±{100 * tol:.3g} % boundary, which no longer record decides)"
