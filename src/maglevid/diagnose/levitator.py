@@ -306,16 +306,24 @@ _COIL_BENCH = (
     "an ohmmeter reading of the coil circuit (R), or the driver's gain measured on the bench (ku)"
 )
 # Every other pair a record can tie (found from outside, issue 16, sixteenth session: a
-# k x0.85 twin tied k with "gap_offset +0.82 mm" and the advice named neither)
-for _x in ("gap_offset", "gap_gain"):
-    for _y in ("k", "m", "current_gain"):
-        RESOLVE_HINTS.setdefault(frozenset({_x, _y}), _GAP_REFERENCE)
-for _y in ("k", "m", "current_gain"):
-    RESOLVE_HINTS.setdefault(frozenset({"a", _y}), _WIDER_GAPS)
-for _x in ("R", "ku"):
-    for _y in ("gap_offset", "gap_gain", "k", "m", "current_gain", "a", "R", "ku"):
-        if _y != _x:
-            RESOLVE_HINTS.setdefault(frozenset({_x, _y}), _COIL_BENCH)
+# k x0.85 twin tied k with "gap_offset +0.82 mm" and the advice named neither); the
+# specific hints above take precedence.
+_FORCE_PER_AMPERE = ("k", "m", "current_gain")
+_GENERIC_HINTS = {
+    **{
+        frozenset({x, y}): _GAP_REFERENCE
+        for x in ("gap_offset", "gap_gain")
+        for y in _FORCE_PER_AMPERE
+    },
+    **{frozenset({"a", y}): _WIDER_GAPS for y in _FORCE_PER_AMPERE},
+    **{
+        frozenset({x, y}): _COIL_BENCH
+        for x in ("R", "ku")
+        for y in ("gap_offset", "gap_gain", *_FORCE_PER_AMPERE, "a", "R", "ku")
+        if y != x
+    },
+}
+RESOLVE_HINTS = {**_GENERIC_HINTS, **RESOLVE_HINTS}
 
 
 @dataclass(frozen=True)

@@ -251,18 +251,31 @@ def _moves(
         d = lev.predict_observations(params, obs, dict(zip(best.parameters, best.values))) - z0
         lo, hi = np.expm1(moves.min(axis=0)), np.expm1(moves.max(axis=0))
     else:
-        d = obs.vector() - z0
-        half = zq * np.sqrt(np.diag(obs.covariance()))
-        lo, hi = np.expm1(d - half), np.expm1(d + half)
+        d, sd = _own_moves(iso, params)
+        lo, hi = np.expm1(d - zq * sd), np.expm1(d + zq * sd)
     sides = [bounds_side(a, b, tol) for a, b in zip(lo, hi)]
     undecided = [
-        f"{n} {100 * np.expm1(x):+.2g} % (interval {100 * a:+.2g} … {100 * b:+.2g} %)"
+        _move_words(n, x, a, b)
         for n, x, a, b, side in zip(obs.names, d, lo, hi, sides)
         if side == "straddles"
     ]
     if "beyond" in sides:
         return "beyond", undecided
     return ("inside" if all(s == "inside" for s in sides) else "straddles"), undecided
+
+
+def _own_moves(iso: lev.LevitatorIsolation, params: Any) -> tuple[np.ndarray, np.ndarray]:
+    """The data's own moves from the baseline ``d = z - z0`` (log units) and their
+    standard deviations (noise and model-error floor)."""
+    obs = iso.observations
+    d = obs.vector() - lev.predict_observations(params, obs)
+    return d, np.sqrt(np.diag(obs.covariance()))
+
+
+def _move_words(name: str, x: float, lo: float, hi: float) -> str:
+    """``"pole +20 % (interval -0.8 … +46 %)"`` of a move ``x`` (log units) and its
+    interval's bounds (relative)."""
+    return f"{name} {100 * np.expm1(x):+.2g} % (interval {100 * lo:+.2g} … {100 * hi:+.2g} %)"
 
 
 def _sides_without_cause(
@@ -285,15 +298,14 @@ def _sides_without_cause(
     floor alone (said beside "within tolerance")."""
     obs = iso.observations
     zq = float(special.ndtri(0.5 + level / 2))
-    d = obs.vector() - lev.predict_observations(params, obs)
-    sd, floor = np.sqrt(np.diag(obs.covariance())), obs.floors()
+    d, sd = _own_moves(iso, params)
     up, down = np.log1p(tol), np.log1p(-tol)
     out, limited = [], []
-    for j, (name, x, s, f) in enumerate(zip(obs.names, d, sd, floor)):
-        lo, hi = 100 * np.expm1(x - zq * s), 100 * np.expm1(x + zq * s)
-        side = bounds_side(lo / 100, hi / 100, tol)
+    for j, (name, x, s, f) in enumerate(zip(obs.names, d, sd, obs.floors())):
+        lo, hi = np.expm1(x - zq * s), np.expm1(x + zq * s)
+        side = bounds_side(lo, hi, tol)
         alone = bounds_side(np.expm1(x - zq * f), np.expm1(x + zq * f), tol)
-        what = f"{name} {100 * np.expm1(x):+.2g} % (interval {lo:+.2g} … {hi:+.2g} %)"
+        what = _move_words(name, x, lo, hi)
         if side == "beyond":
             out.append(f"{what} lies beyond the ±{100 * tol:.3g} % tolerance on its own")
         elif side == "straddles" and alone == "straddles":
