@@ -197,3 +197,23 @@ def test_every_pair_that_can_tie_has_advice():
     ]  # fmt: skip
     assert missing == []
     assert "known gap reference" in RESOLVE_HINTS[frozenset({"gap_offset", "k"})]
+
+
+def test_tied_explanations_say_each_action_once():
+    """Escalon ties gap_offset + k with gap_offset + m, gap_offset + a and a + k: the
+    advice comes from what differs, each action once (with the pairs' hints completed it
+    said "a known gap reference" and "records at gaps further apart" twice each)."""
+    from types import SimpleNamespace
+
+    from maglevid.diagnose.levitator import LevitatorIsolation
+
+    tied = [("gap_offset", "m"), ("gap_offset", "a"), ("a", "k")]
+    iso = SimpleNamespace(
+        best=SimpleNamespace(parameters=("gap_offset", "k")),
+        indistinguishable=[SimpleNamespace(parameters=p) for p in tied],
+    )
+    hints = LevitatorIsolation.resolve_hints(iso)
+    assert len(hints) == len(set(hints)) == 3, hints
+    assert sum("known gap reference" in h for h in hints) == 1
+    assert sum("gaps further apart" in h for h in hints) == 1
+    assert any(h.startswith("weighing the levitated body") for h in hints)

@@ -272,17 +272,38 @@ ELECTRICAL_FLOOR = 0.05
 #: Two hypotheses whose whitened signatures have |cos| above this cannot be told apart.
 COLLINEAR_COS = 0.99
 
-#: What would separate two hypotheses that these records cannot tell apart.
+#: The actions that separate tied hypotheses (each said once in a verdict).
+_GAP_ZERO = (
+    "a known gap reference (a feeler gauge, or the reading with the ball on the magnet face) "
+    "fixes the sensor's zero"
+)
+_GAP_CALIBRATION = "a known gap reference at two gaps (the sensor's calibration)"
+_SLOPE = (
+    "records at gaps further apart (the equilibrium line's slope) separate a changed law "
+    "from a shifted zero or a changed force per ampere"
+)
+_COIL_BENCH = (
+    "an ohmmeter reading of the coil circuit (R), or the driver's gain measured on the bench (ku)"
+)
+_FORCE_PER_AMPERE = ("k", "m", "current_gain")
+
+#: What would separate two hypotheses that these records cannot tell apart: every pair
+#: a record can tie (found from outside, issue 16, sixteenth session: a k x0.85 twin tied
+#: k with "gap_offset +0.82 mm" and the advice named neither); several actions joined by
+#: "; ", each said once (:meth:`LevitatorIsolation.resolve_hints`).
 RESOLVE_HINTS: dict[frozenset[str], str] = {
-    frozenset({"gap_offset", "a"}): (
-        "a known gap reference (a feeler gauge, or the reading with the ball on the magnet "
-        "face) fixes the sensor's zero; records at gaps further apart (the equilibrium "
-        "line's slope) separate a changed law from a shifted zero"
-    ),
-    frozenset({"gap_offset", "gap_gain"}): (
-        "a known gap reference at two gaps (the sensor's calibration)"
-    ),
-    frozenset({"a", "gap_gain"}): "a known gap reference at two gaps (the sensor's calibration)",
+    **{frozenset({"gap_offset", y}): _GAP_ZERO for y in _FORCE_PER_AMPERE},
+    **{frozenset({"gap_gain", y}): _GAP_CALIBRATION for y in _FORCE_PER_AMPERE},
+    **{frozenset({"a", y}): _SLOPE for y in _FORCE_PER_AMPERE},
+    **{
+        frozenset({x, y}): _COIL_BENCH
+        for x in ("R", "ku")
+        for y in ("gap_offset", "gap_gain", *_FORCE_PER_AMPERE, "a", "R", "ku")
+        if y != x
+    },
+    frozenset({"gap_offset", "a"}): f"{_GAP_ZERO}; {_SLOPE}",
+    frozenset({"gap_offset", "gap_gain"}): _GAP_CALIBRATION,
+    frozenset({"a", "gap_gain"}): _GAP_CALIBRATION,
     frozenset({"k", "m"}): "weighing the levitated body, or the coil's inductance at a known gap",
     frozenset({"k", "current_gain"}): (
         "a reference reading of the coil current (a clamp meter), or the command frame's "
@@ -292,38 +313,6 @@ RESOLVE_HINTS: dict[frozenset[str], str] = {
         "weighing the levitated body, or a reference reading of the coil current"
     ),
 }
-
-
-_GAP_REFERENCE = (
-    "a known gap reference (a feeler gauge, or the reading with the ball on the magnet "
-    "face) fixes the gap sensor; the equilibrium currents then fix the force per ampere"
-)
-_WIDER_GAPS = (
-    "records at gaps further apart: the equilibrium line's slope separates the law's "
-    "length scale from the force per ampere"
-)
-_COIL_BENCH = (
-    "an ohmmeter reading of the coil circuit (R), or the driver's gain measured on the bench (ku)"
-)
-# Every other pair a record can tie (found from outside, issue 16, sixteenth session: a
-# k x0.85 twin tied k with "gap_offset +0.82 mm" and the advice named neither); the
-# specific hints above take precedence.
-_FORCE_PER_AMPERE = ("k", "m", "current_gain")
-_GENERIC_HINTS = {
-    **{
-        frozenset({x, y}): _GAP_REFERENCE
-        for x in ("gap_offset", "gap_gain")
-        for y in _FORCE_PER_AMPERE
-    },
-    **{frozenset({"a", y}): _WIDER_GAPS for y in _FORCE_PER_AMPERE},
-    **{
-        frozenset({x, y}): _COIL_BENCH
-        for x in ("R", "ku")
-        for y in ("gap_offset", "gap_gain", *_FORCE_PER_AMPERE, "a", "R", "ku")
-        if y != x
-    },
-}
-RESOLVE_HINTS = {**_GENERIC_HINTS, **RESOLVE_HINTS}
 
 
 @dataclass(frozen=True)
@@ -516,9 +505,8 @@ class LevitatorIsolation:
             other = set(h.parameters)
             for x in sorted(best - other, key=self.best.parameters.index):
                 for y in sorted(other - best, key=h.parameters.index):
-                    hint = RESOLVE_HINTS.get(frozenset((x, y)))
-                    if hint and hint not in out:
-                        out.append(hint)
+                    hint = RESOLVE_HINTS.get(frozenset((x, y)), "")
+                    out += [a for a in hint.split("; ") if a and a not in out]
         return out
 
     def to_dict(self) -> dict[str, Any]:
