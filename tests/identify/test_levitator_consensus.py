@@ -19,8 +19,10 @@ from maglevid.identify.levitator import (
     _widened,
     find_levitator_segments,
     fit_levitator,
+    levitation_range,
 )
 from maglevid.identify.result import IdentificationResult
+from maglevid.simulate.levitator import UAQ_TRAVEL, UAQ_Y_STEP, simulate_levitator
 
 
 @pytest.fixture(scope="module")
@@ -106,6 +108,39 @@ def test_segments_and_range_are_learned_with_every_exclusion_explained():
     assert {"lift-off", "above-range"} <= reasons
     # lift-off + 1 s settling; 0.5 s guards around the fall: two pieces of 6.5-7.5 s
     assert len(segs) == 2 and all(650 <= b - a <= 750 for a, b in segs)
+
+
+def test_a_lost_body_resting_or_falling_leaves_the_learned_range_alike():
+    # A ball lost for the last 7 s of a 20 s twin record, once resting on the bottom stop
+    # (a constant, quantised reading: its windows read as the quietest of the record) and
+    # once falling freely (wild windows). Before the second pass the resting windows made
+    # the quartile ~9 um and cut the levitation's own swings (range 3.5-6.0 mm).
+    d = simulate_levitator(rng=11)
+    y = d.y_control.copy()
+    t = np.arange(1300, y.shape[0])
+    rest = y.copy()
+    rest[t, 0] = UAQ_TRAVEL[1] + UAQ_Y_STEP * np.random.default_rng(2).integers(-1, 2, t.size)
+    fall = y.copy()
+    fall[t, 0] = 5e-3 + 0.5 * 9.81 * ((t - 1300) * d.dt) ** 2
+    (lo_r, hi_r), how_r = levitation_range(d.replace(y=rest))
+    (lo_f, hi_f), _ = levitation_range(d.replace(y=fall))
+    assert (lo_r, hi_r) == pytest.approx((lo_f, hi_f), rel=1e-12)
+    assert "7 of 20 1 s windows outside the range left out" in how_r
+    (lo, hi), _ = levitation_range(d.replace(y=y[:1300], u=d.u[:1300], r=d.r[:1300]))
+    assert hi_r - lo_r >= hi - lo  # the lost windows count as not quiet: never narrower
+
+
+def test_twin_ball_stops_at_the_rigs_travel():
+    # Driver gain -30 %: the ball is lost; it rests on the bottom stop (~19.9 mm, as the
+    # UAQ logs' ball does) instead of its gap running on to metres.
+    from dataclasses import replace
+
+    from maglevid.simulate.levitator import UAQ_TWIN
+
+    d = simulate_levitator(replace(UAQ_TWIN, ku=0.7 * UAQ_TWIN.ku), rng=1)
+    gap = d.y_control[:, 0]
+    assert gap.max() <= UAQ_TRAVEL[1] + 3 * UAQ_Y_STEP
+    assert np.mean(np.abs(gap - UAQ_TRAVEL[1]) < 3 * UAQ_Y_STEP) > 0.5
 
 
 def test_bad_frame_is_refused(log):

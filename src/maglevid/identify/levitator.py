@@ -111,13 +111,23 @@ def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
     return list(zip(edges[::2], edges[1::2]))
 
 
-def _window_scale(x: np.ndarray, n: int) -> float:
+def _window_scale(x: np.ndarray, n: int, keep: np.ndarray | None = None) -> float:
     """``QUIET_QUANTILE`` of the standard deviations over windows of ``n`` samples: the
-    spread of quiet levitation, robust to falls and lift-offs."""
+    spread of quiet levitation, robust to falls and lift-offs. Windows not in ``keep``
+    (one flag per window) count as not quiet at all (infinite spread), as a falling
+    body's would; with none kept, every window counts as it reads."""
     m = x.size // n
     if m < 1:
         return float(np.std(x))
-    return float(np.quantile(np.std(x[: m * n].reshape(m, n), axis=1), QUIET_QUANTILE))
+    sd = np.std(x[: m * n].reshape(m, n), axis=1)
+    if keep is not None and np.count_nonzero(keep) >= QUIET_QUANTILE * m:
+        sd = np.where(keep, sd, np.inf)
+    return float(np.quantile(sd, QUIET_QUANTILE))
+
+
+def _window_means(x: np.ndarray, n: int) -> np.ndarray:
+    m = x.size // n
+    return x[: m * n].reshape(m, n).mean(axis=1) if m else np.array([np.mean(x)])
 
 
 def levitation_range(data: ClosedLoopData) -> tuple[tuple[float, float], str]:
@@ -128,25 +138,42 @@ def levitation_range(data: ClosedLoopData) -> tuple[tuple[float, float], str]:
     range is the reference span (without one: the median gap) widened by
     ``SPREAD_WIDTH sigma`` and by twice the largest reference step (a step of ``h``
     may swing the body by up to ``2 h`` in a lightly damped loop).
+
+    A body resting on a stop or stuck at the magnet reads nearly constant, so its
+    windows would pass for the quietest levitation (on the UAQ twin with its bottom
+    stop, a ball lost late: 7 rest windows of 20 made the quartile 9 um, where the
+    same record falling freely gave 147 um). So the range is learned twice: windows
+    whose mean gap lies outside the first range are not levitation and count in the
+    second as a falling body's do (not quiet), so the quartile does not depend on
+    whether a lost body rests or falls.
     """
     y = data.y_control[:, 0]
     ref = _reference(data)
     n = max(2, round(1.0 / data.dt))
+    err = y if ref is None else y - ref
     if ref is None:
-        sigma = _window_scale(y, n)
         lo = hi = float(np.median(y))
         step = 0.0
     else:
-        sigma = _window_scale(y - ref, n)
         lo, hi = float(ref.min()), float(ref.max())
         step = float(np.max(np.abs(np.diff(ref)), initial=0.0))
-    w = SPREAD_WIDTH * sigma + 2.0 * step
-    rng = (max(lo - w, 1e-12) if lo > 0 else lo - w, hi + w)
+
+    def widened(sigma: float) -> tuple[float, float]:
+        w = SPREAD_WIDTH * sigma + 2.0 * step
+        return (max(lo - w, 1e-12) if lo > 0 else lo - w, hi + w)
+
+    first = widened(_window_scale(err, n))
+    means = _window_means(y, n)
+    inside = (means >= first[0]) & (means <= first[1])
+    sigma = _window_scale(err, n, inside)
+    rng = widened(sigma)
+    left = int(np.size(inside) - np.count_nonzero(inside)) if inside.any() else 0
     how = (
         f"range {_mm(rng[0])}-{_mm(rng[1])} mm learned from the data: "
         + ("reference span" if ref is not None else "median gap")
         + f" +- ({SPREAD_WIDTH:g} x {1e6 * sigma:.0f} um quiet spread"
         + (f" + 2 x {_mm(step)} mm largest reference step)" if step else ")")
+        + (f", {left} of {inside.size} 1 s windows outside the range left out" if left else "")
     )
     return rng, how
 
@@ -696,7 +723,8 @@ def _widened(
     se = best.std_errors()
     for name, h in hull.items():
         p, (lo, hi) = best.parameters[name], h["ci95"]
-        wide = max(p - lo, hi - p) / 1.959963984540054
+        # a few ulps over, so that p +- 1.96 se holds the hull after rounding
+        wide = max(p - lo, hi - p) / 1.959963984540054 * (1.0 + 8.0 * np.finfo(float).eps)
         if se[name] > 0 and wide > se[name]:
             f[names.index(name)] = wide / se[name]
     cov = np.asarray(best.covariance, dtype=float) * np.outer(f, f)

@@ -42,6 +42,10 @@ __all__ = [
 #: Position and current quantisation steps of the UAQ rig (10-bit ADCs; README).
 UAQ_Y_STEP = 0.05 / 1023
 UAQ_I_STEP = 5.0 / (2.2 * 1023)
+#: The UAQ rig's travel [m]: the ball rests on the bottom stop at a gap of ~19.7-20 mm
+#: (the sessions' largest readings 19.99-20.4 mm; data README) and sticks to the magnet at
+#: 0. The twin stops there too (a fallen ball's gap does not run on).
+UAQ_TRAVEL = (0.0, 0.0199)
 
 #: A twin of the UAQ rig: upstream inductance law and mass, and a driver fitted to
 #: the records (u -> i: incremental 9.8 V/A, 2.6 V offset, ~17 ms time constant;
@@ -66,7 +70,8 @@ def simulate_uaq_twin(
     The ball starts at rest at ``reference[0]`` with the integrators at their
     equilibrium values. Each period: measure ``y`` and ``i`` (Gaussian noise, then
     the rig's ADC quantisation), run the cascade, hold ``u`` and integrate
-    (M1)-(E1) with a random force disturbance held over the period.
+    (M1)-(E1) with a random force disturbance held over the period. The ball stops at
+    the rig's travel (:data:`UAQ_TRAVEL`: the magnet and the bottom stop).
 
     Parameters
     ----------
@@ -134,6 +139,9 @@ def simulate_uaq_twin(
             v += h / 6.0 * (k1[1] + 2 * k2[1] + 2 * k3[1] + k4[1])
             cur += h / 6.0 * (k1[2] + 2 * k2[2] + 2 * k3[2] + k4[2])
             cur = max(cur, 0.0)
+            if not UAQ_TRAVEL[0] <= y <= UAQ_TRAVEL[1]:  # at a stop: inelastic contact
+                y = min(max(y, UAQ_TRAVEL[0]), UAQ_TRAVEL[1])
+                v = 0.0
     return ClosedLoopData(
         y=Y,
         u=U,
