@@ -11,6 +11,7 @@ from maglevid.diagnose.checks import (
     check_feedback_consistency,
     check_length,
     check_levitation,
+    check_output_clipping,
     check_saturation,
     check_units,
     run_checks,
@@ -115,6 +116,55 @@ def test_coil_currents_in_ma_read_as_a_are_refused(clean):
     q = check_units(clean.replace(y=y))
     assert not q.passed and "probably logged in mA" in q.message and "'i1'" in q.message
     assert check_units(clean).passed
+
+
+def test_absolute_coil_currents_are_refused_with_the_offset_to_subtract(clean):
+    # Coil currents logged as i0 + di passed every check and read "Fault: bias current i0
+    # -100 %" (found from outside, seventeenth session): a fault moves the currents' mean
+    # by milliamperes, so a mean of half a bias current or more is not a deviation.
+    i0 = clean.loop["operating_point"]["i0"]
+    y = np.array(clean.y, copy=True)
+    y[:, 1:] += i0
+    q = check_units(clean.replace(y=y))
+    assert not q.passed and "'i1' and 'i2'" in q.message
+    assert "absolute current" in q.message and f'"offset": {-i0:.6g}' in q.message
+    y = np.array(clean.y, copy=True)
+    y[:, 2] -= 0.6 * i0  # one channel, not i0: an offset, not the absolute current
+    q = check_units(clean.replace(y=y))
+    assert not q.passed and "'i2'" in q.message and "'i1'" not in q.message
+    assert "absolute" not in q.message and "offset, or i0 is wrong" in q.message
+    y = np.array(clean.y, copy=True)
+    y[:, 1:] += 0.4 * i0  # within the limit
+    assert check_units(clean.replace(y=y)).passed
+    y = np.array(clean.y, copy=True)
+    y[:, 1:] = (y[:, 1:] + 0.01) * 1000.0  # mA: the swing's message alone
+    q = check_units(clean.replace(y=y))
+    assert "probably logged in mA" in q.message and "offset" not in q.message
+
+
+def test_a_clipped_output_sensor_is_refused(clean):
+    # x clipped at its 30th and 70th percentiles passed every check of a user's .mat and
+    # identified R1 = 3.07 ohm (17.5 true; found from outside, seventeenth session).
+    y = np.array(clean.y, copy=True)
+    lo, hi = np.percentile(y[:, 0], [30, 70])
+    y[:, 0] = np.clip(y[:, 0], lo, hi)
+    q = check_output_clipping(clean.replace(y=y))
+    assert not q.passed and "'x' (30 % of its samples)" in q.message and "clipped" in q.message
+    assert q.value == pytest.approx(0.3, abs=0.01)
+    gate = {c.name: c for c in run_checks(clean.replace(y=y))}
+    assert not gate["output clipping"].passed
+    assert check_output_clipping(clean).passed
+    # A coarse ADC (steps of one standard deviation: 8 levels) thins out at its extremes:
+    # not a clip. A fine one (steps of 0.05 std) clipped at +1.5 std is: ~7 % of the
+    # samples on the top level against ~0.5 % on the next.
+    y = np.array(clean.y, copy=True)
+    step = np.std(y[:, 1])
+    y[:, 1] = np.round(y[:, 1] / step) * step
+    assert check_output_clipping(clean.replace(y=y)).passed
+    y = np.array(clean.y, copy=True)
+    y[:, 1] = np.minimum(np.round(y[:, 1] / (0.05 * step)) * 0.05 * step, 1.5 * step)
+    q = check_output_clipping(clean.replace(y=y))
+    assert not q.passed and "'i1'" in q.message
 
 
 def test_outputs_in_another_order_are_named_not_only_the_units(clean):

@@ -130,6 +130,61 @@ def check_saturation(
     )
 
 
+#: A sensor clipped at its range piles its samples up on the extreme value; a free
+#: (even coarsely quantised) signal thins out towards its extremes. An output is called
+#: clipped when this fraction of its samples sits on one extreme and that extreme holds
+#: :data:`CLIP_PILE_UP` times the samples of the next level in. (A Gaussian tail thins
+#: outwards and a sine's arcsine density gives its top level ~1.4x the next; a clip on a
+#: coarse ADC whose clipped level holds fewer than 5x its neighbour is not caught.)
+MAX_CLIPPED_FRACTION = 0.01
+CLIP_PILE_UP = 5.0
+
+
+def _pile_up(col: np.ndarray) -> float:
+    """The larger share of samples on the minimum or on the maximum, where it piles up
+    (:data:`CLIP_PILE_UP` times the next distinct level's count); 0 otherwise."""
+    levels, counts = np.unique(col, return_counts=True)
+    if levels.size < 3:
+        return 0.0  # a constant or two-level channel: check_channels_move's business
+    worst = 0.0
+    for edge, inner in ((counts[0], counts[1]), (counts[-1], counts[-2])):
+        if edge >= CLIP_PILE_UP * inner:
+            worst = max(worst, edge / col.size)
+    return float(worst)
+
+
+def check_output_clipping(
+    data: ClosedLoopData, *, max_fraction: float = MAX_CLIPPED_FRACTION
+) -> QualityCheck:
+    """Outputs clipped at a sensor's range: a displacement clipped on 60 % of its samples
+    passed every check of a user's own .mat, identified R1 = 3.07 ohm (17.5 true) and
+    was then diagnosed as a unit error (found from outside, seventeenth session)."""
+    y = np.asarray(data.y, dtype=float)
+    names = data.channel_names("y")
+    shares = [_pile_up(y[:, j]) for j in range(y.shape[1])]
+    bad = [
+        f"{names[j] if names else f'y{j}'!r} ({100 * f:.2g} % of its samples)"
+        for j, f in enumerate(shares)
+        if f > max_fraction
+    ]
+    worst = max(shares, default=0.0)
+    return QualityCheck(
+        name="output clipping",
+        passed=not bad,
+        value=worst,
+        threshold=max_fraction,
+        message=(
+            "no output piles up at an extreme value"
+            if not bad
+            else "output(s) "
+            + ", ".join(bad)
+            + " sit on one extreme value: the sensor (or its ADC) is clipped at its range, "
+            "so the loop the record shows is not the linear one; record within the sensor's "
+            "range (a smaller excitation) or leave the clipped stretches out"
+        ),
+    )
+
+
 #: Largest displacement, in air gaps, a rotor can physically show (the backup bearing
 #: stops it at about one gap); beyond it the units or the stated gap are wrong.
 MAX_PHYSICAL_FRACTION = 2.0
@@ -562,18 +617,46 @@ def check_units(data: ClosedLoopData) -> QualityCheck:
 MAX_CURRENT_SWING = 10.0
 
 
+#: Largest mean level of a logged coil-current deviation ``i - i0``, in bias currents. A
+#: bearing's faults move its settled currents by milliamperes (``kw2`` x1.1: 0.5 mA of
+#: i0 = 0.5 A); a log of the absolute current ``i0 + di`` averages ``i0`` and was read as
+#: the operating point "+500 mA from the design bias": "Fault: bias current i0 -100 %",
+#: data quality passed (found from outside, seventeenth session).
+MAX_CURRENT_LEVEL = 0.5
+
+
 def _current_unit_problems(data: ClosedLoopData, swings: np.ndarray, op: Any) -> list[str]:
     """The coil-current channels of a two-coil bearing record (``y = [x, i1, i2]``, the
     operating point stating ``i0``) whose swing (:func:`_swings`) exceeds
-    :data:`MAX_CURRENT_SWING` bias currents."""
+    :data:`MAX_CURRENT_SWING` bias currents, or whose mean level (a deviation from the
+    bias) exceeds :data:`MAX_CURRENT_LEVEL` bias currents."""
     i0 = op.get("i0") if hasattr(op, "get") else None
     if not isinstance(i0, (int, float)) or not i0 > 0 or swings.shape[0] != 3:
         return []
     units, names = data.channel_units("y"), data.channel_names("y")
+    amps = [j for j in (1, 2) if units[j] in ("A", "")]
+    levels = {j: float(np.mean(np.asarray(data.y_control, dtype=float)[:, j])) for j in amps}
+    off = [  # a log in mA is the swing's problem below, not an offset
+        j for j in amps
+        if abs(levels[j]) > MAX_CURRENT_LEVEL * i0 and swings[j] <= MAX_CURRENT_SWING * i0
+    ]  # fmt: skip
     out = []
-    for j in (1, 2):
-        if units[j] not in ("A", ""):
-            continue
+    if off:
+        labels = " and ".join(repr(names[j] if names else f"y{j}") for j in off)
+        means = " and ".join(f"{levels[j]:+.4g} A" for j in off)
+        absolute = all(abs(levels[j] - i0) < 0.2 * i0 for j in off)
+        out.append(
+            f"y channel(s) {labels} average {means} ({max(abs(levels[j]) for j in off) / i0:.2g}"
+            f" x the bias current i0 = {i0:.3g} A): maglevid reads the coil currents as "
+            "deviations i - i0 from the bias, whose mean a fault moves by milliamperes"
+            + (
+                "; these look like the absolute current i0 + di: subtract i0 (a mapping with "
+                f'"offset": {-i0:.6g} on each current channel)'
+                if absolute
+                else "; they are logged with an offset, or i0 is wrong"
+            )
+        )
+    for j in amps:
         size = float(swings[j])
         if size > MAX_CURRENT_SWING * i0:
             label = names[j] if names else f"y{j}"
@@ -629,6 +712,7 @@ def run_checks(data: ClosedLoopData, **options: Any) -> tuple[QualityCheck, ...]
         check_output_response(data),
         check_excitation(data),
         check_saturation(data),
+        check_output_clipping(data),
         check_levitation(data),
         check_feedback_consistency(data),
     )
