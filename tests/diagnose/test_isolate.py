@@ -104,6 +104,20 @@ def test_compare_requires_both_tests():
     assert lo < 3.5 < hi
 
 
+def test_status_looks_at_where_the_interval_reaches():
+    # Seen from outside (seventeenth session): R1 -1.8 % with a 95 % interval of -12.2 ...
+    # +8.7 % read "unchanged", and Ls2 +3.4 % at +1.7 ... +5.2 % "within tolerance", both
+    # against a +-5 % tolerance the data cannot decide. 1.96 se = 10.45 % / 1.72 %.
+    est = {"R1": (17.5 * 0.982, 17.5 * 0.0533), "Ls2": (0.086 * 1.034, 0.086 * 0.00878),
+           "R2": (17.5 * 1.02, 17.5 * 0.005), "L1": (0.43 * 1.001, 0.43 * 0.01)}  # fmt: skip
+    base = {"R1": 17.5, "Ls2": 0.086, "R2": 17.5, "L1": 0.43}
+    ch = {c.name: c for c in compare_parameters(est, base)}
+    assert ch["R1"].status == "not resolved" and not ch["R1"].interval_within_tolerance
+    assert ch["Ls2"].status == "not resolved" and ch["Ls2"].statistically_significant
+    assert ch["R2"].status == "within tolerance"  # +2 % +- 1 %: detectable, wholly inside
+    assert ch["L1"].status == "unchanged"  # +0.1 % +- 2 %: wholly inside
+
+
 def test_joint_intervals_hold_for_every_compared_parameter_at_once(rng):
     # 13 unchanged parameters, each estimated with its own noise: at their own 95 %
     # level some read "changed" by chance (Ls1 +6.1 % on a healthy bearing under a 1 N

@@ -109,7 +109,29 @@ def test_a_pair_with_one_cause_beyond_is_a_fault_and_names_the_undecided_one():
     assert [u.parameter for u in un] == ["kw1"] and un[0].hypothesis == ("R1", "kw1")
     _, code, reasons = _verdict([], iso, TOL, un)
     assert code == "fault"
-    assert any(r.startswith("not decided: kw1 -4 % ± 2 %") for r in reasons)
+    assert any(
+        r.startswith("not decided: kw1 -4 % (95 % interval -5.96 … -2.04 %)") for r in reasons
+    )
+
+
+def test_no_cause_singled_out_is_not_called_no_change_when_an_interval_excludes_0():
+    # m +9.2 % with a 95 % interval of +3.5 ... +15 % read "Inconclusive: no change
+    # detected, but ..." (found from outside, seventeenth session; the mass had changed by
+    # 10 %): the isolation tests all causes at once (p = 0.008 > alpha/2), the interval is
+    # m's alone. Now the head says which test fell short.
+    m = FaultHypothesis(("m",), (1.092,), (0.029,), 4.0, 8, 0.86, (0.029,), (0.0,))
+    none = FaultHypothesis((), (), (), 20.0, 9, 0.018)
+    iso = IsolationResult(best=none, candidates=(m,), no_change=none, alpha=0.01,
+                          explained=True, single_cause_p_value=0.008)  # fmt: skip
+    un = unresolved_parameters(iso, TOL, duration_s=3.0)
+    verdict, code, _ = _verdict([], iso, TOL, un)
+    assert code == "inconclusive" and "no change detected" not in verdict
+    assert "no cause singled out (m's own interval excludes 0" in verdict
+    assert "p = 0.008, above the 0.005 a detection needs" in verdict
+    m0 = replace(m, factors=(1.03,))  # +3 % +- 5.7 %: the interval holds 0
+    iso0 = replace(iso, candidates=(m0,))
+    verdict, code, _ = _verdict([], iso0, TOL, unresolved_parameters(iso0, TOL, duration_s=3.0))
+    assert code == "inconclusive" and verdict.startswith("Inconclusive: no change detected")
 
 
 def test_an_uncertain_baseline_widens_the_interval_of_the_change():

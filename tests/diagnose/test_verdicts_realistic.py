@@ -227,6 +227,38 @@ def test_a_mass_change_is_said_to_scale_every_free_estimate():
     assert "reads about -16.7 %" in d.reasons[1]
 
 
+def test_a_sensor_gain_in_the_verdict_says_what_it_does_to_the_free_estimates():
+    # K1 x0.9 with the displacement sensor reading +5 %: the verdict named both, but the
+    # free estimates (exact sensors assumed) listed 12 parameters "changed" and K1 at
+    # +5.1 % against the verdict's -9.9 % (found from outside, seventeenth session). The
+    # reasons now give the free estimates the verdict predicts; they match the table
+    # within its own intervals. Reference: the planted K1 x0.9, gx
+    # x1.05 read through T = diag(gx, gx, 1, 1) and eq. (4) inverted (analytic, isolate's
+    # v_with_sensor_gains and physics.amb.parameters_from_v): K1 +4.19 %, K2 +15.76 %.
+    rec = simulate_amb_loop(
+        NOMINAL.with_fault(K1=0.9), nominal=NOMINAL, plant_model="nonlinear",
+        noise_std=(0, 0, 0), force_std=0.0, rng=3, sensor_gains={"gx": 1.05},
+    )  # fmt: skip
+    d = diagnose(rec, baseline="nominal", method="physical")
+    assert set(d.isolation.best.parameters) == {"K1", "gx"}, d.verdict
+    (note,) = [r for r in d.reasons if r.startswith("the free estimates read v1..v9")]
+    predicted = {
+        k: float(v) for k, v in (w.rsplit(" ", 2)[:2] for w in
+        note.split("predicts them at ")[1].split(":")[0].split(", "))
+    }  # fmt: skip
+    ci = {c.name: [100 * b / c.baseline for b in c.change_ci] for c in d.changes}
+    assert predicted["K1"] == pytest.approx(4.19, abs=0.3)
+    assert predicted["K2"] == pytest.approx(15.76, abs=0.3)
+    for k, pct in predicted.items():  # each within the table's own (joint 95 %) interval
+        assert ci[k][0] <= pct <= ci[k][1], (k, pct, ci[k])
+    exact = simulate_amb_loop(
+        NOMINAL.with_fault(K1=0.9), nominal=NOMINAL, plant_model="nonlinear",
+        noise_std=(0, 0, 0), force_std=0.0, rng=3,
+    )  # fmt: skip
+    d = diagnose(exact, baseline="nominal", method="physical")  # exact sensors: no note
+    assert not any(r.startswith("the free estimates read v1..v9") for r in d.reasons)
+
+
 def test_an_unexplained_change_gives_no_tolerance_advice_on_rejected_causes():
     # Three faults at once: no cause or pair fits, "Unexplained change". Its "to
     # resolve the tolerance" list named R2 +5.1 % and gi2 -5.1 %, neither changed, from

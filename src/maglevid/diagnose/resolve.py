@@ -237,9 +237,12 @@ class Unresolved:
                 f"(tolerance ±{self.tolerance_percent:.3g} %)"
             )
         c, w, tol = self.estimate_percent, self.half_width_percent, self.tolerance_percent
+        # no "± w" (elsewhere "±" is one standard error), and three digits at the ends so
+        # that +4.96 ... +5.04 % does not read "+5 … +5" (seen from outside, seventeenth
+        # session: "+3.5 … +5 %" hid that the interval crossed +5 %)
         head = (
-            f"{self.parameter} {c:+.2g} % ± {w:.2g} % ({self.level_percent:.3g} % interval "
-            f"{c - w:+.2g} … {c + w:+.2g} %)"
+            f"{self.parameter} {c:+.3g} % ({self.level_percent:.3g} % interval "
+            f"{c - w:+.3g} … {c + w:+.3g} %)"
         )
         if abs(c) - w > tol:  # beyond, but not the isolation's answer
             return f"{head} is wider than its tolerance ±{tol:.3g} %"

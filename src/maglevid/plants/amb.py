@@ -247,6 +247,63 @@ def _mass_note(best: Any) -> list[str]:
     ]
 
 
+def _sensor_note(best: Any, base: AMBParameters | None) -> list[str]:
+    """What the verdict's sensor gains do to the free estimates: those invert eq. (4) as
+    if the sensors were exact, and a sensor's gain scales v2, v3, v4, v6, v8, v9
+    (:func:`~maglevid.diagnose.isolate.v_with_sensor_gains`), so most of them move. Found
+    from outside (seventeenth session): a displacement-sensor gain +8 % listed 13 free
+    estimates "changed", and with K1 -10 % beside it the free K1 read +5.1 % "changed"
+    under a verdict of K1 -9.9 %. The free estimates the verdict predicts are listed."""
+    gains = {k: f for k, f in zip(best.parameters, best.factors) if k in SENSOR_GAINS}
+    if not gains or base is None:
+        return []
+    own = {
+        k: f * getattr(base, k)
+        for k, f in zip(best.parameters, best.factors)
+        if k not in SENSOR_GAINS and k in _BASELINE_FIELDS
+    }
+    try:
+        v = v_with_sensor_gains(replace(base, **own), **gains)
+        read = parameters_from_v(v, m=base.m, i0=base.i0)
+        at = parameters_from_v(base.v(), m=base.m, i0=base.i0)
+    except (MaglevidError, ArithmeticError) as exc:
+        return [f"the free estimates assume exact sensors ({exc})"]
+    moved = [
+        f"{k} {100 * (read[k] / at[k] - 1):+.1f} %"
+        for k in DIAGNOSED_PARAMETERS
+        if k in read and at.get(k) and abs(read[k] / at[k] - 1) >= 0.005
+    ]
+    if not moved:
+        return []
+    names = " and ".join(best.parameters)
+    return [
+        "the free estimates read v1..v9 as if the sensors were exact; the verdict (only "
+        f"{names} changed) predicts them at {', '.join(moved)}: the sensor's gain, not a "
+        "change of each"
+    ]
+
+
+def _no_change_head(iso: IsolationResult, unresolved: list[Any]) -> str:
+    """ "no change detected", or, where a cause's own 95 % interval excludes 0, that no
+    cause passed the isolation's test: it tests every cause at once (Bonferroni), so a
+    cause whose interval alone excludes 0 can still fall short. Seen from outside
+    (seventeenth session): "no change detected, but ... m +9.2 % (95 % interval +3.5 ...
+    +15 %)" on a record whose mass had changed by 10 %."""
+    clear = [
+        u.parameter
+        for u in unresolved
+        if u.estimate_percent is not None and abs(u.estimate_percent) > u.half_width_percent
+    ]
+    if not clear:
+        return "no change detected"
+    p = min(iso.no_change.p_value, iso.single_cause_p_value)
+    return (
+        f"no cause singled out ({', '.join(dict.fromkeys(clear))}'s own interval excludes 0; "
+        f"tested against every cause at once the change has p = {p:.2g}, above the "
+        f"{iso.alpha / 2:.2g} a detection needs)"
+    )
+
+
 def _inconclusive(head: str, unresolved: list[Any]) -> tuple[str, str]:
     names = ", ".join(dict.fromkeys(u.parameter for u in unresolved[:4])) + (
         f" and {len(unresolved) - 4} more" if len(unresolved) > 4 else ""
@@ -309,7 +366,7 @@ def _verdict(
             f"with {none.dof} dof (p = {none.p_value:.2g}){me}"
         )
         if unresolved:
-            return (*_inconclusive("no change detected", unresolved), reasons)
+            return (*_inconclusive(_no_change_head(iso, unresolved), unresolved), reasons)
         return "No significant change", "no_change", reasons
     if not iso.explained:
         reasons.append(
@@ -759,6 +816,8 @@ class AMBStages:
             run.notes.extend([why] if why else [])
         changes = _cause_on_its_own(c.changes, iso, run.level)
         verdict, code, reasons = _verdict(changes, iso, tol, unresolved, run.level)
+        if iso is not None and iso.explained:
+            reasons[1:1] = _sensor_note(iso.best, base.params)
         if code == "unexplained_change":
             # no cause (or pair) fits: advice on resolving a rejected cause's tolerance
             # reads as a lead (found from outside, issue 16, fourteenth session: R2 and
