@@ -404,10 +404,29 @@ def test_identify_warns_on_coil_values_no_bearing_has(tmp_path, capsys, amb_reco
     path = write_recording(rec, tmp_path / "ms.npz")
     assert main(["--json", "identify", str(path)]) == 0
     warnings = json.loads(capsys.readouterr().out)["warnings"]
-    assert any("no magnetic bearing's coil has that" in w and "seconds" in w for w in warnings)
+    assert any("no magnetic bearing's coil or amplifier" in w and "seconds" in w for w in warnings)
     assert main(["--json", "identify", str(write_recording(amb_record, tmp_path / "ok.npz"))]) == 0
     ok = json.loads(capsys.readouterr().out).get("warnings", [])
-    assert not any("coil has that" in w for w in ok)
+    assert not any("coil or amplifier" in w or "not positive" in w for w in ok)
+
+
+def test_identify_warns_on_signs_and_amplifier_gains_no_bearing_has(tmp_path, capsys, amb_record):
+    # x logged with the other sign printed ki1 = -494, x0 = -3.5e-4 m, K1 < 0, and u in mV
+    # kw1 = 0.001 V/V, without a word (found from outside, seventeenth session).
+    y = np.array(amb_record.y, copy=True)
+    y[:, 0] *= -1.0
+    path = write_recording(amb_record.replace(y=y), tmp_path / "x_sign.npz")
+    main(["--json", "identify", str(path), "--force"])
+    warnings = json.loads(capsys.readouterr().out).get("warnings", [])
+    assert any("not positive" in w and "x is probably logged with the opposite sign" in w
+               for w in warnings), warnings  # fmt: skip
+    from maglevid.plants.amb import implausible_parameters
+
+    (w,) = implausible_parameters({"R1": 17.5, "kw1": 0.001, "kw2": 1.0})
+    assert w.startswith("kw1 = 0.001: no magnetic bearing's coil or amplifier")
+    (w,) = implausible_parameters({"R1": -2.1e-5, "kw1": 1.0})
+    assert "R1 = -2.1e-05: not positive" in w and "other units than the rest" in w
+    assert implausible_parameters({"R1": 17.5, "ki1": 490.0, "x0": 3.5e-4, "kw1": 48.0}) == []
 
 
 def test_identify_warns_when_the_fit_did_not_converge(tmp_path, capsys, amb_record):

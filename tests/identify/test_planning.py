@@ -105,8 +105,13 @@ def test_plan_for_a_recording_and_its_errors():
     plan = plan_for_recording(d, parameters=("R1",), tolerance=0.02)
     assert plan.n_samples == 4000 and plan.rows[0].name == "R1"
     assert np.isfinite(plan.rows[0].seconds_now)
-    with pytest.raises(DataError, match="unknown parameters"):
+    with pytest.raises(DataError, match="unknown parameters") as err:
         plan_for_recording(d, parameters=("R9",))
+    assert "cause the diagnosis fits" not in str(err.value)
+    # the mass is a cause the diagnosis plans (its advice), not a parameter of the bound
+    with pytest.raises(DataError, match="m is not a free parameter of the bound") as err:
+        plan_for_recording(d, parameters=("m",))
+    assert "maglevid diagnose REC" in str(err.value)
 
 
 def test_plan_command(capsys):

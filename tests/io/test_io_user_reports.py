@@ -79,7 +79,9 @@ def test_npz_renamed_csv_with_and_without_sidecar(tmp_path, native_npz):
     for _ in range(2):  # without, then with a side-car
         message = read_bad(path)
         assert "is a binary file, not text: it looks like an NPZ/zip archive" in message
-        assert "format='npz' in Python, --format npz on the command line" in message
+        assert "format='npz' in Python" in message
+        # identify/diagnose have no --format: the hint names the command that has it
+        assert "`maglevid convert FILE OUT.npz --format npz`" in message
         assert "decoded" not in message and "latin-1" not in message
         (tmp_path / "binary.json").write_text("{}")
     # ... and through a user's mapping (the encoding hint would mislead here too).
@@ -144,7 +146,7 @@ def test_messages_name_the_python_and_the_command_line_way(tmp_path, rng):
     path = tmp_path / "rec.xyz"
     path.write_text("1,2\n")
     message = read_bad(path)
-    assert "format= in Python, --format on the command line" in message
+    assert "format= in Python, --format with maglevid inspect and convert" in message
     rec = write_recording(RECORDINGS["full_p1"](rng), tmp_path / "rec.npz")
     with pytest.raises(FileFormatError) as err:
         check_output(rec)

@@ -164,6 +164,30 @@ DEFAULT_SPECTRA = (
 )
 
 
+#: Causes the diagnosis fits to v1..v9 that are no free parameter of the bound (the mass
+#: scales every coil and amplifier parameter; sensor gains and the bias current rescale
+#: the measured states): `maglevid plan --parameters m` said only "unknown parameters"
+#: while the diagnosis labelled its advice on m "Cramér-Rao plan" (found from outside,
+#: seventeenth session).
+_CAUSES_NOT_BOUND = ("m", "i0", "gx", "gi1", "gi2")
+
+
+def _check_names(parameters: Sequence[str], names: Sequence[str]) -> None:
+    unknown = [p for p in parameters if p not in names]
+    if not unknown:
+        return
+    causes = [p for p in unknown if p in _CAUSES_NOT_BOUND]
+    why = (
+        f"; {', '.join(causes)} {'is' if len(causes) == 1 else 'are'} not a free parameter of "
+        "the bound but a cause the diagnosis fits to v1..v9 (held at the baseline's here): "
+        "`maglevid diagnose REC` plans it in its advice ('to resolve the tolerance'), from "
+        "the same bound of v1..v9"
+        if causes
+        else ""
+    )
+    raise DataError(f"unknown parameters {unknown}; expected names among {list(names)}{why}")
+
+
 def spectrum_label(spectrum: str) -> str:
     """Words for a spectrum name: ``"lowpass:100"`` -> ``"low-pass 100 Hz"``."""
     if spectrum.startswith("lowpass:"):
@@ -487,9 +511,7 @@ def model_error_level(
         raise DataError(f"`ratio` must be > 0 and `n_samples` >= 1; got {ratio!r}, {n_samples!r}")
     a_max = design.max_excitation(max_excitation_std, max_displacement, spectrum, share)
     names = list(design.bound(n_samples=1, excitation_std=1.0).names)
-    unknown = [p for p in parameters if p not in names]
-    if unknown:
-        raise DataError(f"unknown parameters {unknown}; expected names among {names}")
+    _check_names(parameters, names)
     index = [names.index(p) for p in parameters]
 
     def too_biased(a: float) -> bool:
@@ -963,9 +985,7 @@ def plan_experiment(
     a_max = design.max_excitation(amp, max_displacement)
     now = design.bound(n_samples=1, excitation_std=excitation_std)
     names = list(now.names)
-    unknown = [p for p in parameters if p not in names]
-    if unknown:
-        raise DataError(f"unknown parameters {unknown}; expected names among {names}")
+    _check_names(parameters, names)
     index = [names.index(p) for p in parameters]
     var_b = _baseline_variance(design, now, index, parameters, baseline_covariance, baseline_std)
     # Per-sample variances at each spectrum's and split's largest allowed excitation.

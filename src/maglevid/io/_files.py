@@ -37,7 +37,7 @@ _EXTENSIONS = {
 
 #: How users choose a format, in the Python API and on the command line.
 _FORMAT_HOW = {
-    False: "format= in Python, --format on the command line",
+    False: "rename it, or format= in Python, --format with maglevid inspect and convert",
     True: "format= in Python, --to with maglevid convert",
 }
 
@@ -135,9 +135,12 @@ def known_binary(head: bytes) -> tuple[str, str | None] | None:
 
 def read_as(fmt: str) -> str:
     """How to read a file as ``fmt``, in the Python API and on the command line."""
+    # identify, diagnose and plan take no --format (found from outside, seventeenth
+    # session: the hint named an option they refuse); inspect and convert do
     return (
         f"read it as {fmt} (rename it to .{fmt}, or name the format: format={fmt!r} in "
-        f"Python, --format {fmt} on the command line)"
+        f"Python; on the command line `maglevid convert FILE OUT.{fmt} --format {fmt}` "
+        "writes a copy the other commands read)"
     )
 
 

@@ -70,6 +70,7 @@ __all__ = [
     "AMBStages",
     "AMBTwoCoil",
     "estimate_model_error",
+    "implausible_parameters",
     "measured_operating_point",
 ]
 
@@ -613,6 +614,51 @@ def _orders_of_magnitude(compared: Mapping[str, Any], baseline: Mapping[str, Any
         "than a fault; check that the time column (or Ts) is in seconds, the coil currents "
         "in A, the voltages in V and the displacement in m, as the baseline's values are"
     )
+
+
+#: Coil resistance [ohm] and inductance [H] of any magnetic bearing, with three orders
+#: of magnitude of margin (AMB coils: ~0.1-100 ohm, ~1 mH - 1 H); an amplifier's gain
+#: [V/V] (a DAC's +-10 V to a coil's tens to hundreds of volts; a command logged as a
+#: duty cycle of a 48 V bridge reads 48).
+_PLAUSIBLE = {"R": (1e-4, 1e5), "L": (1e-6, 1e3), "kw": (1e-2, 1e4)}
+#: Parameters of eq. (4) that are positive in its sign convention (the nominal bearing's).
+_POSITIVE = ("R1", "R2", "L1", "L2", "Ls1", "Ls2", "ki1", "ki2", "kw1", "kw2", "x0", "K1", "K2")
+
+
+def implausible_parameters(parameters: Mapping[str, float]) -> list[str]:
+    """What a two-coil bearing's identified physical parameters say about the record, in
+    words (empty when nothing): values no magnetic bearing has (a log timed in ms or with
+    currents in mA: R1 = 1.75e-8 ohm +- 0.4 % was printed as a result, issue 16,
+    fourteenth session) and signs eq. (4)'s convention does not allow (x or u logged with
+    the other sign: ki1 = -494, x0 = -3.5e-4 m printed without a word; u in mV: kw1 =
+    0.001 V/V; found from outside, seventeenth session). ``maglevid identify`` prints
+    them as warnings; a diagnosis has the baseline to compare with instead."""
+    out = []
+    neg = [k for k in _POSITIVE if k in parameters and not parameters[k] > 0]
+    if neg:
+        out.append(
+            f"{', '.join(f'{k} = {parameters[k]:.3g}' for k in neg)}: not positive, as eq. (4) "
+            "has them: "
+            + _SIGN_CAUSES.get(
+                frozenset(neg),
+                "a channel (u, r, x or a current) is probably logged with the opposite sign, "
+                "or part of the record in other units than the rest (mA, mV, ms)",
+            )
+        )
+    odd = [
+        f"{k} = {v:.3g}"
+        for k, v in parameters.items()
+        if k in ("R1", "R2", "L1", "L2", "kw1", "kw2")
+        and v > 0
+        and not _PLAUSIBLE[k[:-1]][0] < v < _PLAUSIBLE[k[:-1]][1]
+    ]
+    if odd:
+        out.append(
+            f"{', '.join(odd)}: no magnetic bearing's coil or amplifier has that; check the "
+            "record's units: the time column (or Ts) in seconds, the currents in A, the "
+            "voltages in V"
+        )
+    return out
 
 
 #: The channel whose sign flips exactly these parameters (found from outside, issue 16,

@@ -902,7 +902,8 @@ def _check_current_gains_at_rest(
             raise DataError(
                 f"a current-sensor fault {name}={g:g} together with a fault that moves coil "
                 f"{j + 1}'s rest current ({dev:+.3g} A from i0) is not supported on the "
-                "nonlinear plant; simulate them one at a time, or use plant_model='linear'"
+                "nonlinear plant; simulate them one at a time, or use the linear plant "
+                "(plant_model='linear' in Python, --plant linear on the command line)"
             )
 
 
