@@ -73,6 +73,18 @@ def test_straddling_interval_is_inconclusive_with_the_distance_as_target():
     assert "needs ±0.9 %" in verdict and "s more of the same excitation" in verdict
 
 
+def test_raise_the_excitation_is_qualified_where_a_disturbance_informs_the_fit():
+    # m x1.1 under a 2 N force disturbance: "raise the excitation about 1.4x" narrowed the
+    # interval 1.15x, not 1.37x (the disturbance informs the fit too); the length advice
+    # held (found from outside, seventeenth session).
+    _, _, (u,) = _decide(1.041, 0.011, se_f=0.002)
+    plain = u.advice()
+    assert "or raise the excitation about" in plain and "force disturbance" not in plain
+    told = replace(u, disturbance_informs=True).advice()
+    assert "raise the excitation by more than about" in told and "force disturbance" in told
+    assert plain.split(", or raise")[0] == told.split(", or raise")[0]  # length unchanged
+
+
 def test_wholly_beyond_is_a_fault_even_when_wider_than_the_tolerance():
     # +20 % ± 7.8 % (95 %): 12-28 %, wholly beyond 5 %. Before the straddling rule
     # this was "inconclusive" (half-width wider than the tolerance).

@@ -259,6 +259,24 @@ def test_a_sensor_gain_in_the_verdict_says_what_it_does_to_the_free_estimates():
     assert not any(r.startswith("the free estimates read v1..v9") for r in d.reasons)
 
 
+@pytest.mark.parametrize("factor", [2.0, 0.5])
+def test_a_wrong_sample_time_is_named_not_diagnosed_as_a_fault(factor):
+    # A user's record whose Ts is twice the loop's (no controller stated, so the sample-
+    # time check has nothing to compare with) read "Unexplained change" with R, kw -87 %
+    # and "data quality: all checks passed" (found from outside, seventeenth session).
+    # Reference: a time axis scaled by c divides every continuous rate by c and multiplies
+    # the velocity state by c: v1..v3 x c^-2, v5, v7..v9 x c^-1, v4, v6 unchanged.
+    rec = simulate_amb_loop(
+        NOMINAL, nominal=NOMINAL, plant_model="nonlinear", rng=11, n_samples=20_000
+    )
+    user = rec.replace(dt=rec.dt * factor, loop={"operating_point": dict(
+        rec.loop["operating_point"])})  # fmt: skip
+    d = diagnose(user, baseline=NOMINAL)
+    assert d.verdict_code == "cannot_diagnose", d.verdict
+    assert f"time axis scaled by {factor:.3g}" in d.verdict and "check Ts" in d.verdict
+    assert diagnose(rec.replace(loop=user.loop), baseline=NOMINAL).verdict_code == "no_change"
+
+
 def test_an_unexplained_change_gives_no_tolerance_advice_on_rejected_causes():
     # Three faults at once: no cause or pair fits, "Unexplained change". Its "to
     # resolve the tolerance" list named R2 +5.1 % and gi2 -5.1 %, neither changed, from

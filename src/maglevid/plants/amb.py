@@ -661,6 +661,60 @@ def implausible_parameters(parameters: Mapping[str, float]) -> list[str]:
     return out
 
 
+#: How each v_i scales when the record's time axis is ``c`` times the loop's (a wrong Ts):
+#: the continuous model fitted to the same samples has every rate divided by ``c``, and
+#: the velocity state multiplied by it, so v1..v3 (force per mass) go as ``c^-2``, v4 and
+#: v6 (back-EMF per velocity) stay, v5, v7, v8, v9 (per time) go as ``c^-1``.
+_TIME_POWERS = np.array([2.0, 2.0, 2.0, 0.0, 1.0, 0.0, 1.0, 1.0, 1.0])
+#: A time axis this far off (or more) is called; within it a real machine could mimic it.
+_TIME_SCALE_MIN = 1.2
+
+
+def _time_axis_scaled(
+    result: Any,
+    est: Mapping[str, float],
+    ref: AMBParameters | None,
+    op: MeasuredOperatingPoint | None,
+    eps: float,
+    dt: float,
+    alpha: float = 0.01,
+) -> str:
+    """Why the estimates are a wrong sample time, not a fault, or "". A user's .mat with
+    Ts twice the loop's was diagnosed "Unexplained change" with R and kw -87 %, L, ki, K
+    -75 % and "data quality: all checks passed" (found from outside, seventeenth session:
+    the sample-time check catches orders of magnitude only). v1..v9 then follow
+    :data:`_TIME_POWERS` with one factor ``c`` (that record: c = 1.998, chi2 = 1.9 with 8
+    dof), a signature no single physical cause has."""
+    if ref is None or result.covariance is None or not all(k in est for k in V_NAMES):
+        return ""
+    v = np.array([est[k] for k in V_NAMES])
+    b = op.v(ref) if op is not None else ref.v()
+    if not (np.all(v > 0) and np.all(b > 0)):
+        return ""
+    idx = [list(result.parameters).index(k) for k in V_NAMES]
+    S = np.asarray(result.covariance, dtype=float)[np.ix_(idx, idx)] / np.outer(v, v)
+    S = S + np.eye(9) * max(eps, MODEL_ERROR_FLOOR) ** 2
+    try:
+        W = np.linalg.inv(S)
+    except np.linalg.LinAlgError:
+        return ""
+    r = np.log(v / b)
+    k = _TIME_POWERS
+    log_c = -float(k @ W @ r) / float(k @ W @ k)
+    res = r + k * log_c
+    p = float(special.chdtrc(8, float(res @ W @ res)))
+    c = float(np.exp(log_c))
+    if p < alpha or not (c >= _TIME_SCALE_MIN or c <= 1 / _TIME_SCALE_MIN):
+        return ""
+    return (
+        f"v1..v9 follow a time axis scaled by {c:.3g} (v1-v3 x{c**-2:.3g}, v5, v7-v9 "
+        f"x{1 / c:.3g}, v4, v6 unchanged: chi2 = {float(res @ W @ res):.3g} with 8 dof, "
+        f"p = {p:.2g}), the signature of a wrong sample time, not of a fault: the "
+        f"recording's sample time ({dt:.4g} s) is probably {c:.3g} x the loop's (about "
+        f"{dt / c:.4g} s); check Ts or the time column"
+    )
+
+
 #: The channel whose sign flips exactly these parameters (found from outside, issue 16,
 #: fourteenth session: both were called "orders of magnitude ... a unit or time-scale
 #: error").
@@ -806,9 +860,10 @@ class AMBStages:
         if not compared:
             return cannot_diagnose(run, [_no_physical_parameters(run.method, est)])
         scale = _orders_of_magnitude(compared, base.values)
+        eps = estimate_model_error(data, ref)
+        scale = scale or _time_axis_scaled(result, est, ref, op, eps, data.dt)
         if scale:
             return cannot_diagnose(run, [scale])
-        eps = estimate_model_error(data, ref)
         model_errors: dict[str, float] = {}
         has_v = all(k in est for k in V_NAMES)
         if has_v and ref is not None:
