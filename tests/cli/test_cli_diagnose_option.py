@@ -74,3 +74,18 @@ def test_the_stated_method_types_the_options(rig_log, captured):
     args = ["diagnose", str(rig_log), "--method", "greybox-levitator"]
     assert main(["-q", *args, "--option", "disturbance=ar1"]) == 0
     assert captured["method_options"] == {"disturbance": "ar1"}  # one text for the grey box
+
+
+@pytest.mark.parametrize(
+    ("given", "words"),
+    [("nothere.json", "no such file"), ("nomnal", "is neither 'nominal' nor 'history'"),
+     (".", "is a folder")],
+)  # fmt: skip
+def test_a_bad_baseline_says_what_is_wrong_with_it(tmp_path, capsys, given, words):
+    # --baseline nothere.json said only "expected 'nominal', 'history' or a JSON file",
+    # as if the option were misused (found from outside, seventeenth session).
+    rec = tmp_path / "r.npz"
+    rec.write_bytes(b"")  # never read: the baseline is checked first
+    assert main(["-q", "diagnose", str(rec), "--baseline", given]) == 1
+    err = capsys.readouterr().err
+    assert words in err and "expected 'nominal', 'history' or a JSON file" in err

@@ -333,13 +333,14 @@ def test_csv_without_sidecar(tmp_path):
     "edit,message",
     [
         (lambda s: s.replace('"dt": 0.01', '"dt": -1'), "'dt' is -1"),
-        (lambda s: s.replace('"dt": 0.01,', ""), "'dt' is None"),
+        (lambda s: s.replace('"dt": 0.01,', ""), "no 'dt' is stated"),
         (lambda s: s.replace("maglevid-recording", "something"), "'format' is 'something'"),
         (lambda s: s.replace('"version": 1', '"version": 7'), "newer than this maglevid"),
         (lambda s: s.replace('"p": 2', '"p": 0'), "'p' is 0"),
         (lambda s: s.replace('"units": ["V"]', '"units": ["V", "V"]'), "1 names but 2 units"),
         (lambda s: s[:-30], "not valid JSON"),
         (lambda s: "[1, 2]", "expected a JSON object"),
+        (lambda s: '{"hello": 1}', "no 'format' key (it has: hello)"),  # was "'format' is None"
     ],
 )
 def test_malformed_sidecar(tmp_path, edit, message):

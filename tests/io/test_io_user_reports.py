@@ -309,3 +309,22 @@ def test_row_width_check_on_every_kind_of_text(tmp_path, monkeypatch, block, sep
     path.write_text("\n".join(bad) + "\n")
     message = read_bad(path, mapping=m)
     assert "data row 2 (line 4) has 4 field(s); expected 3 (extra values?)" in message
+
+
+# ------------------------------------------------- a spreadsheet's export of a recording
+def test_semicolons_and_comment_lines_are_named(tmp_path, rng):
+    # A maglevid CSV re-saved by a spreadsheet with ';' and decimal commas, or with comment
+    # lines above its header, was told only "header column 0 is 't;y:x;...'" or "the
+    # header has 1 fields" (found from outside, seventeenth session).
+    csv = write_recording(RECORDINGS["full_p1"](rng), tmp_path / "rec.csv")
+    text = csv.read_text()
+    csv.write_text(text.replace(",", ";"))
+    message = read_bad(csv)
+    assert "separated by semicolons" in message and '"delimiter": "semicolon"' in message
+    csv.write_text("# exported by scope v1.2\n" + text)
+    message = read_bad(csv)
+    assert "starts with comment lines" in message and '"comment": "#"' in message
+    own = tmp_path / "own.csv"  # through a mapping that expects commas
+    own.write_text("t;x\n0,0;1,5\n0,1;1,6\n")
+    message = read_bad(own, mapping={"time": "t", "y": ["x"]})
+    assert "the header has 1 fields" in message and '"decimal": ","' in message

@@ -152,8 +152,18 @@ def _baseline(text: str) -> Any:
         return text
     path = Path(text)
     if not path.is_file():
+        # a misspelt path read as if the option were misused (found from outside,
+        # seventeenth session): say which it is
+        why = (
+            "is a folder, not a file"
+            if path.is_dir()
+            else "no such file"
+            if path.suffix.lower() == ".json" or "/" in text or "\\" in text
+            else "is neither 'nominal' nor 'history', nor an existing file"
+        )
         raise DataError(
-            f"--baseline {text!r}: expected 'nominal', 'history' or a JSON file of parameters"
+            f"--baseline {text!r}: {why}; expected 'nominal', 'history' or a JSON file of "
+            "parameters"
         )
     try:
         values = json.loads(path.read_text())

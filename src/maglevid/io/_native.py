@@ -144,6 +144,12 @@ def parse_description(raw: Any, *, path: str | None) -> Description:
 
     if not isinstance(raw, Mapping):
         raise bad("expected a JSON object")
+    if "format" not in raw:  # "'format' is None" read as a bad value (seventeenth session)
+        raise bad(
+            f"no 'format' key (it has: {', '.join(map(str, list(raw)[:8])) or 'nothing'}): "
+            "not a maglevid description; a file of your own is read through a column "
+            "mapping (--mapping FILE.json, mapping= in Python)"
+        )
     if raw.get("format") != FORMAT_NAME:
         raise bad(f"'format' is {raw.get('format')!r}; expected {FORMAT_NAME!r}")
     version = raw.get("version")
@@ -156,6 +162,8 @@ def parse_description(raw: Any, *, path: str | None) -> Description:
         )
 
     def number(key: str, default: float | None = None, positive: bool = False) -> float:
+        if key not in raw and default is None:
+            raise bad(f"no {key!r} is stated" + (" (the sample time in s)" if key == "dt" else ""))
         v = raw.get(key, default)
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
             raise bad(f"{key!r} is {v!r}; expected a finite number")

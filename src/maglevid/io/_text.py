@@ -102,6 +102,27 @@ def _k_per_line(marks: np.ndarray, starts: np.ndarray, ends: np.ndarray, k: int)
     return bool(np.all(marks[::k] >= starts) and np.all(marks[k - 1 :: k] < ends))
 
 
+def _layout_hint(text: str) -> str:
+    """What a header that does not split as expected says about the file's layout: a
+    spreadsheet's export with ';' and decimal commas, or comment lines above the header
+    (such files were told only "header column 0 is 't;y:x;...'" or "the header has 1
+    fields"; found from outside, seventeenth session)."""
+    if text.lstrip().startswith("#"):
+        return (
+            "the file starts with comment lines: remove them, or read it through a column "
+            'mapping with "text": {"comment": "#"}'
+        )
+    for sep, name in ((";", "semicolon"), ("\t", "tab")):
+        if sep in text:
+            return (
+                f"the file looks separated by {name}s (a spreadsheet's export?), not commas: "
+                "re-export it with commas and decimal points, or read it through a column "
+                f'mapping with "text": {{"delimiter": "{name}"'
+                + (', "decimal": ","}' if sep == ";" else "}")
+            )
+    return ""
+
+
 class TextTable(Table):
     """A delimited text file: optional skipped lines, comments, a header, numeric rows."""
 
@@ -175,8 +196,10 @@ class TextTable(Table):
         elif header is not None:
             names = header
             if first is not None and len(header) != n_columns:
+                hint = _layout_hint(" ".join(map(str, header)))
                 raise FileFormatError(
-                    f"the header has {len(header)} fields but the first data row has {n_columns}",
+                    f"the header has {len(header)} fields but the first data row has {n_columns}"
+                    + (f": {hint}" if hint else ""),
                     path=str(path),
                 )
         if names is not None and not native:
@@ -487,7 +510,8 @@ def read_native_csv(path: Path, options: ColumnMapping | None) -> ClosedLoopData
             if got != want:
                 raise FileFormatError(
                     f"header column {i} is {got!r}, but the side-car {side_path.name} "
-                    f"describes {want!r}: the two files do not belong together",
+                    f"describes {want!r}: "
+                    + (_layout_hint(got) or "the two files do not belong together"),
                     path=str(path),
                     column=got,
                 )

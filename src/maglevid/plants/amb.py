@@ -284,6 +284,22 @@ def _sensor_note(best: Any, base: AMBParameters | None) -> list[str]:
     ]
 
 
+def _deciding_test(iso: IsolationResult) -> str:
+    """Which of the two tests of 'nothing changed' decided it (each at alpha / 2): "p =
+    0.027 ...; against the best single cause p = 0.00055" left the reader to find that
+    only the second is below 0.005 (found from outside, seventeenth session)."""
+    cut = iso.alpha / 2
+    passed = [
+        name
+        for name, p in (("the 9-dof test", iso.no_change.p_value),
+                        ("the single-cause test", iso.single_cause_p_value))
+        if p < cut
+    ]  # fmt: skip
+    if len(passed) == 2:
+        return f"both below {cut:.2g}"
+    return f"only {passed[0]} below {cut:.2g} decides it" if passed else f"neither below {cut:.2g}"
+
+
 def _no_change_head(iso: IsolationResult, unresolved: list[Any]) -> str:
     """ "no change detected", or, where a cause's own 95 % interval excludes 0, that no
     cause passed the isolation's test: it tests every cause at once (Bonferroni), so a
@@ -390,7 +406,7 @@ def _verdict(
         f"only {names} changed fits all nine v_i: chi2 = {best.chi2:.3g} with {best.dof} dof "
         f"(p = {best.p_value:.2g}); 'nothing changed' is rejected (chi2 = {none.chi2:.3g}, "
         f"{none.dof} dof, p = {none.p_value:.2g}; against the best single cause "
-        f"p = {iso.single_cause_p_value:.2g}){me}",
+        f"p = {iso.single_cause_p_value:.2g}; {_deciding_test(iso)}){me}",
     )
     for h in iso.indistinguishable:
         reasons.append(f"cannot be told apart from: {h.describe()} (chi2 = {h.chi2:.3g})")
