@@ -152,3 +152,25 @@ def test_no_pole_keeps_the_identifications_reason_and_remedy():
     d = LevitatorStages().compare(run)
     assert d.verdict_code == "cannot_diagnose"
     assert "What would resolve it: a reference step" in d.verdict
+
+
+def test_a_levitator_log_in_other_units_or_order_is_refused_before_any_fit(shared_data):
+    # UAQ chirp with the gap in mm learned a range of "0.00-14573.02 mm", with the gap and
+    # current swapped the same, and with the current in mA ran 70 s into "no candidate
+    # model gives an identifiable pole" (found from outside, seventeenth session).
+    from maglevid.diagnose.levitator import levitator_checks
+    from maglevid.io import read_recording
+
+    d = read_recording(_session(shared_data, "chirp"), mapping="uaq-levitador")
+    (ok,), segs = levitator_checks(d)
+    assert ok.passed and segs
+    y = np.array(d.y_control, copy=True)
+    for edit, words in [
+        (lambda y: y * [1e3, 1.0], "the gap is probably logged in mm"),
+        (lambda y: y[:, ::-1], "the gap and the current are probably in each other's columns"),
+        (lambda y: y * [1.0, 1e3], "it is probably logged in mA"),
+    ]:
+        (q,), segs = levitator_checks(d.replace(y=edit(y)))
+        assert q.name == "units" and not q.passed and words in q.message and segs == []
+    told = diagnose(d.replace(y=y * [1.0, 1e3]), baseline="nominal")
+    assert told.verdict_code == "cannot_diagnose" and "probably logged in mA" in told.verdict

@@ -80,6 +80,61 @@ def levitator_baseline(data: ClosedLoopData) -> Any:
     )
 
 
+#: Largest factor between a levitator's gap and its reference, or its coil current and
+#: the stated physics' equilibrium current, that a rig in SI units shows (a sensor's zero
+#: a few mm off, a rig's constants tens of percent from the published ones).
+MAX_UNIT_FACTOR = 10.0
+
+
+def _equilibrium_current(plant: Mapping[str, Any], gap: float) -> float | None:
+    """``i = (a + y) sqrt(2 m g / (k a))`` of the stated physics (eq. (F1) balancing the
+    weight), or ``None`` when the record does not state ``m``, ``k`` and ``a``."""
+    try:
+        m, k, a = (float(plant[key]) for key in ("m_kg", "k_H", "a_m"))
+    except (KeyError, TypeError, ValueError):
+        return None
+    if not (m > 0 and k > 0 and a > 0 and gap > -a):
+        return None
+    return (a + gap) * math.sqrt(2.0 * m * 9.81 / (k * a))
+
+
+def _unit_problems(data: ClosedLoopData) -> list[str]:
+    """A gap far from its reference, or a coil current far from the stated physics'
+    equilibrium, in words: a UAQ log with the gap in mm, the gap and current swapped, or
+    the current in mA learned a range of "0.00-14573.02 mm" or ran 70 s into "no candidate
+    model gives an identifiable pole" (found from outside, seventeenth session)."""
+    from maglevid.identify.levitator import gap_reference
+
+    y = np.asarray(data.y_control, dtype=float)
+    gap = float(np.median(y[:, 0]))
+    ref = gap_reference(data)
+    out = []
+    r = float(np.median(ref)) if ref is not None else None
+    if r is not None and r > 0 and not (r / MAX_UNIT_FACTOR < gap < r * MAX_UNIT_FACTOR):
+        f = gap / r
+        hint = ": the gap is probably logged in mm (or um) while read as m" if f > 100 else ""
+        if y.shape[1] >= 2 and r / MAX_UNIT_FACTOR < float(np.median(y[:, 1])) < r * 10:
+            hint = ": the gap and the current are probably in each other's columns"
+        out.append(
+            f"the gap reads {gap:.4g} m in the median, {f:.3g} x its reference "
+            f"({r:.4g} m){hint}; check the channels' order and units"
+        )
+    plant = data.metadata.get("plant") if hasattr(data.metadata, "get") else None
+    i_eq = _equilibrium_current(plant, r if r is not None else gap) if plant else None
+    if not out and i_eq is not None and y.shape[1] >= 2:
+        # the 90th percentile: a record whose coil is off most of the time (MONIT_SWEEP,
+        # u = 0 for 75 % of it) has a median current of ~0
+        cur = float(np.quantile(y[:, 1], 0.9))
+        if not i_eq / MAX_UNIT_FACTOR < cur < i_eq * MAX_UNIT_FACTOR:
+            hint = ": it is probably logged in mA while read as A" if cur > 100 * i_eq else ""
+            out.append(
+                f"the coil current reads {cur:.4g} A (90th percentile), {cur / i_eq:.3g} x the "
+                f"{i_eq:.3g} A that holds the stated body at that gap{hint}; check its unit "
+                "(and the stated m, k, a)"
+            )
+    return out
+
+
 def levitator_checks(
     data: ClosedLoopData,
 ) -> tuple[tuple[QualityCheck, ...], list[tuple[int, int]]]:
@@ -91,6 +146,12 @@ def levitator_checks(
     """
     from maglevid.identify.levitator import find_levitator_segments
 
+    units = _unit_problems(data)
+    if units:  # the segments of a gap in mm or swapped channels mean nothing
+        return (
+            QualityCheck(name="units", passed=False, value=float(len(units)), threshold=0.0,
+                         message="; ".join(units)),
+        ), []  # fmt: skip
     rep, segs, how = find_levitator_segments(data)
     seconds = sum(b - a for a, b in segs) * data.dt
     total = data.n_samples * data.dt

@@ -63,6 +63,7 @@ __all__ = [
     "find_levitator_segments",
     "fit_levitator",
     "fit_levitator_sessions",
+    "gap_reference",
     "levitation_range",
 ]
 
@@ -84,7 +85,8 @@ DEFAULT_DISTURBANCES = ("white", "ar1")
 MIN_SEGMENT_SECONDS = 2.0
 
 
-def _reference(data: ClosedLoopData) -> np.ndarray | None:
+def gap_reference(data: ClosedLoopData) -> np.ndarray | None:
+    """The logged gap reference [m] (``r``, or the extra signal ``yd``), or ``None``."""
     if data.r is not None and data.r.shape[1] == 1:
         return np.asarray(data.r[:, 0], dtype=float)
     extras = data.metadata.get("extra_signals") if hasattr(data.metadata, "get") else None
@@ -148,7 +150,7 @@ def levitation_range(data: ClosedLoopData) -> tuple[tuple[float, float], str]:
     whether a lost body rests or falls.
     """
     y = data.y_control[:, 0]
-    ref = _reference(data)
+    ref = gap_reference(data)
     n = max(2, round(1.0 / data.dt))
     err = y if ref is None else y - ref
     if ref is None:
@@ -199,7 +201,7 @@ def find_levitator_segments(
         The learned range and thresholds, in words.
     """
     rng, how = levitation_range(data)
-    ref = _reference(data)
+    ref = gap_reference(data)
     limits = _command_limits(data)
     track = TRACKING_SHARE * (rng[1] - rng[0])
     rep = find_levitation_segments(
@@ -561,7 +563,7 @@ def _fit_sessions(
 def _noise_only(data: ClosedLoopData, segs: list[tuple[int, int]]) -> bool:
     """No excitation ``r`` and one reference value over all the segments (a step between
     two segments counts: it excites the loop at the second one's start)."""
-    ref = _reference(data)
+    ref = gap_reference(data)
     if data.r is not None and (ref is None or data.r.shape[1] != 1):
         return False
     if ref is None:
