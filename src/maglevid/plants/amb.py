@@ -653,8 +653,8 @@ def implausible_parameters(parameters: Mapping[str, float]) -> list[str]:
     neg = [k for k in _POSITIVE if k in parameters and not parameters[k] > 0]
     if neg:
         out.append(
-            f"{', '.join(f'{k} = {parameters[k]:.3g}' for k in neg)}: not positive, as eq. (4) "
-            "has them: "
+            f"{', '.join(f'{k} = {parameters[k]:.3g}' for k in neg)}: not positive, though "
+            "eq. (4) has them positive: "
             + _SIGN_CAUSES.get(
                 frozenset(neg),
                 "a channel (u, r, x or a current) is probably logged with the opposite sign, "
