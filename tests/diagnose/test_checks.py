@@ -142,6 +142,19 @@ def test_absolute_coil_currents_are_refused_with_the_offset_to_subtract(clean):
     assert "probably logged in mA" in q.message and "offset" not in q.message
 
 
+def test_an_absolute_gap_is_named_not_called_a_touch_down(clean):
+    # x logged as the gap x0 + x read "levitation was lost (touch-down)" (found from
+    # outside, seventeenth session).
+    x0 = clean.loop["operating_point"]["x0"]
+    y = np.array(clean.y, copy=True)
+    y[:, 0] += x0
+    q = check_levitation(clean.replace(y=y))
+    assert not q.passed and "absolute gap x0 + x" in q.message and "touch-down" not in q.message
+    y = np.array(clean.y, copy=True)
+    y[:100, 0] = 0.9 * x0  # a real touch-down stays one
+    assert "touch-down" in check_levitation(clean.replace(y=y)).message
+
+
 def test_a_clipped_output_sensor_is_refused(clean):
     # x clipped at its 30th and 70th percentiles passed every check of a user's .mat and
     # identified R1 = 3.07 ohm (17.5 true; found from outside, seventeenth session).

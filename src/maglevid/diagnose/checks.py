@@ -251,6 +251,14 @@ def check_levitation(
             "the displacement is probably not in metres (mm?), or the air gap x0 is wrong"
         )
         msg += _displacement_elsewhere(data, float(x0))
+    elif not ok and abs(float(np.mean(x)) - float(x0)) < 0.2 * float(x0):
+        # a log of the gap x0 + x read as "touch-down" (found from outside, seventeenth
+        # session): it averages x0 where the displacement averages ~0
+        msg += (
+            f": it averages {float(np.mean(x)):.3g} m, the air gap x0 = {float(x0):.3g} m - it "
+            "looks like the absolute gap x0 + x; maglevid reads the displacement from the "
+            f'centre: subtract x0 (a mapping with "offset": {-float(x0):.6g} on it)'
+        )
     elif not ok:
         msg += ": levitation was lost (touch-down)"
     return QualityCheck(
