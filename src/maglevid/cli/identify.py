@@ -61,7 +61,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "recording",
         nargs="*",
         help="recording file (.npz, .csv + .json, .mat, .parquet); several sessions of one "
-        "rig give one answer and the per-session ones (none with `--method list`)",
+        "one-coil levitator rig give one answer and the per-session ones (other plants: "
+        "one recording at a time; none with `--method list`)",
     )
     # `--method list` needs no recording, every other use at least one: checked in run(),
     # as argparse would (usage on stderr, exit code 2).
