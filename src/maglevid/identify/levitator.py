@@ -765,7 +765,16 @@ def _widened(
         best,
         covariance=cov,
         notes=(*best.notes, *notes),
-        extras={**best.extras, "constants_ci95": hull, "constants_disagree": split},
+        extras={
+            **best.extras,
+            "constants_ci95": hull,
+            "constants_disagree": split,
+            # the fit's own covariance, for quantities the widening would wreck: each
+            # constant is widened by its own factor (up to 1e4x where a candidate cannot
+            # determine R, ku, k0), which keeps the correlations but not the near-exact
+            # cancellation in R/L and ku/L that the data do fix (diagnose.levitator)
+            "covariance_fit": None if best.covariance is None else best.covariance.tolist(),
+        },
     )
 
 
