@@ -165,9 +165,16 @@ def levitator_checks(
             value=seconds,
             threshold=MIN_LEVITATING_SECONDS,
             message=(
-                f"{seconds:.1f} s of {total:.1f} s levitating under control in {len(segs)} "
-                f"segment(s) ({how}); excluded: {why}"
-                + ("" if ok else ": too little usable levitation to identify the plant")
+                f"{seconds:.{2 if abs(seconds - MIN_LEVITATING_SECONDS) < 0.1 else 1}f} s of "
+                f"{total:.1f} s levitating under control in {len(segs)} segment(s) ({how}); "
+                f"excluded: {why}"
+                + (
+                    ""
+                    if ok
+                    else ": too little usable levitation to identify the plant (at least "
+                    f"{MIN_LEVITATING_SECONDS:g} s needed; pieces split at reference steps "
+                    "lose a sample there)"
+                )
             ),
         ),
     )
