@@ -174,3 +174,18 @@ def test_a_levitator_log_in_other_units_or_order_is_refused_before_any_fit(share
         assert q.name == "units" and not q.passed and words in q.message and segs == []
     told = diagnose(d.replace(y=y * [1.0, 1e3]), baseline="nominal")
     assert told.verdict_code == "cannot_diagnose" and "probably logged in mA" in told.verdict
+
+
+def test_a_lost_ball_with_the_driver_at_its_top_is_said_so():
+    # Driver gain -30 %: the ball falls at once and rests on the stop; the refusal read
+    # only "above-range 19.9 s" (found from outside, seventeenth session).
+    from dataclasses import replace
+
+    from maglevid.diagnose.levitator import levitator_checks
+    from maglevid.simulate.levitator import UAQ_TWIN, simulate_levitator
+
+    d = simulate_levitator(replace(UAQ_TWIN, ku=0.7 * UAQ_TWIN.ku), rng=1)
+    (q,), segs = levitator_checks(d)
+    assert not q.passed and segs == []
+    assert "outside the range for 100 % of the record (lost" in q.message
+    assert "the driver could not hold the body" in q.message

@@ -135,6 +135,28 @@ def _unit_problems(data: ClosedLoopData) -> list[str]:
     return out
 
 
+def _lost_words(data: ClosedLoopData, lost: Mapping[str, float], total: float) -> str:
+    """Why a record has no levitation to speak of, where the record says: the body out
+    of range for most of it, and the command pinned at its top. A twin with the driver's
+    gain -25 % read only "above-range 19.9 s", with a range learned from the ball lying
+    on its stop (found from outside, seventeenth session)."""
+    out_s = lost.get("above-range", 0.0) + lost.get("below-range", 0.0)
+    if out_s < 0.5 * total:
+        return ""
+    words = f"; the body is outside the range for {100 * out_s / total:.0f} % of the record "
+    words += "(lost: resting on a stop or held at the magnet)"
+    if data.u is not None:
+        u = np.asarray(data.u, dtype=float)[:, 0]
+        top = float(np.max(u))
+        at = float(np.mean(np.isclose(u, top, rtol=0, atol=1e-9 * max(1.0, abs(top)))))
+        if at >= 0.5:
+            words += (
+                f", with the command at its top ({top:.3g} V) for {100 * at:.0f} % of it: the "
+                "driver could not hold the body (its gain or supply, or a heavier body)"
+            )
+    return words
+
+
 def levitator_checks(
     data: ClosedLoopData,
 ) -> tuple[tuple[QualityCheck, ...], list[tuple[int, int]]]:
@@ -173,7 +195,7 @@ def levitator_checks(
                     if ok
                     else ": too little usable levitation to identify the plant (at least "
                     f"{MIN_LEVITATING_SECONDS:g} s needed; pieces split at reference steps "
-                    "lose a sample there)"
+                    "lose a sample there)" + _lost_words(data, lost, total)
                 )
             ),
         ),
