@@ -71,6 +71,9 @@ def test_sensor_zero_and_gain_cannot_be_told_apart_at_one_gap():
     assert ("gap_offset", "gap_gain") in iso.collinear
     assert any(h.parameters == ("gap_gain",) for h in iso.indistinguishable)
     assert any("known gap reference" in h for h in iso.resolve_hints())
+    d = iso.best.to_dict()  # the offset's change is in mm, and the JSON says so
+    assert d["change_units"] == {"gap_offset": "mm"}
+    assert d["changes_percent"]["gap_offset"] == pytest.approx(-2.9, abs=0.3)
 
 
 def test_without_the_driver_R_and_ku_are_not_judged():

@@ -560,6 +560,11 @@ class LevitatorFault:
             "values": list(self.values),
             "std_errors": list(self.std_errors),
             "changes_percent": self.changes_percent,
+            # the unit of each entry above: "mm" for an offset (a JSON reader took the
+            # gap zero's 0.505 for per cent; found from outside, seventeenth session)
+            "change_units": {
+                k: "mm" if LEVITATOR_HYPOTHESES[k][3] == "offset" else "%" for k in self.parameters
+            },
             "chi2": self.chi2,
             "dof": self.dof,
             "p_value": self.p_value,
