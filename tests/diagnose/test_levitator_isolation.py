@@ -123,6 +123,9 @@ def test_simulated_healthy_rig_is_not_flagged():
     d = _diagnose(_twin(UAQ_TWIN))
     assert d.verdict_code in ("no_change", "within_tolerance"), d.verdict
     assert d.isolation.best.parameters == ()
+    # what the observations cannot see is said (v0 x1.3 read a bare "No significant
+    # change"; found from outside, seventeenth session)
+    assert any(r.startswith("the driver's voltage offset v0: not judged") for r in d.reasons)
 
 
 # ----------------------------------------------------------------- real UAQ sessions

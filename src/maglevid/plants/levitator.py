@@ -510,6 +510,14 @@ def isolation_reasons(iso: lev.LevitatorIsolation, params: Any) -> list[str]:
                 + ", ".join(f"{' + '.join(h.parameters)} (p = {h.p_value:.2g})" for h in rejected)
             )
     out += [f"{n_}: not judged - {why}" for n_, why in iso.not_tested]
+    # the driver's offset moves the command, not the pole, the currents or the coil
+    # circuit's R/L, ku/L: a twin with v0 x1.3 read "No significant change" without a
+    # word that v0 was not looked at (found from outside, seventeenth session)
+    out.append(
+        "the driver's voltage offset v0: not judged - none of the compared observations "
+        "depends on it (it moves only the command's level, and with it the headroom to "
+        "the driver's limit)"
+    )
     return out
 
 
