@@ -146,9 +146,11 @@ def _lost_words(data: ClosedLoopData, lost: Mapping[str, float], total: float) -
     words = f"; the body is outside the range for {100 * out_s / total:.0f} % of the record "
     words += "(lost: resting on a stop or held at the magnet)"
     if data.u is not None:
+        from maglevid.identify.levitator import dwell_share
+
         u = np.asarray(data.u, dtype=float)[:, 0]
         top = float(np.max(u))
-        at = float(np.mean(np.isclose(u, top, rtol=0, atol=1e-9 * max(1.0, abs(top)))))
+        at = dwell_share(u, top)
         if at >= 0.5:
             words += (
                 f", with the command at its top ({top:.3g} V) for {100 * at:.0f} % of it: the "

@@ -60,6 +60,7 @@ from maglevid.identify.result import IdentificationResult
 
 __all__ = [
     "METHODS",
+    "dwell_share",
     "find_levitator_segments",
     "fit_levitator",
     "fit_levitator_sessions",
@@ -104,8 +105,13 @@ def _command_limits(data: ClosedLoopData) -> tuple[float, float] | None:
         return None
     u = data.u[:, 0]
     lo, hi = float(u.min()), float(u.max())  # a limit is where the command dwells
-    at = [np.mean(np.isclose(u, v, rtol=0, atol=1e-9 * max(1.0, abs(v)))) for v in (lo, hi)]
-    return (lo, hi) if min(at) > 0.01 else None
+    return (lo, hi) if min(dwell_share(u, lo), dwell_share(u, hi)) > 0.01 else None
+
+
+def dwell_share(u: np.ndarray, value: float) -> float:
+    """Share of the samples of ``u`` at ``value`` (to 1e-9 of it): a command's dwell at a
+    limit."""
+    return float(np.mean(np.isclose(u, value, rtol=0, atol=1e-9 * max(1.0, abs(value)))))
 
 
 def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
