@@ -135,27 +135,50 @@ def _unit_problems(data: ClosedLoopData) -> list[str]:
     return out
 
 
-def _lost_words(data: ClosedLoopData, lost: Mapping[str, float], total: float) -> str:
-    """Why a record has no levitation to speak of, where the record says: the body out
-    of range for most of it, and the command pinned at its top. A twin with the driver's
-    gain -25 % read only "above-range 19.9 s", with a range learned from the ball lying
-    on its stop (found from outside, seventeenth session)."""
-    out_s = lost.get("above-range", 0.0) + lost.get("below-range", 0.0)
-    if out_s < 0.5 * total:
-        return ""
-    words = f"; the body is outside the range for {100 * out_s / total:.0f} % of the record "
-    words += "(lost: resting on a stop or held at the magnet)"
-    if data.u is not None:
-        from maglevid.identify.levitator import dwell_share
+#: Share of the record the body may spend outside its range before the levitation check
+#: says so; with the command pinned at its top meanwhile, a record that still has enough
+#: levitation gets a warning (non-blocking). The healthy twin loses its ball at the default
+#: record's reference step in 2 of 80 seeds, with the driver's gain -15 % in 6 of 80.
+LOST_WARNING_SHARE = 0.1
+#: Share of the lost time with the command at its top that says the driver could not hold
+#: the body (the twins above: 99-100 %; the UAQ sessions, whose ball is let go or lost
+#: at the operator's steps: 14-46 %).
+PINNED_SHARE = 0.8
 
-        u = np.asarray(data.u, dtype=float)[:, 0]
-        top = float(np.max(u))
-        at = dwell_share(u, top)
-        if at >= 0.5:
-            words += (
-                f", with the command at its top ({top:.3g} V) for {100 * at:.0f} % of it: the "
-                "driver could not hold the body (its gain or supply, or a heavier body)"
-            )
+
+def _lost(rep: Any, data: ClosedLoopData) -> tuple[float, float | None, float]:
+    """``(share of the record with the body out of range, share of that time with the
+    command at its top, the top)``; the middle one is ``None`` without a command."""
+    out = np.zeros(rep.n_samples, dtype=bool)
+    for piece in rep.excluded:
+        if piece.reason in ("above-range", "below-range"):
+            out[piece.start : piece.stop] = True
+    if data.u is None or not out.any():
+        return float(out.mean()), None, float("nan")
+    from maglevid.identify.levitator import dwell_share
+
+    u = np.asarray(data.u, dtype=float)[:, 0]
+    top = float(np.max(u))
+    return float(out.mean()), dwell_share(u[out], top), top
+
+
+def _lost_words(share: float, at: float | None, top: float) -> str:
+    """Why a record has no levitation to speak of, where the record says: the body out
+    of range for ``share`` of it, and the command at its top for ``at`` of that time
+    (:func:`_lost`). A twin with the driver's gain -25 % read only "above-range 19.9 s",
+    with a range learned from the ball lying on its stop; one with -15 % lost the ball at
+    its second gap (46 % of the record, the command at its top for 99 % of that time) and
+    read only "Cannot diagnose: ... no candidate model gives an identifiable pole" (found
+    from outside, seventeenth and eighteenth sessions)."""
+    words = f"the body is outside the range for {100 * share:.0f} % of the record "
+    words += "(lost: resting on a stop or held at the magnet)"
+    if at is not None and at >= PINNED_SHARE:
+        words += (
+            f", with the command at its top ({top:.3g} V) for {100 * at:.0f} % of that "
+            "time: the driver could not hold the body (a reference step or a disturbance "
+            "beyond its headroom, or less headroom than before: its gain or supply, the "
+            "coil circuit's resistance, a heavier body), unless it was meant to let go"
+        )
     return words
 
 
@@ -182,6 +205,8 @@ def levitator_checks(
     lost = rep.excluded_by_reason()
     why = ", ".join(f"{k} {v:.1f} s" for k, v in lost.items() if v > 0) or "nothing"
     ok = seconds >= MIN_LEVITATING_SECONDS
+    share, at, top = _lost(rep, data)
+    gone = "" if ok or share < LOST_WARNING_SHARE else "; " + _lost_words(share, at, top)
     checks = (
         QualityCheck(
             name="levitation",
@@ -197,11 +222,17 @@ def levitator_checks(
                     if ok
                     else ": too little usable levitation to identify the plant (at least "
                     f"{MIN_LEVITATING_SECONDS:g} s needed; pieces split at reference steps "
-                    "lose a sample there)" + _lost_words(data, lost, total)
+                    "lose a sample there)" + gone
                 )
             ),
         ),
     )
+    if ok and share >= LOST_WARNING_SHARE and at is not None and at >= PINNED_SHARE:
+        # enough levitation, but the record shows the driver losing the body
+        checks += (
+            QualityCheck(name="lost", passed=False, value=share, threshold=LOST_WARNING_SHARE,
+                         message=_lost_words(share, at, top), blocking=False),
+        )  # fmt: skip
     return checks, segs
 
 
