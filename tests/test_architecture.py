@@ -49,6 +49,7 @@ LAYERS: dict[str, int] = {
     "maglevid.lti": 1,
     "maglevid.data": 1,
     "maglevid.jsonable": 1,
+    "maglevid.parallel": 1,
     "maglevid.exceptions": 0,
     "maglevid._validation": 0,
     "maglevid._tables": 0,

@@ -101,3 +101,25 @@ def test_segment_cuts_extra_signals_with_their_rate():
     s = d.segment(1, 3)
     np.testing.assert_array_equal(s.metadata["extra_signals"]["yd"]["values"], [1.0, 2.0])
     np.testing.assert_array_equal(s.metadata["extra_signals"]["fast"]["values"], [2, 3, 4, 5])
+
+
+def test_a_recording_pickles_whole_and_stays_frozen():
+    # Worker processes (maglevid.parallel: the levitator's candidates) and users' own pools
+    # pickle recordings; the read-only mappings did not ("cannot pickle 'mappingproxy'").
+    import pickle
+
+    d = _rec(
+        r=np.zeros((6, 1)),
+        loop={"controller": "pid", "gains": {"kp": 2.0}},
+        metadata={"machine": "AMB-1", "truth": {"R": [1.0, 2.0]}, "tags": ("a", "b")},
+    )
+    back = pickle.loads(pickle.dumps(d))
+    for sig in ("y", "u", "r"):
+        np.testing.assert_array_equal(getattr(back, sig), getattr(d, sig))
+    assert (back.dt, back.p, back.t0) == (d.dt, d.p, d.t0)
+    assert dict(back.names) == dict(d.names) and dict(back.units) == dict(d.units)
+    assert back.loop["gains"]["kp"] == 2.0 and back.metadata["tags"] == ("a", "b")
+    np.testing.assert_array_equal(back.metadata["truth"]["R"], [1.0, 2.0])
+    with pytest.raises(TypeError):
+        back.metadata["machine"] = "AMB-2"  # frozen again
+    assert not back.y.flags.writeable

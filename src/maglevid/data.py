@@ -35,13 +35,24 @@ from maglevid._validation import as_signal, check_positive, readonly
 from maglevid.exceptions import DataError
 from maglevid.jsonable import thaw
 
-__all__ = ["SIGNALS", "ClosedLoopData"]
+__all__ = ["SIGNALS", "ClosedLoopData", "unfreeze"]
 
 #: Signals a recording may hold, in canonical order. ``y`` is always present.
 SIGNALS: tuple[str, ...] = ("y", "u", "r", "u_f")
 
 #: Fewest control periods a recording may have (identification methods ask for more).
 MIN_SAMPLES = 2
+
+
+def unfreeze(value: Any) -> Any:
+    """Read-only mappings (at any depth) as plain dicts, everything else as it is: the
+    inverse of the freeze for pickling (:func:`maglevid.jsonable.thaw` also turns arrays
+    into lists, for JSON)."""
+    if isinstance(value, Mapping):
+        return {k: unfreeze(v) for k, v in value.items()}
+    if isinstance(value, tuple):
+        return tuple(unfreeze(v) for v in value)
+    return value
 
 
 def _freeze(value: Any) -> Any:
@@ -344,6 +355,16 @@ class ClosedLoopData:
             "loop": thaw(self.loop),
             "metadata": thaw(self.metadata),
         }
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        """Pickled as its fields, the read-only mappings as plain ones (a mappingproxy does
+        not pickle): for worker processes (:mod:`maglevid.parallel`) and users' own pools.
+        Unpickling validates and freezes them again."""
+        return (
+            ClosedLoopData,
+            (self.y, self.dt, self.u, self.r, self.u_f, self.p, unfreeze(self.names),
+             unfreeze(self.units), self.t0, unfreeze(self.loop), unfreeze(self.metadata)),
+        )  # fmt: skip
 
     def __repr__(self) -> str:
         sig = ", ".join(

@@ -195,3 +195,17 @@ def test_consensus_reports_constants_with_their_spread(log):
         assert h["fit_ci95"][1] <= h["ci95"][1] <= ci[name][1], name
         assert len(h["folds"]) == 2
     assert any(n.startswith("intervals of the model's constants") for n in res.notes)
+
+
+def test_the_candidates_on_worker_processes_give_the_serial_result():
+    # The fold fits run on worker processes (maglevid.parallel), richest candidates first:
+    # the result must not depend on the workers (two candidates keep this test short).
+    from maglevid.simulate.levitator import UAQ_TWIN, simulate_levitator
+
+    d = simulate_levitator(UAQ_TWIN, rng=3)
+    opts = {"flux_lag": (False, True), "command_delay": (False,), "disturbance": ("white",)}
+    one = fit_levitator(d, workers=1, **opts)
+    two = fit_levitator(d, workers=2, **opts)
+    assert dict(one.parameters) == dict(two.parameters)
+    np.testing.assert_array_equal(one.covariance, two.covariance)
+    assert one.notes == two.notes and one.extras["candidates"] == two.extras["candidates"]

@@ -70,3 +70,26 @@ def test_delta_method_matches_analytic():
     np.testing.assert_allclose(val, [8.0, 0.5])
     # Central differences of a bilinear map are exact up to rounding (~1e-16 absolute).
     np.testing.assert_allclose(c, J @ cov @ J.T, rtol=1e-7, atol=1e-15)
+
+
+def test_a_result_pickles_whole():
+    # as recordings (tests/test_data.py): for worker processes and users' own pools
+    import pickle
+
+    res = IdentificationResult(
+        method="test",
+        model=StateSpace([[1.1]], [[1.0]], [[1.0]], dt=0.1),
+        parameters={"a": 2.0, "b": -1.0},
+        covariance=np.diag([0.04, 0.01]),
+        n_samples=100,
+        options={"order": 2},
+        fit={"rmse": 0.5},
+        notes=("assumed x",),
+        extras={"consensus": {"ci95": [1.0, 3.0]}},
+    )
+    back = pickle.loads(pickle.dumps(res))
+    assert back.to_dict() == res.to_dict()
+    np.testing.assert_array_equal(back.covariance, res.covariance)
+    assert back.extras["consensus"]["ci95"] == [1.0, 3.0]
+    with pytest.raises(TypeError):
+        back.parameters["a"] = 3.0

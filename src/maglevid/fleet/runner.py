@@ -49,6 +49,7 @@ from maglevid.fleet.worker import (
     drop_kept,
     write_kept_report,
 )
+from maglevid.parallel import available_cores
 
 __all__ = ["Batch", "MissingDependencyError", "default_n_workers", "plan_batches", "run_fleet"]
 
@@ -65,11 +66,8 @@ MAX_AUTO_BATCH = 8
 
 
 def default_n_workers() -> int:
-    """Cores this process may use (the affinity mask, else ``os.cpu_count()``)."""
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:  # not on Linux
-        return max(1, os.cpu_count() or 1)
+    """Cores this process may use (:func:`maglevid.parallel.available_cores`)."""
+    return available_cores()
 
 
 @dataclass(frozen=True)

@@ -57,6 +57,7 @@ from maglevid.identify.greybox import (
 )
 from maglevid.identify.options import Option
 from maglevid.identify.result import IdentificationResult
+from maglevid.parallel import map_in_processes
 
 __all__ = [
     "METHODS",
@@ -356,32 +357,64 @@ def _fit(data: ClosedLoopData, segs: list, cand: dict[str, Any], common: dict[st
         return exc
 
 
-def _evaluate(
-    data: ClosedLoopData,
+def _fold_fit(spec: tuple[Any, ...]) -> tuple[float, Any, dict[str, Any]] | None:
+    """Candidate ``cand`` fitted on fold ``j`` and validated on the others: ``(held-out
+    k-step fit, fold pole, fold constants)``, ``None`` when the fit fails. One task of
+    :func:`_evaluate_all` (module level, one argument: it may run in a worker)."""
+    folds, j, cand, common, k_step = spec
+    dj, sj = folds[j]
+    res = _fit(dj, sj, cand, common)
+    if isinstance(res, Exception):
+        return None
+    pole = _pole_ci(res)
+    # a fold that claims no pole (a parameter at a bound or not identifiable) gives
+    # no interval of its constants either (a = 2 +- 2036 m on UAQ 'senoidal')
+    params = _constant_intervals(res) if pole is not None else {}
+    held = [validate_greybox(res, dk, sk, k_step=k_step) for k, (dk, sk) in enumerate(folds)
+            if k != j]  # fmt: skip
+    return float(np.mean(held)), pole, params
+
+
+def _richness(cand: dict[str, Any]) -> int:
+    """How many optional parts (flux lag, command delay, AR(1) noise, no equilibrium tie)
+    a candidate has: a proxy of its fit's time."""
+    parts = (
+        cand.get("flux_lag"),
+        cand.get("command_delay"),
+        cand.get("disturbance") == "ar1",
+        cand.get("use_equilibrium") is False,
+    )
+    return sum(bool(p) for p in parts)
+
+
+def _evaluate_all(
     folds: list[tuple[ClosedLoopData, list]],
-    cand: dict[str, Any],
+    cands: list[dict[str, Any]],
     common: dict[str, Any],
     k_step: int,
-) -> dict[str, Any]:
-    """Fit on each fold, validate on the others; the held-out k-step fit and the fold poles."""
-    scores, fold_poles, fold_params = [], [], []
-    for j, (dj, sj) in enumerate(folds):
-        res = _fit(dj, sj, cand, common)
-        if isinstance(res, Exception):
-            scores.append(float("nan"))
-            continue
-        fold_poles.append(_pole_ci(res))
-        # a fold that claims no pole (a parameter at a bound or not identifiable) gives
-        # no interval of its constants either (a = 2 +- 2036 m on UAQ 'senoidal')
-        fold_params.append(_constant_intervals(res) if fold_poles[-1] is not None else {})
-        held = [
-            validate_greybox(res, dk, sk, k_step=k_step)
-            for k, (dk, sk) in enumerate(folds)
-            if k != j
-        ]
-        scores.append(float(np.mean(held)))
-    return {"validation": float(np.mean(scores)) if scores else float("nan"),
-            "fold_poles": fold_poles, "fold_params": fold_params}  # fmt: skip
+    workers: int | None,
+) -> list[dict[str, Any]]:
+    """Each candidate fitted on each fold and validated on the others: its mean held-out
+    k-step fit, fold poles and fold constants. The fold fits are nine tenths of a
+    levitator identification and independent: they run on ``workers`` processes
+    (:func:`maglevid.parallel.map_in_processes`), one task per candidate and fold."""
+    specs = [(folds, j, cand, common, k_step) for cand in cands for j in range(len(folds))]
+    # the richest candidates first: their fits take longest (command delay + AR(1) noise
+    # 8.5 s of a 25 s twin record's evaluation), and a worker that starts one last keeps
+    # every other waiting
+    order = sorted(range(len(specs)), key=lambda t: -_richness(specs[t][2]))
+    done, _, _ = map_in_processes(_fold_fit, [specs[t] for t in order], workers)
+    outs: list[Any] = [None] * len(specs)
+    for t, out in zip(order, done):
+        outs[t] = out
+    rows = []
+    for c in range(len(cands)):
+        got = outs[c * len(folds) : (c + 1) * len(folds)]
+        scores = [float("nan") if o is None else o[0] for o in got]
+        rows.append({"validation": float(np.mean(scores)) if scores else float("nan"),
+                     "fold_poles": [o[1] for o in got if o is not None],
+                     "fold_params": [o[2] for o in got if o is not None]})  # fmt: skip
+    return rows
 
 
 def fit_levitator(
@@ -401,6 +434,7 @@ def fit_levitator(
     command: str = "u:0",
     frame: str = "auto",
     covariance: str = "sandwich",
+    workers: int | None = None,
 ) -> IdentificationResult:
     """The levitator's unstable pole: model chosen by held-out prediction, one consensus.
 
@@ -441,6 +475,10 @@ def fit_levitator(
         Covariance of every grey-box fit, and so of the intervals the consensus hull
         is made of (:func:`~maglevid.identify.greybox.fit_greybox_levitator`): the
         sandwich (default) holds under coloured residuals, Fisher assumes white ones.
+    workers : int, optional
+        Processes for the candidates' held-out evaluation, nine tenths of the work
+        (default: every available core, at most one per candidate; 1: in this process;
+        :func:`maglevid.parallel.map_in_processes`). The result does not depend on it.
 
     Returns
     -------
@@ -493,6 +531,7 @@ def _fit_sessions(
     command: str,
     frame: str,
     covariance: str,
+    workers: int | None,
 ) -> IdentificationResult:
     if not sessions:
         raise DataError("no recordings given")
@@ -525,7 +564,6 @@ def _fit_sessions(
         else y_ref
     )
     common = {"y_ref": y_ref, "m": m, "gap": gap, "current": current, "covariance": covariance}
-    rows = []
     frame = _frame(pooled, frame, current)
     cands = (
         [
@@ -542,10 +580,11 @@ def _fit_sessions(
         else _candidates(force_laws, flux_lag, equilibrium)
     )
     cands = [{**c, "disturbance": w} for w in _disturbances(disturbance) for c in cands]
-    for cand in cands:
-        ev = _evaluate(pooled, folds, cand, common, k_step) if len(folds) > 1 else {
-            "validation": float("nan"), "fold_poles": [], "fold_params": []}  # fmt: skip
-        rows.append({"candidate": cand, **ev})
+    if len(folds) > 1:
+        evs = _evaluate_all(folds, cands, common, k_step, workers)
+    else:
+        evs = [{"validation": float("nan"), "fold_poles": [], "fold_params": []}] * len(cands)
+    rows = [{"candidate": cand, **ev} for cand, ev in zip(cands, evs)]
     quiet = [j for j, (d, sl) in enumerate(zip(sessions, seg_lists)) if sl and _noise_only(d, sl)]
     noise_only = len(quiet) == sum(bool(sl) for sl in seg_lists)
     res = _consensus(
@@ -947,5 +986,7 @@ OPTIONS = {
                choices=("auto", "command", "current")),
         Option("covariance", "str", "per-fit covariance: sandwich (coloured residuals) or "
                "fisher (white)", choices=("sandwich", "fisher")),
+        Option("workers", "int", "processes for the candidates' evaluation (default: every "
+               "core; 1: this process); the result does not depend on it", low=1),
     )
 }  # fmt: skip

@@ -12,6 +12,7 @@ import numpy as np
 from scipy import special  # not scipy.stats: 0.6 s to import for one quantile
 
 from maglevid._tables import html_table, number
+from maglevid.data import unfreeze
 from maglevid.exceptions import DataError
 from maglevid.jsonable import to_jsonable
 from maglevid.lti import StateSpace
@@ -88,6 +89,17 @@ class IdentificationResult:
         )
         object.__setattr__(self, "extras", MappingProxyType(dict(self.extras)))
         object.__setattr__(self, "notes", tuple(self.notes))
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        """Pickled as its fields, the read-only mappings as plain ones (a mappingproxy does
+        not pickle): for worker processes and users' own pools."""
+        return (
+            IdentificationResult,
+            (self.method, self.model, unfreeze(self.parameters), self.covariance,
+             self.n_samples, unfreeze(self.options), self.residuals, unfreeze(self.fit),
+             self.singular_values, self.notes, self.continuous_model,
+             unfreeze(self.extras)),
+        )  # fmt: skip
 
     @property
     def parameter_names(self) -> tuple[str, ...]:
