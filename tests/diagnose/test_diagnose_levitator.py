@@ -214,3 +214,29 @@ def test_a_ball_lost_for_part_of_the_record_is_a_warning_and_the_refusal_says_so
     # a healthy record keeps one check
     (q,), _ = levitator_checks(simulate_levitator(UAQ_TWIN, rng=3))
     assert q.passed and "could not hold" not in q.message
+
+
+def test_the_coil_circuit_comes_from_a_fit_that_determines_it():
+    # Twin, driver gain -15 %, seed 518: the chosen model (command delay + AR(1)) left its
+    # coil equation to noise and read R/L 80.8 +- 0.07 against 57.7: "Changed: explained
+    # by coil circuit resistance R +40.0 %", the wrong culprit (found from outside,
+    # eighteenth session). The coil circuit now comes from the best-ranked sound candidate.
+    from dataclasses import replace
+
+    from maglevid.simulate.levitator import UAQ_TWIN, simulate_levitator
+
+    truth = replace(UAQ_TWIN, ku=0.85 * UAQ_TWIN.ku)
+    d = diagnose(simulate_levitator(truth, rng=518))
+    coil = d.identification.extras["coil_circuit"]
+    assert (
+        coil["chosen"] is False
+        and coil["model"] != d.identification.extras["consensus"]["chosen_model"]
+    )
+    assert coil["voltage_noise_share"] < 2.1
+    assert d.verdict_code != "fault" or "resistance" not in d.verdict
+    (line,) = [r for r in d.reasons if r.startswith("coil circuit R/L")]
+    rl, kl = (float(line.split(" = ")[k].split()[0]) for k in (1, 2))
+    y = d.identification.options["y_ref"]
+    assert abs(rl / (truth.R / truth.inductance(y)) - 1) < 0.05
+    assert abs(kl / (truth.ku / truth.inductance(y)) - 1) < 0.05
+    assert any(n.startswith("coil circuit (R, ku, k0 and the ratios") for n in d.notes)

@@ -209,3 +209,39 @@ def test_the_candidates_on_worker_processes_give_the_serial_result():
     assert dict(one.parameters) == dict(two.parameters)
     np.testing.assert_array_equal(one.covariance, two.covariance)
     assert one.notes == two.notes and one.extras["candidates"] == two.extras["candidates"]
+
+
+def test_the_refit_in_waves_fits_what_one_by_one_fits(monkeypatch):
+    # _refit runs its candidates in waves on worker processes; which candidates it refits
+    # on all segments must be the one-by-one rule's: from the best score down, until one
+    # identifies its pole, then every one within SUPPORT_MARGIN of that one's score
+    import maglevid.identify.levitator as lev
+
+    def fake(data, segs, cand, common):
+        return cand["result"]
+
+    monkeypatch.setattr(lev, "_fit", fake)
+
+    def result(pole):
+        return IdentificationResult(
+            method="x",
+            model=None,
+            parameters={"pole_rad_s": pole},
+            covariance=np.eye(1),
+            extras={"pole_identified": bool(np.isfinite(pole))},
+        )
+
+    ok, bad = result(40.0), result(np.nan)
+
+    def refit(scores, results):
+        rows = [{"candidate": {"result": r}} for r in results]
+        fits = lev._refit(None, [], rows, np.array(scores), {}, workers=1)
+        return [isinstance(f, IdentificationResult) for f in fits]
+
+    # the first two claim no pole: the third sets the best; within 2 points of it: 4th
+    assert refit([-10.0, -11.0, -20.0, -21.5, -22.5, np.nan], [bad, bad, ok, ok, ok, ok]) == [
+        True, True, True, True, False, False]  # fmt: skip
+    # the best at once: only those within 2 points of it
+    assert refit([-10.0, -11.9, -12.1, np.nan], [ok, bad, ok, ok]) == [True, True, False, False]
+    # no finite score: every candidate
+    assert refit([np.nan, np.nan], [bad, ok]) == [True, True]

@@ -460,6 +460,8 @@ class LevitatorObservations:
     #: ``pole_se`` already holds the model spread (the consensus hull over candidates,
     #: segments and folds): the pole's floor is then a least variance, not added to it.
     pole_se_includes_model_error: bool = False
+    #: Why ``electrical`` is ``None``: said where the verdict leaves ``R`` and ``ku`` unjudged.
+    electrical_missing: str = "the baseline states no driver"
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -756,7 +758,7 @@ def isolate_levitator_fault(
     G = L.T @ _signatures(baseline, obs, names)
     norms = np.linalg.norm(G, axis=0)
     blind = [n for n, g in zip(names, norms) if g < 1e-9]
-    not_tested = tuple((n, _why_blind(n)) for n in blind)
+    not_tested = tuple((n, _why_blind(n, obs)) for n in blind)
     seen = [n for n in names if n not in blind]
     Gs = G[:, [names.index(n) for n in seen]] / norms[[names.index(n) for n in seen]]
     cos = Gs.T @ Gs
@@ -808,11 +810,11 @@ def isolate_levitator_fault(
     return LevitatorIsolation(best, tuple(cands), none, alpha, True, tie, **extra)
 
 
-def _why_blind(name: str) -> str:
+def _why_blind(name: str, obs: LevitatorObservations) -> str:
     if name in ("R", "ku"):
         return (
             "the pole and the equilibrium currents do not depend on it, and the coil "
-            "circuit (R/L, ku/L) was not compared: the baseline states no driver"
+            f"circuit (R/L, ku/L) was not compared: {obs.electrical_missing}"
         )
     return "no compared quantity depends on it"
 
@@ -857,23 +859,37 @@ def _mean_and_se(x: np.ndarray, n_block: int) -> tuple[float, float]:
     return float(x.mean()), float(np.std(means, ddof=1) / math.sqrt(m))
 
 
-def _electrical(result: Any, y_ref: float) -> tuple[tuple[float, float], Any] | None:
+def _electrical(result: Any, y_ref: float) -> tuple[tuple[float, float], Any] | str | None:
     """``(R/L, ku/L)`` at ``y_ref`` and their covariance (delta method) from a command-frame
-    fit (parameters ``R``, ``ku``, ``k0``, ``a``, ``k``), else ``None``.
+    fit (parameters ``R``, ``ku``, ``k0``, ``a``, ``k``); why not (a string) where the
+    identification says the record does not determine them; ``None`` for another fit.
 
-    From the fit's own covariance where the consensus widened its constants
-    (``extras["covariance_fit"]``): the widening scales each constant by its own factor
-    and wrecked the cancellation in the ratios - UAQ twin, R x1.3: R/L 75.2 against 57.7
-    read "+30 % (interval -100 ... +3.5e94 %)", inconclusive (found from outside,
-    seventeenth session). The ratios' model error is the diagnosis's floor."""
+    From the fit the identification names for the coil circuit
+    (``extras["coil_circuit"]``: the chosen model's, unless its coil equation is left to
+    noise - a twin with the driver's gain -15 % read "R +40 %" from such a fit, found from
+    outside, eighteenth session), else the fit's own covariance
+    (``extras["covariance_fit"]``): the consensus widens each constant by its own factor,
+    which wrecked the cancellation in the ratios - UAQ twin, R x1.3: R/L 75.2 against 57.7
+    read "+30 % (interval -100 ... +3.5e94 %)", inconclusive (seventeenth session). The
+    ratios' model error is the diagnosis's floor."""
     p, names = result.parameters, list(result.parameters)
     need = ("R", "ku", "k0", "a", "k")
-    own = (result.extras or {}).get("covariance_fit")
-    cov_all = result.covariance if own is None else np.asarray(own, dtype=float)
-    if cov_all is None or not all(n in p for n in need):
-        return None
-    idx = [names.index(n) for n in need]
-    th = np.array([p[n] for n in need])
+    coil = (result.extras or {}).get("coil_circuit")
+    if coil is not None and coil.get("model") is None:
+        return str(coil.get("why") or "the identification gives no coil circuit")
+    if coil is not None:
+        values = dict(zip(coil["names"], coil["values"]))
+        th = np.array([values[n] for n in need])
+        idx = [list(coil["names"]).index(n) for n in need]
+        cov_th = np.asarray(coil["covariance"], dtype=float)[np.ix_(idx, idx)]
+    else:
+        own = (result.extras or {}).get("covariance_fit")
+        cov_all = result.covariance if own is None else np.asarray(own, dtype=float)
+        if cov_all is None or not all(n in p for n in need):
+            return None
+        idx = [names.index(n) for n in need]
+        th = np.array([p[n] for n in need])
+        cov_th = np.asarray(cov_all, dtype=float)[np.ix_(idx, idx)]
 
     def f(t: np.ndarray) -> np.ndarray:
         R, ku, k0, a, k = t
@@ -887,7 +903,7 @@ def _electrical(result: Any, y_ref: float) -> tuple[tuple[float, float], Any] | 
         tp[j] += h
         tm[j] -= h
         J[:, j] = (f(tp) - f(tm)) / (2 * h)
-    cov = J @ np.asarray(cov_all, dtype=float)[np.ix_(idx, idx)] @ J.T
+    cov = J @ cov_th @ J.T
     val = f(th)
     if not (np.all(np.isfinite(val)) and np.all(val > 0) and np.all(np.isfinite(cov))):
         return None
@@ -912,11 +928,14 @@ def levitator_observations(
     gaps = [float(y[a:b].mean()) for a, b in segs]
     cur = [_mean_and_se(i[a:b], n_block) for a, b in segs]
     el = _electrical(result, y_ref) if electrical else None
+    missing = el if isinstance(el, str) else None
+    el = None if isinstance(el, str) else el
     return LevitatorObservations(
         y_ref=float(y_ref), pole=float(pole), pole_se=float(pole_se), gaps=tuple(gaps),
         currents=tuple(c for c, _ in cur), current_se=tuple(s for _, s in cur),
         electrical=None if el is None else el[0], electrical_cov=None if el is None else el[1],
         pole_se_includes_model_error="consensus" in result.extras,
+        **({"electrical_missing": missing} if missing else {}),
     )  # fmt: skip
 
 

@@ -52,12 +52,14 @@ from maglevid.exceptions import DataError, IdentificationError, MaglevidError
 from maglevid.identify.greybox import (
     DISTURBANCES,
     FORCE_LAWS,
+    VOLTAGE_NOISE_CEILING,
     fit_greybox_levitator,
     validate_greybox,
+    voltage_noise_share,
 )
 from maglevid.identify.options import Option
 from maglevid.identify.result import IdentificationResult
-from maglevid.parallel import map_in_processes
+from maglevid.parallel import available_cores, map_in_processes
 
 __all__ = [
     "METHODS",
@@ -588,7 +590,15 @@ def _fit_sessions(
     quiet = [j for j, (d, sl) in enumerate(zip(sessions, seg_lists)) if sl and _noise_only(d, sl)]
     noise_only = len(quiet) == sum(bool(sl) for sl in seg_lists)
     res = _consensus(
-        pooled, pooled_segs, rows, common, k_step, exclusions, len(sessions), noise_only
+        pooled,
+        pooled_segs,
+        rows,
+        common,
+        k_step,
+        exclusions,
+        len(sessions),
+        noise_only,
+        workers,
     )
     notes = [FRAME_NOTES[frame]]
     if quiet:
@@ -659,6 +669,7 @@ def _consensus(
     exclusions: list[dict[str, Any]],
     n_sessions: int,
     noise_only: bool = False,
+    workers: int | None = None,
 ) -> IdentificationResult:
     """Refit every candidate on all segments; the best-validated one with a pole gives the
     point, the supported ones (within ``SUPPORT_MARGIN`` of it) the hull interval.
@@ -674,7 +685,7 @@ def _consensus(
         groups = [[j for j in groups[0] if noise[j] == w] for w in dict.fromkeys(noise)]
     fits: list[Any] = [None] * len(rows)
     for grp in groups:
-        sub = _refit(data, segs, [rows[j] for j in grp], scores[grp], common)
+        sub = _refit(data, segs, [rows[j] for j in grp], scores[grp], common, workers)
         for j, f in zip(grp, sub):
             fits[j] = f
     fulls = [None if isinstance(f, (Exception, str)) else _pole_ci(f) for f in fits]
@@ -721,9 +732,76 @@ def _consensus(
     hull = _constants_hull(
         best, [fits[j] for j in same], [rows[j].get("fold_params", []) for j in same]
     )
+    coil = _coil_circuit(data, segs, rows, fits, order, common, workers)
     best = _widened(best, hull, n_sessions)
     res = _with_consensus(best, point, lo, hi, table, exclusions, n_sessions, k_step, data.dt)
+    if coil is not None:
+        res = replace(
+            res,
+            notes=(*res.notes, *coil.pop("notes")),
+            extras={**res.extras, "coil_circuit": coil},
+        )
     return _inconclusive(res, silent) if silent else res
+
+
+#: The constants the coil circuit's ratios R/L, ku/L at a gap are made of (eq. (L1)).
+COIL_CONSTANTS = ("R", "ku", "k0", "a", "k")
+
+
+def _coil_circuit(
+    data: ClosedLoopData,
+    segs: list[tuple[int, int]],
+    rows: list[dict[str, Any]],
+    fits: list[Any],
+    order: list[int],
+    common: dict[str, Any],
+    workers: int | None = None,
+) -> dict[str, Any] | None:
+    """Which fit the coil circuit's constants come from (``extras["coil_circuit"]``): the
+    chosen one, unless its coil equation is left to noise
+    (:func:`~maglevid.identify.greybox.voltage_noise_share`); then the best-ranked
+    candidate whose fit identifies its pole with a sound noise model, refitted on all
+    segments if it was not. Each with its own covariance (not the hull's widening, which
+    wrecks the ratios' cancellation; diagnose.levitator adds the coil circuit's model
+    error). ``None`` where the chosen model has no coil (the current frame)."""
+    chosen = fits[order[0]]
+    if not all(n in chosen.parameters for n in COIL_CONSTANTS):
+        return None
+    for j in order:
+        if isinstance(fits[j], str):  # not refitted on all segments (its score was too
+            # low): this one and the next few such, as many as there are workers
+            batch = [k for k in order[order.index(j) :] if isinstance(fits[k], str)]
+            batch = batch[: available_cores() if workers is None else max(1, workers)]
+            for k, f in zip(batch, _fit_many(data, segs, [rows[k] for k in batch], common,
+                                             workers)):  # fmt: skip
+                fits[k] = f
+        f = fits[j]
+        if isinstance(f, Exception) or _pole_ci(f) is None:
+            continue
+        share = voltage_noise_share(f)
+        if share is not None and share > VOLTAGE_NOISE_CEILING:
+            continue
+        idx = [list(f.parameters).index(n) for n in COIL_CONSTANTS]
+        cov = np.asarray(f.covariance, dtype=float)[np.ix_(idx, idx)]
+        label = _label(rows[j]["candidate"])
+        notes = []
+        if j != order[0]:
+            notes.append(
+                f"coil circuit (R, ku, k0 and the ratios R/L, ku/L) from {label} (held-out fit "
+                f"{rows[j]['validation']:.1f} %): the chosen model's coil equation is left to "
+                f"noise (voltage disturbance {voltage_noise_share(chosen):.2g} x what the "
+                "record's changes allow)"
+            )
+        return {"model": label, "chosen": j == order[0], "names": list(COIL_CONSTANTS),
+                "values": [float(f.parameters[n]) for n in COIL_CONSTANTS],
+                "covariance": cov.tolist(), "voltage_noise_share": share,
+                "notes": notes}  # fmt: skip
+    why = (
+        "every candidate that identifies its pole leaves its coil equation to noise (voltage "
+        f"disturbance above {VOLTAGE_NOISE_CEILING:g} x what the record's changes allow): "
+        "the coil circuit is not determined by this record"
+    )
+    return {"model": None, "chosen": False, "why": why, "notes": [why]}
 
 
 def _constants_hull(
@@ -870,27 +948,62 @@ def _refit(
     rows: list[dict[str, Any]],
     scores: np.ndarray,
     common: dict[str, Any],
+    workers: int | None = None,
 ) -> list[Any]:
     """Every candidate that can still be supported, refitted on all segments, best
     held-out score first. Once a candidate with an identifiable pole has set the best
     score, one more than ``SUPPORT_MARGIN`` points below it can neither give the point
     nor enter the interval: it is not refitted (a string says why). Without any
-    finite score every candidate is refitted (each identified one counts)."""
+    finite score every candidate is refitted (each identified one counts).
+
+    In waves on ``workers`` processes, the same fits as one by one: while no best is known,
+    every unfitted candidate within the margin of the first unfitted one's score (one by
+    one, each of them would be fitted: the best's score is at most that one's); once one
+    is known, every unfitted candidate within the margin of it."""
     fits: list[Any] = [None] * len(rows)
     order = sorted(range(len(rows)), key=lambda j: -np.nan_to_num(scores[j], nan=-np.inf))
     best = None
-    for j in order:
-        if best is not None and not scores[j] >= best - SUPPORT_MARGIN:
-            fits[j] = (
-                f"not refitted on all segments: held-out fit more than {SUPPORT_MARGIN} "
-                "points below the best"
-            )
-            continue
-        fits[j] = _fit(data, segs, rows[j]["candidate"], common)
-        if best is None and np.isfinite(scores[j]) and not isinstance(fits[j], Exception):
-            if _pole_ci(fits[j]) is not None:
-                best = float(scores[j])
-    return fits
+    while True:
+        todo = [j for j in order if fits[j] is None]
+        if not todo:
+            return fits
+        if best is None:
+            ref = scores[todo[0]]
+            wave = [j for j in todo if j == todo[0] or scores[j] >= ref - SUPPORT_MARGIN]
+        else:
+            wave = [j for j in todo if scores[j] >= best - SUPPORT_MARGIN]
+            for j in todo:
+                if j not in wave:
+                    fits[j] = (
+                        f"not refitted on all segments: held-out fit more than {SUPPORT_MARGIN} "
+                        "points below the best"
+                    )
+        for j, f in zip(wave, _fit_many(data, segs, [rows[j] for j in wave], common, workers)):
+            fits[j] = f
+        for j in order:  # the best: the first by score, fitted, with an identified pole
+            f = fits[j]
+            if best is None and np.isfinite(scores[j]) and isinstance(f, IdentificationResult):
+                if _pole_ci(f) is not None:
+                    best = float(scores[j])
+            if f is None:
+                break
+
+
+def _fit_spec(spec: tuple[Any, ...]) -> Any:
+    """:func:`_fit` of one candidate (a worker's task: module level, one argument)."""
+    return _fit(*spec)
+
+
+def _fit_many(
+    data: ClosedLoopData,
+    segs: list[tuple[int, int]],
+    rows: list[dict[str, Any]],
+    common: dict[str, Any],
+    workers: int | None,
+) -> list[Any]:
+    """The candidates of ``rows`` fitted on all segments, on ``workers`` processes."""
+    specs = [(data, segs, r["candidate"], common) for r in rows]
+    return map_in_processes(_fit_spec, specs, workers)[0]
 
 
 def _why_not(res: Any) -> str:

@@ -414,7 +414,8 @@ def _coil_words(iso: lev.LevitatorIsolation, params: Any) -> str:
     """What the verdict says about the coil circuit (R, driver gain)."""
     if iso.not_tested:
         names = " and ".join("the driver gain" if n == "ku" else n for n, _ in iso.not_tested)
-        return f". {names[0].upper()}{names[1:]}: not judged (the baseline states no driver)"
+        why = iso.observations.electrical_missing
+        return f". {names[0].upper()}{names[1:]}: not judged ({why})"
     named = {n for h in (iso.best, *iso.indistinguishable) for n in h.parameters}
     obs = iso.observations
     if obs.electrical is None or named & {"R", "ku"}:
