@@ -11,15 +11,20 @@ from maglevid.identify.result import IdentificationResult, propagate_covariance
 from maglevid.lti import StateSpace
 
 
-def test_intervals_and_dict():
-    res = IdentificationResult(
+def _result(**kw):
+    return IdentificationResult(
         method="test",
         model=StateSpace([[1.1]], [[1.0]], [[1.0]], dt=0.1),
         parameters={"a": 2.0, "b": -1.0},
         covariance=np.diag([0.04, 0.01]),
         n_samples=100,
         notes=("assumed x",),
+        **kw,
     )
+
+
+def test_intervals_and_dict():
+    res = _result()
     lo, hi = res.confidence_intervals(0.95)["a"]
     assert lo == pytest.approx(2.0 - 1.959964 * 0.2, rel=1e-6)
     assert hi == pytest.approx(2.0 + 1.959964 * 0.2, rel=1e-6)
@@ -76,16 +81,8 @@ def test_a_result_pickles_whole():
     # as recordings (tests/test_data.py): for worker processes and users' own pools
     import pickle
 
-    res = IdentificationResult(
-        method="test",
-        model=StateSpace([[1.1]], [[1.0]], [[1.0]], dt=0.1),
-        parameters={"a": 2.0, "b": -1.0},
-        covariance=np.diag([0.04, 0.01]),
-        n_samples=100,
-        options={"order": 2},
-        fit={"rmse": 0.5},
-        notes=("assumed x",),
-        extras={"consensus": {"ci95": [1.0, 3.0]}},
+    res = _result(
+        options={"order": 2}, fit={"rmse": 0.5}, extras={"consensus": {"ci95": [1.0, 3.0]}}
     )
     back = pickle.loads(pickle.dumps(res))
     assert back.to_dict() == res.to_dict()

@@ -1021,16 +1021,8 @@ def _collapsed_current_noise(gm: _GreyboxModel, theta: np.ndarray) -> str | None
     ``sigma_i / sigma_y`` 1e-16 - 2e-4 of the record's ``std(di) / std(dy)``, where every
     sound fit had 0.12 - 0.19. Below :data:`CURRENT_NOISE_FLOOR` the fit claims no pole.
     """
-    if gm.o["model"] != "electromechanical":
-        return None
-    names = _noise_names(gm.o["model"], gm.o["disturbance"])
-    log_ratio = float(theta[gm.n_phys + names.index("log_i_over_y")])
-    dy = np.concatenate([np.diff(gm.y[a:b]) for a, b in gm.segs])
-    di = np.concatenate([np.diff(gm.i[a:b]) for a, b in gm.segs])
-    if np.std(dy) == 0 or np.std(di) == 0:
-        return None
-    share = np.exp(log_ratio) / (np.std(di) / np.std(dy))
-    if not share < CURRENT_NOISE_FLOOR:
+    share = _noise_share(gm, theta, "log_i_over_y", gm.i)
+    if share is None or not share < CURRENT_NOISE_FLOOR:
         return None
     return (
         f"noise model collapsed (current measurement noise {share:.2g} of what the record's "
@@ -1065,16 +1057,25 @@ def voltage_noise_share(res: Any) -> float | None:
 
 
 def _voltage_noise_share(gm: _GreyboxModel, theta: np.ndarray) -> float | None:
-    if gm.o["model"] != "electromechanical":
+    return _noise_share(gm, theta, "log_volt_over_y", gm.u)
+
+
+def _noise_share(
+    gm: _GreyboxModel, theta: np.ndarray, name: str, signal: np.ndarray | None
+) -> float | None:
+    """A command-frame fit's noise intensity ``name`` (relative to the gap's noise) over
+    the record's ratio of sample-to-sample changes ``std(d signal) / std(dy)`` on the
+    segments; ``None`` for other fits or a constant signal."""
+    if gm.o["model"] != "electromechanical" or signal is None:
         return None
     names = _noise_names(gm.o["model"], gm.o["disturbance"])
-    log_ratio = float(theta[gm.n_phys + names.index("log_volt_over_y")])
+    log_ratio = float(theta[gm.n_phys + names.index(name)])
     dy = np.concatenate([np.diff(gm.y[a:b]) for a, b in gm.segs])
-    du = np.concatenate([np.diff(gm.u[a:b]) for a, b in gm.segs])
-    if np.std(dy) == 0 or np.std(du) == 0:
+    ds = np.concatenate([np.diff(signal[a:b]) for a, b in gm.segs])
+    if np.std(dy) == 0 or np.std(ds) == 0:
         return None
     with np.errstate(over="ignore"):
-        return float(np.exp(log_ratio) / (np.std(du) / np.std(dy)))
+        return float(np.exp(log_ratio) / (np.std(ds) / np.std(dy)))
 
 
 def _coil_noise_notes(gm: _GreyboxModel, theta: np.ndarray) -> list[str]:
