@@ -38,3 +38,13 @@ def test_the_watch_sees_every_result() -> None:
 
     results, _, _ = map_in_processes(math.sqrt, [1.0, 4.0, 9.0], 2, watch=watch)
     assert seen == results == [1.0, 2.0, 3.0]
+
+
+def test_library_code_runs_in_order_where_workers_would_be_spawned(monkeypatch) -> None:
+    # A spawned worker imports the caller's main module again: a plain script without a
+    # main guard that called fit_levitator died with a broken pool (this session's first
+    # cut, on Linux with a second thread alive). spawn=False: fork or nothing.
+    import maglevid.parallel as par
+
+    monkeypatch.setattr(par, "start_method", lambda: "spawn")
+    assert par.map_in_processes(math.sqrt, [4.0, 9.0], 2, spawn=False) == ([2.0, 3.0], 1, "serial")

@@ -12,9 +12,11 @@ modules and start at once. Otherwise they are *spawned* fresh with one BLAS thre
 in their environment (a forked worker would inherit the parent's BLAS threads), which
 costs each worker its imports (~1-2 s; measured in BENCHMARKS.md, section 5).
 
-A process that is itself a worker (of this module, of a fleet's Dask cluster, of a
-user's pool) runs its tasks in order: workers of workers would oversubscribe the cores
-the outer pool already shares out, and daemonic workers may not start processes.
+Library code that any script may call asks for fork or nothing (``spawn=False``): it runs
+in order where workers would have to be spawned. A process that is itself a worker (of
+this module, of a fleet's Dask cluster, of a user's pool) runs its tasks in order:
+workers of workers would oversubscribe the cores the outer pool already shares out, and
+daemonic workers may not start processes.
 """
 
 from __future__ import annotations
@@ -72,6 +74,7 @@ def map_in_processes(
     workers: int | None = None,
     *,
     watch: Callable[[Iterable[Any]], Iterable[Any]] | None = None,
+    spawn: bool = True,
 ) -> tuple[list[Any], int, str]:
     """``[task(s) for s in specs]``, on up to ``workers`` processes (default: every
     available core), in the order of ``specs`` whatever the number of workers.
@@ -80,6 +83,13 @@ def map_in_processes(
     when one worker would do (``workers`` 1, one spec, one core) or this process is itself
     a worker (see the module notes). ``watch`` wraps the stream of results as they come
     (a progress bar).
+
+    ``spawn=False`` for library code that any script may call: a spawned worker imports
+    the caller's main module again, and a script without an ``if __name__ ==
+    "__main__":`` guard then dies with a broken pool (found when the levitator's
+    candidates first ran on workers: a plain script on Linux with a second thread). Such
+    callers run in order unless workers can be forked (:func:`start_method`). The
+    command line's entry point has the guard: its reproductions may spawn.
 
     Returns
     -------
@@ -91,9 +101,9 @@ def map_in_processes(
     n = available_cores() if workers is None else max(1, int(workers))
     n = min(n, max(1, len(specs)))
     watch = watch or (lambda results: results)
-    if n == 1 or multiprocessing.parent_process() is not None:
-        return list(watch(task(s) for s in specs)), 1, "serial"
     method = start_method()
+    if n == 1 or multiprocessing.parent_process() is not None or (method == "spawn" and not spawn):
+        return list(watch(task(s) for s in specs)), 1, "serial"
     with one_blas_thread():
         ctx = multiprocessing.get_context(method)
         with ProcessPoolExecutor(max_workers=n, mp_context=ctx) as pool:

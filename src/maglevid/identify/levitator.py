@@ -405,7 +405,7 @@ def _evaluate_all(
     # 8.5 s of a 25 s twin record's evaluation), and a worker that starts one last keeps
     # every other waiting
     order = sorted(range(len(specs)), key=lambda t: -_richness(specs[t][2]))
-    done, _, _ = map_in_processes(_fold_fit, [specs[t] for t in order], workers)
+    done, _, _ = map_in_processes(_fold_fit, [specs[t] for t in order], workers, spawn=False)
     outs: list[Any] = [None] * len(specs)
     for t, out in zip(order, done):
         outs[t] = out
@@ -478,9 +478,11 @@ def fit_levitator(
         is made of (:func:`~maglevid.identify.greybox.fit_greybox_levitator`): the
         sandwich (default) holds under coloured residuals, Fisher assumes white ones.
     workers : int, optional
-        Processes for the candidates' held-out evaluation, nine tenths of the work
-        (default: every available core, at most one per candidate; 1: in this process;
-        :func:`maglevid.parallel.map_in_processes`). The result does not depend on it.
+        Processes for the candidates' fits, nine tenths of the work (default: every
+        available core; 1: in this process; :func:`maglevid.parallel.map_in_processes`).
+        Used where workers can be forked - Linux, one BLAS thread
+        (``OPENBLAS_NUM_THREADS=1``, as ``make test`` runs) and no other Python thread -
+        else the fits run in this process. The result does not depend on it.
 
     Returns
     -------
@@ -1003,7 +1005,7 @@ def _fit_many(
 ) -> list[Any]:
     """The candidates of ``rows`` fitted on all segments, on ``workers`` processes."""
     specs = [(data, segs, r["candidate"], common) for r in rows]
-    return map_in_processes(_fit_spec, specs, workers)[0]
+    return map_in_processes(_fit_spec, specs, workers, spawn=False)[0]
 
 
 def _why_not(res: Any) -> str:
