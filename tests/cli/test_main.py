@@ -111,3 +111,18 @@ def test_stages_are_shown_unless_quiet(tmp_path, capsys, monkeypatch):
     assert capsys.readouterr().err == ""
     assert main(["identify", str(out)]) == 0
     assert "identifying" in capsys.readouterr().err
+
+
+def test_a_bar_leaves_no_thread_behind(monkeypatch):
+    # tqdm's monitor thread outlived its bar; with a second thread alive the levitator's
+    # candidate fits no longer fork onto the other cores (maglevid.parallel.start_method)
+    import sys
+    import threading
+
+    from maglevid.cli._progress import progress, stages
+
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: True, raising=False)
+    before = {t.name for t in threading.enumerate()}
+    assert list(progress(range(3), desc="x")) == [0, 1, 2]
+    assert list(stages(["a", "b"], desc="y")) == ["a", "b"]
+    assert {t.name for t in threading.enumerate()} <= before

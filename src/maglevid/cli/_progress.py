@@ -19,6 +19,18 @@ def _quiet(args: Any) -> bool:
     return not (callable(isatty) and isatty())
 
 
+def _tqdm() -> Any:
+    """tqdm's bar without its monitor thread: a bar left a thread running for the rest of
+    the process, and with a second thread alive the levitator's candidate fits no longer
+    fork onto the other cores (maglevid.parallel; found in the test suite, eighteenth
+    session). The monitor only shortens a stalled bar's refresh; these bars update at
+    each step."""
+    from tqdm import tqdm
+
+    tqdm.monitor_interval = 0
+    return tqdm
+
+
 def progress(
     iterable: Iterable[T], *, desc: str, total: int | None = None, args: Any = None
 ) -> Iterator[T]:
@@ -26,8 +38,7 @@ def progress(
     if _quiet(args):
         yield from iterable
         return
-    from tqdm import tqdm
-
+    tqdm = _tqdm()
     yield from tqdm(
         iterable, desc=desc, total=total, file=sys.stderr, leave=False, mininterval=0.5
     )
@@ -43,8 +54,7 @@ def stages(names: Iterable[str], *, desc: str, args: Any = None) -> Iterator[str
     if _quiet(args):
         yield from names
         return
-    from tqdm import tqdm
-
+    tqdm = _tqdm()
     bar = tqdm(total=len(names), desc=desc, file=sys.stderr, leave=False, mininterval=0.5)
     try:
         for name in names:
