@@ -59,7 +59,7 @@ from maglevid.identify.greybox import (
 )
 from maglevid.identify.options import Option
 from maglevid.identify.result import IdentificationResult
-from maglevid.parallel import available_cores, map_in_processes
+from maglevid.parallel import map_in_processes
 
 __all__ = [
     "METHODS",
@@ -734,7 +734,7 @@ def _consensus(
     hull = _constants_hull(
         best, [fits[j] for j in same], [rows[j].get("fold_params", []) for j in same]
     )
-    coil = _coil_circuit(data, segs, rows, fits, order, common, workers)
+    coil = _coil_circuit(data, segs, rows, fits, order, common)
     best = _widened(best, hull, n_sessions)
     res = _with_consensus(best, point, lo, hi, table, exclusions, n_sessions, k_step, data.dt)
     if coil is not None:
@@ -757,7 +757,6 @@ def _coil_circuit(
     fits: list[Any],
     order: list[int],
     common: dict[str, Any],
-    workers: int | None = None,
 ) -> dict[str, Any] | None:
     """Which fit the coil circuit's constants come from (``extras["coil_circuit"]``): the
     chosen one, unless its coil equation is left to noise
@@ -770,13 +769,10 @@ def _coil_circuit(
     if not all(n in chosen.parameters for n in COIL_CONSTANTS):
         return None
     for j in order:
-        if isinstance(fits[j], str):  # not refitted on all segments (its score was too
-            # low): this one and the next few such, as many as there are workers
-            batch = [k for k in order[order.index(j) :] if isinstance(fits[k], str)]
-            batch = batch[: available_cores() if workers is None else max(1, workers)]
-            for k, f in zip(batch, _fit_many(data, segs, [rows[k] for k in batch], common,
-                                             workers)):  # fmt: skip
-                fits[k] = f
+        if isinstance(fits[j], str):  # not refitted on all segments: its score was too low
+            # (one at a time: a batch on the workers waits for fits that the first sound
+            # one makes needless)
+            fits[j] = _fit(data, segs, rows[j]["candidate"], common)
         f = fits[j]
         if isinstance(f, Exception) or _pole_ci(f) is None:
             continue
