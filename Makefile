@@ -20,14 +20,16 @@ lint: $(STAMP)
 	$(VENV)/bin/ruff format --check src tests benchmarks
 
 # One BLAS thread per process: the suite's matrices are small, and threads only
-# fight each other on a 2-core machine (measured 3x slower with threads).
+# fight each other on a 2-core machine (measured 3x slower with threads). One pytest
+# worker per core (pytest-xdist; TEST_WORKERS=0 runs in this process).
+TEST_WORKERS ?= auto
 test: lint
 	bash scripts/install-browser.sh
-	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 $(PY) -m pytest -q
+	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 $(PY) -m pytest -q -n $(TEST_WORKERS)
 
 # The `slow`-marked tests (left out of `make test`; `make bench` runs them too).
 test-slow: $(STAMP)
-	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 $(PY) -m pytest -q -m slow
+	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 $(PY) -m pytest -q -n $(TEST_WORKERS) -m slow
 
 format: $(STAMP)
 	$(VENV)/bin/ruff format src tests benchmarks
