@@ -41,16 +41,16 @@ def test_maggy_states_why_it_gives_no_plant_pole(shared_data, capsys):
 
 
 def test_sessions_one_by_one_and_together(shared_data, capsys):
-    # three of the five sessions; docs/real-rigs.md has all five. With the default
-    # candidates (the command delay and both noise models, white and AR(1), included):
-    # the five sessions pool in 118 s of CPU (docs/real-rigs.md, 'Speed'); this test took
-    # 445 s wall at load 7-8 on 2 cores. Now escalon 52.9 [52.4, 53.4], multiescalon 53.3
-    # [50.5, 55.9], senoidal 52.6 [42.5, 57.3] (53.0 [49.0, 56.9] until its collapsed
-    # flux-lag + delay fit was refused: _WIDER).
+    # two of the five sessions, one by one and pooled; docs/real-rigs.md has all five and
+    # the slow test below checks each. With the default candidates (the command delay and
+    # both noise models, white and AR(1), included): escalon 52.9 [52.4, 53.4],
+    # multiescalon 53.3 [50.5, 55.9]. Senoidal (52.6 [42.5, 57.3]) was a third session
+    # here until the suite's time asked for it (nineteenth session: the test took 229-286 s
+    # with it in a full run on two cores, 97 s alone without it): it is in the slow test.
     paths = [next((shared_data / UAQ).glob(f"dataset_{n}_*.txt"))
-             for n in ("escalon", "multiescalon", "senoidal")]  # fmt: skip
+             for n in ("escalon", "multiescalon")]  # fmt: skip
     res = _identify(capsys, *paths, "--mapping", "uaq-levitador")
-    assert len(res["sessions"]) == 3 and res["consensus"]["n_sessions"] == 3
+    assert len(res["sessions"]) == 2 and res["consensus"]["n_sessions"] == 2
     lo, hi = res["consensus"]["ci95"]
     assert 0 < lo <= res["parameters"]["pole_rad_s"] <= hi  # unstable, point inside
     for s in res["sessions"]:
@@ -63,7 +63,7 @@ def test_sessions_one_by_one_and_together(shared_data, capsys):
     assert any(n.startswith("intervals of the model's constants") for n in res["notes"])
     for name in ("a", "k", "R", "ku"):
         lo, hi = res["ci95"][name]
-        for s in res["sessions"][:2]:  # escalon and multiescalon: both halves identify them
+        for s in res["sessions"]:  # escalon and multiescalon: both halves identify them
             assert lo <= s["parameters"][name] <= hi, (name, s["recording"], lo, hi)
     assert res["units"]["R"] == "Ω" and res["units"]["ku"] == "V·V⁻¹"
 
