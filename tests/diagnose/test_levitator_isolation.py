@@ -51,7 +51,7 @@ def test_each_hypothesis_is_recovered_from_its_exact_signature(name):
     hit = next(h for h in named if h.parameters == (name,))
     assert hit.values[0] == pytest.approx(FAULTS[name], rel=1e-6)
     # Ties only between collinear signatures: k, m and the current-sensor gain all
-    # scale the equilibrium currents alone (the coil circuit's +-5 % floor cannot split them).
+    # scale the equilibrium currents alone (the coil circuit's floors need not split them).
     force_per_ampere = {"k", "m", "current_gain"}
     for h in named:
         assert h.parameters == (name,) or {name, *h.parameters} <= force_per_ampere
@@ -251,3 +251,37 @@ def test_the_coil_circuit_ratios_come_from_the_fit_not_the_widened_constants():
     assert np.sqrt(cov[0][0]) / rl < 1e-3  # the ratio is fixed where R and L are not
     no_fit = SimpleNamespace(parameters=fit.parameters, covariance=widened.covariance, extras={})
     assert np.sqrt(_electrical(no_fit, 0.005)[1][0][0]) / rl > 10  # what it was
+
+
+def _with_twin_noise(obs):
+    """``obs`` with the standard errors of a 20 s twin record (Monte Carlo of the UAQ
+    twin, nineteenth session: pole 1.1 %, currents 0.1 %, R/L 1.15 % and ku/L 1.05 %
+    correlated 0.9)."""
+    s = np.array([0.0115, 0.0105]) * np.asarray(obs.electrical)
+    cov = np.array([[s[0] ** 2, 0.9 * s[0] * s[1]], [0.9 * s[0] * s[1], s[1] ** 2]])
+    return replace(
+        obs, pole_se=0.011 * obs.pole, current_se=tuple(1e-3 * c for c in obs.currents),
+        electrical_cov=tuple(map(tuple, cov)),
+    )  # fmt: skip
+
+
+def test_the_driver_gain_down_15_percent_is_named_with_a_twin_records_noise(monkeypatch):
+    # ku/L's model-error floor is 3 % (the twin's bias +0.7 %, the UAQ sessions' ku/L
+    # within 1 % of each other); at the former 5 % the change was a 3-sigma move and the
+    # joint test did not reject "no change" (7 of 10 twins "inconclusive", 1 named).
+    import maglevid.diagnose.levitator as lev
+
+    obs = _with_twin_noise(_observed({"ku": 0.85}, gaps=(0.005, 0.0045)))
+    iso = isolate_levitator_fault(obs, P)
+    assert iso.best.parameters == ("ku",) and not iso.indistinguishable
+    assert iso.best.values[0] == pytest.approx(0.85, abs=0.01)
+    monkeypatch.setattr(lev, "ELECTRICAL_FLOORS", (0.05, 0.05))
+    assert isolate_levitator_fault(obs, P).best.parameters == ()  # what it was
+
+
+def test_a_healthy_twin_records_coil_circuit_bias_is_no_change():
+    # The twin's mean bias of R/L and ku/L (+1.2 %, +0.7 %) with its noise is not a change.
+    obs = _with_twin_noise(_observed({}, gaps=(0.005, 0.0045)))
+    obs = replace(obs, electrical=(1.012 * obs.electrical[0], 1.007 * obs.electrical[1]))
+    iso = isolate_levitator_fault(obs, P)
+    assert iso.best.parameters == () and iso.no_change.p_value > 0.5

@@ -240,7 +240,7 @@ def test_cli_amplifier_limits_reach_the_plan(straddling_record, cli_default):
 )  # fmt: skip
 def test_levitator_verdict_from_the_intervals_of_the_moves(change, code):
     """Exact observations of the UAQ rig (0.3 % noise assumed; the pole's 2 %, the
-    currents' 1 % and the coil circuit's 5 % model-error floors): R x1.3 moves R/L
+    currents' 1 % and R/L's 5 % model-error floors): R x1.3 moves R/L
     by +30 % ± 13 % (95 %), wholly beyond 5 %; a gap-sensor gain of +10 % moves the
     equilibrium currents by -4.5 % and -4.9 %, whose intervals (about ±1.2 %) cross
     the 5 % tolerance (before: "within tolerance" from the points); a gap zero of
@@ -256,6 +256,34 @@ def test_levitator_verdict_from_the_intervals_of_the_moves(change, code):
     assert got == code, verdict
     if code == "inconclusive":
         assert "i_eq@5mm -4.5 %" in verdict and "straddle" in verdict
+
+
+@pytest.mark.parametrize("why", ["every candidate leaves its coil equation to noise", None])
+def test_levitator_no_change_with_the_coil_circuit_unjudged(why):
+    """A healthy pole and healthy currents, the coil circuit not compared. Where the
+    baseline states the driver and the record could not give the coil circuit, R and
+    the driver gain were not looked at: inconclusive, with why and what would determine
+    it (a twin with the driver's gain -15 % read "No significant change"; nineteenth
+    session). Where the baseline states no driver there is nothing to judge them by: the
+    verdict stays "No significant change" (the reasons say "not judged")."""
+    from test_levitator_isolation import P, _observed
+
+    from maglevid.diagnose.levitator import NO_DRIVER, isolate_levitator_fault
+    from maglevid.plants.levitator import _verdict as levitator_verdict
+
+    obs = replace(_observed({}, electrical=False), electrical_missing=why or NO_DRIVER)
+    iso = isolate_levitator_fault(obs, P)
+    assert {n for n, _ in iso.not_tested} >= {"R", "ku"}
+    verdict, code = levitator_verdict([], iso, P, TOL)
+    if why is None:
+        assert (verdict, code) == ("No significant change", "no_change")
+    else:
+        assert code == "inconclusive" and verdict.startswith(
+            "Inconclusive: R and the driver gain cannot be judged on this record (every "
+            "candidate leaves its coil equation to noise; a record in which the command "
+            "moves more"
+        )
+        assert verdict.endswith("what was compared: No significant change")
 
 
 @pytest.mark.parametrize(
