@@ -285,3 +285,22 @@ def test_a_healthy_twin_records_coil_circuit_bias_is_no_change():
     obs = replace(obs, electrical=(1.012 * obs.electrical[0], 1.007 * obs.electrical[1]))
     iso = isolate_levitator_fault(obs, P)
     assert iso.best.parameters == () and iso.no_change.p_value > 0.5
+
+
+def test_fits_the_data_do_not_reject_are_said_beside_the_named_cause():
+    # The tie rule names fits within a chi-square of 1 of the best; the others that the
+    # data do not reject (p >= alpha) are said in the reasons (UAQ multiescalon against
+    # chirp's history: "m -16 %" with k and the current sensor at p 0.66 and 0.62 unsaid).
+    from maglevid.plants.levitator import isolation_reasons
+
+    iso = isolate_levitator_fault(
+        _with_twin_noise(_observed({"m": 0.84}, gaps=(0.005, 0.0045))), P
+    )
+    (also,) = [r for r in isolation_reasons(iso, P) if r.startswith("also not rejected")]
+    assert "gap-sensor zero -0.81 mm" in also and "(p = 0.43)" in also
+    for h in (iso.best, *iso.indistinguishable):
+        assert h.describe() not in also
+    iso = isolate_levitator_fault(
+        _with_twin_noise(_observed({"ku": 0.85}, gaps=(0.005, 0.0045))), P
+    )
+    assert not [r for r in isolation_reasons(iso, P) if r.startswith("also not rejected")]

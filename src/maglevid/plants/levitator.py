@@ -540,6 +540,17 @@ def isolation_reasons(iso: lev.LevitatorIsolation, params: Any) -> list[str]:
                 + ", ".join(f"{x} and {y}" for x, y in iso.collinear)
             )
         out += [f"to resolve: {hint}" for hint in iso.resolve_hints()]
+        # fits that the data do not reject, further than the tie rule's chi-square of 1
+        # from the best (UAQ multiescalon against chirp's history named "m -16 %" alone,
+        # with k +18.6 % at p = 0.66 and the current sensor -8.2 % at p = 0.62 unsaid;
+        # nineteenth session)
+        named = {best, *iso.indistinguishable}
+        also = [h for h in iso.candidates if h not in named and h.p_value >= iso.alpha]
+        if also:
+            out.append(
+                f"also not rejected (p >= {iso.alpha:g}), fitting less well: "
+                + ", ".join(f"{h.describe()} (p = {h.p_value:.2g})" for h in also)
+            )
         rejected = [h for h in iso.candidates if h.p_value < iso.alpha]
         if rejected:
             out.append(
