@@ -304,3 +304,21 @@ def test_fits_the_data_do_not_reject_are_said_beside_the_named_cause():
         _with_twin_noise(_observed({"ku": 0.85}, gaps=(0.005, 0.0045))), P
     )
     assert not [r for r in isolation_reasons(iso, P) if r.startswith("also not rejected")]
+
+
+@pytest.mark.parametrize(
+    ("ku", "code"), [(0.88, "fault"), (0.9, "inconclusive"), (0.95, "no_change")]
+)
+def test_a_move_beyond_noise_and_model_error_is_not_no_change(ku, code):
+    # ku/L -10 % (interval -15 ... -4 %: apart from 0, across -5 % by its 3 % floor alone)
+    # while the joint test over five observations does not reject "no change" (p = 0.05):
+    # it read "No significant change" (a twin with the driver's gain -10 %, nineteenth
+    # session); -12 % is named, -5 % is no change.
+    from maglevid.plants.levitator import _verdict
+
+    iso = isolate_levitator_fault(_with_twin_noise(_observed({"ku": ku}, gaps=(0.005, 0.0045))), P)
+    verdict, got = _verdict([], iso, P, 0.05)
+    assert got == code, verdict
+    if code == "inconclusive":
+        assert "ku/L -10 % (interval -15 … -4.2 %)" in verdict
+        assert "moved beyond noise and model error" in verdict

@@ -294,8 +294,9 @@ def _sides_without_cause(
     senoidal read "No significant change" with its pole +20 % (interval -1 ... +46 %)
     against the published physics. Each entry says what would decide it: the
     observation's own standard error at most ``s_need`` (the floor on top). Second
-    list: the observations that moved by at least their floor and straddle by the
-    floor alone (said beside "within tolerance")."""
+    list: the observations whose own interval excludes no change and straddles the
+    tolerance by the floor alone (said beside "within tolerance"; on their own, without a
+    moved parameter, they make the verdict inconclusive)."""
     obs = iso.observations
     zq = float(special.ndtri(0.5 + level / 2))
     d, sd = _own_moves(iso, params)
@@ -309,7 +310,7 @@ def _sides_without_cause(
         if side == "beyond":
             out.append(f"{what} lies beyond the ±{100 * tol:.3g} % tolerance on its own")
         elif side == "straddles" and alone == "straddles":
-            if abs(x) >= f:  # a move at least the model's error: near the boundary
+            if abs(x) >= zq * s:  # a move its own interval (floor included) holds apart from 0
                 limited.append(f"{what}, model error ±{100 * f:.2g} %")
         elif side == "straddles":
             # the half-width (log units) that decides it; the standard error it needs
@@ -414,6 +415,19 @@ def _verdict_of_moves(
                 "inconclusive",
             )
         moved = _moved(changes)
+        if limited and not moved:
+            # moved on its own beyond its noise and model error, the tolerance undecidable
+            # (a twin with the driver's gain -10 % read "No significant change" with ku/L
+            # -10 % (interval -15 ... -3 %); nineteenth session)
+            return (
+                "Inconclusive: no single cause detected (all observations together are "
+                f"consistent with no change, p = {iso.no_change.p_value:.2g}), but "
+                + "; ".join(limited[:2])
+                + f" - moved beyond noise and model error; whether beyond the ±{100 * tol:.3g} "
+                "% tolerance that error alone leaves open, which no longer record decides (a "
+                "bench measurement of the quantity would)",
+                "inconclusive",
+            )
         if moved:
             # the moves named; where the model's own error spans the boundary, said
             return "Change within tolerance: " + moved + (
