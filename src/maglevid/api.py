@@ -45,8 +45,9 @@ def identify(
         A registered method (``maglevid identify --method list`` shows them
         with one line each). Default: the plant kind's method, as
         ``maglevid identify`` chooses it (:func:`maglevid.plants.choose_method`):
-        ``"physical"`` for a two-coil bearing, ``"intersample"`` for an
-        inter-sampled suspension, ``"levitator"`` for a levitator. (A
+        ``"physical"`` for a two-coil bearing, ``"intersample-ml"`` for an
+        inter-sampled suspension whose mass and coil resistance the recording
+        states (``"intersample"`` without them), ``"levitator"`` for a levitator. (A
         diagnosis of a two-coil bearing uses ``"ml"`` by default, more
         precise at about 10x the time: :func:`maglevid.diagnose`.)
     mapping : dict, str or path-like, optional

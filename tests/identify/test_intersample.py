@@ -334,7 +334,9 @@ def test_nonlinear_plant_recording():
     assert abs(res.parameters["pole_z"] - max(truth["poles"])) < 5 * res.std_errors()["pole_z"]
 
 
-def test_cli_identify_picks_intersample_for_a_multirate_recording(tmp_path, capsys):
+def test_cli_identify_picks_the_inter_sample_methods_for_a_multirate_recording(tmp_path, capsys):
+    """The recording states M and R: maximum likelihood on every inter-sample by
+    default (intersample_ml.py); Sun et al.'s method by name."""
     import json
 
     from maglevid.cli.main import main
@@ -343,6 +345,10 @@ def test_cli_identify_picks_intersample_for_a_multirate_recording(tmp_path, caps
     assert main(["simulate", "suspension", "--p", "3", "--duration", "6", "--out", str(out)]) == 0
     capsys.readouterr()
     assert main(["--json", "identify", str(out)]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["method"] == "intersample-ml"
+    assert res["parameters"]["pole_z"] > 1.0 and res["std_errors"]["alpha"] > 0
+    assert main(["--json", "identify", str(out), "--method", "intersample"]) == 0
     res = json.loads(capsys.readouterr().out)
     assert res["method"] == "intersample"
     assert res["parameters"]["pole_z"] > 1.0 and res["std_errors"]["a1"] > 0

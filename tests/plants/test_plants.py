@@ -21,9 +21,13 @@ def test_each_kind_is_recognised_from_the_recordings_shape():
     amb = simulate_amb_loop(AMBParameters.nominal(), n_samples=200, rng=1)
     assert infer_kind(amb)[0] == "amb-two-coil"
     assert choose_method(amb)[0] == "physical"
-    assert infer_kind(simulate_suspension(p=3, duration=1.0, rng=1))[0] == (
-        "intersampled-suspension"
-    )
+    sus = simulate_suspension(p=3, duration=1.0, rng=1)
+    assert infer_kind(sus)[0] == "intersampled-suspension"
+    # M and R stated: maximum likelihood; without them, Sun et al.'s method
+    assert choose_method(sus)[0] == "intersample-ml"
+    bare = ClosedLoopData(y=sus.y, u=sus.u, dt=sus.dt, p=sus.p)
+    method, why = choose_method(bare)
+    assert method == "intersample" and "no ball mass and coil resistance" in why
     assert infer_kind(_record(2, 1))[0] == "levitator"  # [gap, current], one coil
     assert infer_kind(_record(9, 2))[0] == "mimo"  # Maggy's shape
 

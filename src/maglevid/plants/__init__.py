@@ -11,8 +11,9 @@ kind                        recognised by                                default
 ``amb-two-coil``            outputs ``[x, i1, i2]``, two coil voltages   ``physical``
                             (Gosiewski & Paszowski), or AMB design
                             parameters in ``loop["nominal"]``
-``intersampled-suspension`` outputs sampled ``p > 1`` times per control  ``intersample``
-                            period (Sun et al.)
+``intersampled-suspension`` outputs sampled ``p > 1`` times per control  ``intersample-ml``
+                            period (Sun et al.)                          (``intersample``
+                                                                         without M and R)
 ``levitator``               one coil: one input and outputs ``[gap]`` or ``levitator``
                             ``[gap, current]`` (UAQ steel ball, a
                             permanent-magnet levitator)

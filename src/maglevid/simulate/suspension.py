@@ -122,6 +122,7 @@ def simulate_suspension(
     plant: str = "linear",
     substeps: int = 4,
     warmup: float = 1.0,
+    force_std: float = 0.0,
     rng: np.random.Generator | int | None = None,
 ) -> ClosedLoopData:
     """Simulate the inter-sampled closed loop of Sun et al. and return the recording.
@@ -144,6 +145,11 @@ def simulate_suspension(
         Runge-Kutta steps per output interval (nonlinear plant).
     warmup : float
         Seconds simulated before the record starts (dropped).
+    force_std : float
+        White force disturbance on the ball [N rms], held over each output sample
+        (nonlinear plant only; 0 by default, the paper's setting: sensor noise
+        alone). A force inside the loop is what Sun et al.'s output-error steps
+        cannot tell from the plant (docs/sun.md, "Beyond the paper").
     rng : numpy.random.Generator or int, optional
         Source of the noise; the same seed gives the same record.
 
@@ -187,6 +193,14 @@ def simulate_suspension(
     warmup = float(warmup)
     if not np.isfinite(warmup) or warmup < 0:
         raise DataError(f"`warmup` must be >= 0 seconds; got {warmup!r}")
+    force_std = float(force_std)
+    if not np.isfinite(force_std) or force_std < 0:
+        raise DataError(f"`force_std` must be >= 0 N; got {force_std!r}")
+    if force_std and plant != "nonlinear":
+        raise DataError(
+            "`force_std` needs plant='nonlinear' (the linear plant is the paper's "
+            "simulation: sensor noise alone)"
+        )
     seed = rng if isinstance(rng, (int, np.integer)) else None
     rng = np.random.default_rng(rng)
 
@@ -206,7 +220,8 @@ def simulate_suspension(
     if plant == "linear":
         y, u = _simulate_linear(truth, controller, W)
     else:
-        y, u = _simulate_nonlinear(params, controller, W, int(substeps))
+        F = force_std * rng.standard_normal((n_warm + N, p)) if force_std else None
+        y, u = _simulate_nonlinear(params, controller, W, int(substeps), F)
     y = y[n_warm:]
     u = u[n_warm:]
 
@@ -225,6 +240,7 @@ def simulate_suspension(
         "duration": N * dt,
         "warmup": n_warm * dt,
         "substeps": int(substeps) if plant == "nonlinear" else None,
+        "force_std": force_std,
         "truth": truth,
     }
     return ClosedLoopData(
@@ -261,8 +277,14 @@ def _simulate_linear(
 
 
 def _simulate_nonlinear(
-    params: SuspensionParameters, controller: DiscreteController, W: np.ndarray, substeps: int
+    params: SuspensionParameters,
+    controller: DiscreteController,
+    W: np.ndarray,
+    substeps: int,
+    F: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
+    """Eq. (25) by RK4 under the controller; ``W`` the sensor noise and ``F`` (optional)
+    the force on the ball [N, away from the magnet], both (N, p), held per sample."""
     n, p = W.shape
     h = controller.dt / p / substeps
     d = controller.num.tolist()
@@ -277,13 +299,16 @@ def _simulate_nonlinear(
     g, k_f, Q, R = params.g, 0.5 * params.Q / params.M, params.Q, params.R
     gap0, I0, U0, Linf = params.gap, params.I, params.U, params.L_inf
 
+    force = [0.0]  # the held force per unit mass over the current sample
+
     def rhs(y_: float, v_: float, i_: float, um: float) -> tuple[float, float, float]:
         gp = gap0 + y_
         cur = I0 + i_
         if gp <= 0:
             raise ModelError(f"the ball touched the magnet (gap {gp:.3g} m)")
         r = cur / gp
-        return v_, g - k_f * r * r, (um + U0 - R * cur + Q * r / gp * v_) / (Linf + Q / gp)
+        acc = g - k_f * r * r + force[0]
+        return v_, acc, (um + U0 - R * cur + Q * r / gp * v_) / (Linf + Q / gp)
 
     x0 = x1 = x2 = 0.0
     for m in range(n):
@@ -298,6 +323,8 @@ def _simulate_nonlinear(
         for j in range(p):
             if j:
                 y[m, j] = x0 + W[m, j]
+            if F is not None:
+                force[0] = F[m, j] / params.M
             for _ in range(substeps):  # classical RK4, input held
                 a0, a1, a2 = rhs(x0, x1, x2, um)
                 b0, b1, b2 = rhs(x0 + 0.5 * h * a0, x1 + 0.5 * h * a1, x2 + 0.5 * h * a2, um)
@@ -327,6 +354,14 @@ def add_scenario_arguments(parser: argparse.ArgumentParser) -> None:
         "--Y-mm", type=float, default=6.0, help="operating point as read by the sensor [mm]"
     )
     parser.add_argument("--substeps", type=int, default=4, help="RK4 steps per output sample")
+    parser.add_argument(
+        "--force-std",
+        type=float,
+        default=0.0,
+        metavar="N",
+        help="white force disturbance on the ball [N rms] (nonlinear plant; default 0, the "
+        "paper's sensor noise alone)",
+    )
     parser.add_argument("--seed", type=int, default=0, help="noise seed (same seed, same record)")
 
 
@@ -346,5 +381,6 @@ def run_scenario(
         noise_std=args.noise_std_mm * 1e-3,
         plant=args.plant,
         substeps=args.substeps,
+        force_std=args.force_std,
         rng=args.seed,
     )
