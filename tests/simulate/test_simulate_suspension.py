@@ -137,6 +137,8 @@ def test_printed_pid_is_refused():
         ({"noise_std": -1.0}, "`noise_std`"),
         ({"duration": 0.001}, "`duration`"),
         ({"substeps": 0}, "`substeps`"),
+        ({"force_std": -0.1, "plant": "nonlinear"}, "`force_std`"),
+        ({"force_std": 0.1}, "plant='nonlinear'"),  # the paper's linear loop: noise alone
     ],
 )
 def test_bad_options_are_clear_errors(kw, match):
@@ -165,3 +167,23 @@ def test_cli_writes_a_readable_multirate_recording(tmp_path):
     assert rec.p == 3 and rec.y.shape[0] == 3 * rec.n_samples
     assert rec.loop["controller"]["type"] == "lead-lag"
     assert "truth" in rec.metadata
+
+
+def test_a_force_on_the_ball_moves_it_and_is_recorded(tmp_path):
+    """The force draws come after the sensor noise: without one the record is the same
+    as before the option existed; with one the ball moves more (eq. (25): F/M on the
+    acceleration)."""
+    from maglevid.cli.main import main
+    from maglevid.io import read_recording
+
+    kw = {"p": 3, "duration": 2.0, "plant": "nonlinear", "noise_std": 1e-5, "rng": 4}
+    calm = simulate_suspension(**kw)
+    same = simulate_suspension(**kw, force_std=0.0)
+    pushed = simulate_suspension(**kw, force_std=0.2)
+    assert np.array_equal(calm.y, same.y)
+    assert np.std(pushed.y) > 2.0 * np.std(calm.y)
+    assert pushed.metadata["force_std"] == 0.2 and calm.metadata["force_std"] == 0.0
+    out = tmp_path / "f.npz"
+    argv = ["simulate", "suspension", "--plant", "nonlinear", "--force-std", "0.05"]
+    assert main([*argv, "--duration", "0.3", "--out", str(out)]) == 0
+    assert read_recording(out).metadata["force_std"] == pytest.approx(0.05)

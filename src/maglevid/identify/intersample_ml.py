@@ -69,6 +69,8 @@ MAX_BURN_IN_SHARE = 0.25
 #: Starts finished after the first, short pass (the lowest costs).
 FINISHED_STARTS = 2
 _SHORT_NFEV = 10
+#: How far (natural log) a physical parameter may go from the first start: 1e11 either way.
+_LOG_RANGE = 25.0
 
 
 def _continuous(phys: np.ndarray, M: float, R: float) -> tuple[np.ndarray, np.ndarray]:
@@ -118,14 +120,20 @@ class _Predictor:
     delta: float
     burn: int
     k_scale: np.ndarray
+    centre: np.ndarray  # ln [alpha, eta, L] of the first start
 
     def errors(self, theta: np.ndarray) -> np.ndarray:
-        Ad, Bd = _sampled(np.exp(theta[:3]), self.M, self.R, self.delta)
+        # a cost above any stable predictor's: outside eq. (27)'s plausible range (a
+        # step to 1e-11..1e11 times a value: the exponential would overflow) or unstable
+        penalty = np.full(self.y.size - self.burn, 1e3 * np.std(self.y))
+        if not np.all(np.abs(theta[:3] - self.centre) < _LOG_RANGE):
+            return penalty
+        with np.errstate(over="ignore", invalid="ignore"):
+            Ad, Bd = _sampled(np.exp(theta[:3]), self.M, self.R, self.delta)
         K = theta[3:6] * self.k_scale
         Abar = Ad - np.outer(K, [1.0, 0.0, 0.0])
         if not np.all(np.isfinite(Abar)) or np.max(np.abs(np.linalg.eigvals(Abar))) >= 1.0:
-            # an unstable predictor has no stationary errors: a cost above any stable one's
-            return np.full(self.y.size - self.burn, 1e3 * np.std(self.y))
+            return penalty
         C = np.array([[1.0, 0.0, 0.0]])
         num_u, den = signal.ss2tf(Abar, Bd[:, :1], C, np.zeros((1, 1)))
         num_y, _ = signal.ss2tf(Abar, K[:, None], C, np.zeros((1, 1)))
@@ -296,7 +304,7 @@ def fit_intersample_ml(
         )
     Ad, Bd = _sampled(starts[0][1], M, R, delta)
     k_scale = np.maximum(np.abs(_kalman_gain(Ad, Bd, START_FORCE_LEVELS[1])), 1e-12)
-    pred = _Predictor(yf, uf, M, R, delta, burn, k_scale)
+    pred = _Predictor(yf, uf, M, R, delta, burn, k_scale, np.log(starts[0][1]))
     best, table = _fit(pred, starts, max_nfev)
     theta = best.x
     cov6 = _covariance(pred, theta)
