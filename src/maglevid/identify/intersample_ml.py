@@ -43,7 +43,7 @@ import scipy.linalg as sla
 from scipy import optimize, signal
 
 from maglevid.data import ClosedLoopData
-from maglevid.exceptions import DataError, IdentificationError
+from maglevid.exceptions import DataError, IdentificationError, ModelError
 from maglevid.identify.closedloop import simo_polynomials_to_state_space
 from maglevid.identify.intersample import _known_physics, _signals, fit_intersample
 from maglevid.identify.multirate import intersample_numerators
@@ -58,6 +58,8 @@ log = logging.getLogger(__name__)
 
 #: Electrical time constants ``L/R`` [s] the starts try (the paper's coil: 78 ms).
 START_TIME_CONSTANTS = (0.01, 0.03, 0.1, 0.3)
+#: Resistances [ohm] the starts try when the recording states none.
+START_RESISTANCES = (1.0, 10.0, 100.0)
 #: Force-noise levels (log of the ratio to the sensor noise, N/m) whose Kalman gains
 #: start ``K``: practically none, moderate, and the force dominating.
 START_FORCE_LEVELS = (-4.0, 2.0, 8.0)
@@ -74,14 +76,16 @@ _LOG_RANGE = 25.0
 
 
 def _continuous(phys: np.ndarray, M: float, R: float) -> tuple[np.ndarray, np.ndarray]:
-    """``A_c`` and ``[b_u, b_force, b_voltage]`` of eq. (27) at ``phys = (alpha, eta, L)``.
+    """``A_c`` and ``[b_u, b_force, b_voltage]`` of eq. (27) at ``phys = (alpha, eta, L)``
+    (``(alpha, eta, L, R)`` with the resistance free, ``R`` then ignored).
 
     States ``[y, dy/dt, i]`` (``y`` the gap's deviation, down positive); a force
     disturbance pushes the ball away from the magnet, a voltage disturbance adds to
     ``u``. The same matrices as :func:`~maglevid.physics.suspension.suspension_state_space`
     (test).
     """
-    al, eta, L = phys
+    al, eta, L = phys[:3]
+    R = phys[3] if len(phys) > 3 else R
     A = np.array([[0.0, 1.0, 0.0], [al / M, 0.0, -eta / M], [0.0, eta / L, -R / L]])
     B = np.array([[0.0, 0.0, 0.0], [0.0, 1.0 / M, 0.0], [1.0 / L, 0.0, 1.0 / L]])
     return A, B
@@ -109,8 +113,8 @@ def _kalman_gain(Ad: np.ndarray, Bd: np.ndarray, log_force: float) -> np.ndarray
 class _Predictor:
     """One-step prediction errors of the fast-rate innovations model.
 
-    ``theta = [ln alpha, ln eta, ln L, K / k_scale]``; ``y`` (N p) and ``u`` (N p,
-    held) without their means; the first ``burn`` errors are dropped.
+    ``theta = [ln alpha, ln eta, ln L, (ln R), K / k_scale]`` (``n_phys`` logs); ``y``
+    (N p) and ``u`` (N p, held) without their means; the first ``burn`` errors dropped.
     """
 
     y: np.ndarray
@@ -120,17 +124,22 @@ class _Predictor:
     delta: float
     burn: int
     k_scale: np.ndarray
-    centre: np.ndarray  # ln [alpha, eta, L] of the first start
+    centre: np.ndarray  # ln [alpha, eta, L, (R)] of the first start
+
+    @property
+    def n_phys(self) -> int:
+        return self.centre.size
 
     def errors(self, theta: np.ndarray) -> np.ndarray:
         # a cost above any stable predictor's: outside eq. (27)'s plausible range (a
         # step to 1e-11..1e11 times a value: the exponential would overflow) or unstable
         penalty = np.full(self.y.size - self.burn, 1e3 * np.std(self.y))
-        if not np.all(np.abs(theta[:3] - self.centre) < _LOG_RANGE):
+        n = self.n_phys
+        if not np.all(np.abs(theta[:n] - self.centre) < _LOG_RANGE):
             return penalty
         with np.errstate(over="ignore", invalid="ignore"):
-            Ad, Bd = _sampled(np.exp(theta[:3]), self.M, self.R, self.delta)
-        K = theta[3:6] * self.k_scale
+            Ad, Bd = _sampled(np.exp(theta[:n]), self.M, self.R, self.delta)
+        K = theta[n:] * self.k_scale
         Abar = Ad - np.outer(K, [1.0, 0.0, 0.0])
         if not np.all(np.isfinite(Abar)) or np.max(np.abs(np.linalg.eigvals(Abar))) >= 1.0:
             return penalty
@@ -141,29 +150,35 @@ class _Predictor:
         return e[self.burn :]
 
     def predictor_radius(self, theta: np.ndarray) -> float:
-        Ad, _ = _sampled(np.exp(theta[:3]), self.M, self.R, self.delta)
-        K = theta[3:6] * self.k_scale
+        Ad, _ = _sampled(np.exp(theta[: self.n_phys]), self.M, self.R, self.delta)
+        K = theta[self.n_phys :] * self.k_scale
         return float(np.max(np.abs(np.linalg.eigvals(Ad - np.outer(K, [1.0, 0.0, 0.0])))))
 
 
-def _starts(sun: IdentificationResult, M: float, R: float) -> list[tuple[str, np.ndarray]]:
-    """Physical starts ``(name, [alpha, eta, L])`` from Sun et al.'s estimate (module notes)."""
+def _starts(
+    sun: IdentificationResult, M: float, resistances: tuple[float, ...], free: bool
+) -> list[tuple[str, np.ndarray]]:
+    """Physical starts ``(name, [alpha, eta, L(, R)])`` from Sun et al.'s estimate (module
+    notes), one set per resistance tried; ``R`` is appended when it is free."""
     a = np.r_[1.0, [sun.parameters[f"a{i}"] for i in (1, 2, 3)]]
     b = np.r_[0.0, [sun.parameters[f"b{i}"] for i in (1, 2, 3)]]
     out = []
     try:
         s, k = continuous_from_t_model(a, b, sun.model.dt)
-    except Exception:  # no continuous reading of the estimate: its physics is no start
+    except (ModelError, ValueError):  # no continuous reading: its physics is no start
         s, k = np.zeros(0), 0.0
     pole = float(np.max(s.real)) if s.size else 0.0
-    if pole > 0 and k < 0:
+    for R in resistances if pole > 0 and k < 0 else ():
         for tau in START_TIME_CONSTANTS:
             L = tau * R
             eta = -k * M * L
             # the characteristic polynomial of eq. (27) vanishes at the unstable pole
             al = (M * L * pole**3 + M * R * pole**2 + eta**2 * pole) / (L * pole + R)
-            out.append((f"L/R = {tau:g} s", np.array([al, eta, L])))
+            name = f"L/R = {tau:g} s" + (f", R = {R:.4g} ohm" if free else "")
+            out.append((name, np.array([al, eta, L, R][: 4 if free else 3])))
     phys = [sun.parameters.get(k_) for k_ in ("alpha", "eta", "L")]
+    if free:
+        phys.append(sun.parameters.get("R", resistances[0]))
     if all(v is not None and np.isfinite(v) and v > 0 for v in phys):
         out.append(("Sun et al.'s physical parameters", np.array(phys, dtype=float)))
     return out
@@ -227,6 +242,7 @@ def fit_intersample_ml(
     resistance: float | None = None,
     gravity: float | None = None,
     output: int = 0,
+    free_resistance: bool = False,
     burn_in: int | None = None,
     max_nfev: int = 400,
 ) -> IdentificationResult:
@@ -241,11 +257,16 @@ def fit_intersample_ml(
     data : ClosedLoopData
         Multi-rate recording, ``p >= 2``, single input held over each control period.
     mass, resistance, gravity : float, optional
-        Ball mass [kg] and coil-circuit resistance [ohm] (both needed: eq. (27) has
-        three free physical parameters given them), gravity [m/s^2]; default
-        ``data.loop["physical"]["M"]``, ``["R"]``, ``["g"]`` (gravity else 9.80665).
+        Ball mass [kg] (needed), coil-circuit resistance [ohm] and gravity [m/s^2];
+        default ``data.loop["physical"]["M"]``, ``["R"]``, ``["g"]`` (gravity else
+        9.80665). Without a resistance ``R`` is estimated too.
     output : int
         Output channel (position) when ``y`` has several.
+    free_resistance : bool
+        Estimate ``R`` even where it is known (a coil that heats up: its resistance
+        is what changed); eq. (27) with the mass has four free parameters, but
+        ``eta``, ``L``, ``R`` are then weakly determined (measured: +-200 % on 18 s of
+        the simulator's noise-driven loop, where ``R`` given leaves +-6 %).
     burn_in : int, optional
         Prediction errors dropped at the record's start (default: the start
         predictors' transient to 1e-4, at most a quarter of the samples).
@@ -256,8 +277,8 @@ def fit_intersample_ml(
     -------
     IdentificationResult
         ``parameters``: ``a1..a3``, ``b1..b3`` (the T-model of ``y_0``),
-        ``pole_z``/``pole_rad_s``, ``alpha``, ``eta``, ``L`` and through the force
-        balance ``gap``, ``I``, ``Q``, ``L_inf`` (``Y_offset`` when
+        ``pole_z``/``pole_rad_s``, ``alpha``, ``eta``, ``L`` (``R`` when free) and
+        through the force balance ``gap``, ``I``, ``Q``, ``L_inf`` (``Y_offset`` when
         ``loop["operating_point"]["Y"]`` is known); ``covariance``: Cramér-Rao at the
         estimate, delta method for the derived ones; ``residuals``: the one-step
         prediction errors; ``extras``: the Kalman gain, the starts and Sun et al.'s
@@ -266,7 +287,7 @@ def fit_intersample_ml(
     Raises
     ------
     DataError
-        ``p < 2``, no or several inputs, no mass or resistance, too short a record.
+        ``p < 2``, no or several inputs, no mass, too short a record.
     IdentificationError
         No start gives a stable predictor, or the fit ends without an unstable pole.
 
@@ -279,91 +300,112 @@ def fit_intersample_ml(
     True
     """
     u, Y, M, R, g = _checked(data, mass, resistance, gravity, output, burn_in)
-    p, N, T = data.p, data.n_samples, data.dt
+    p, T = data.p, data.dt
+    free = bool(free_resistance) or R is None
     notes = [
         "direct maximum likelihood on every inter-sample through the Kalman predictor "
         "(free gain): consistent under feedback with force disturbances and the plant's "
         "nonlinearity, which bias the output-error steps of `intersample`"
     ]
+    if R is None:
+        notes.append(
+            "the coil circuit's resistance is not known: R is estimated with the rest; "
+            "eq. (27) then reads eta, L and R through a small difference of large numbers "
+            "(on 18 s of the simulator's noise-driven loop, +-200 % against +-6 % with R "
+            "given): an ohmmeter reading of R (option resistance=) resolves them"
+        )
     sun = fit_intersample(data, output=output, mass=M, resistance=R, gravity=g)
-    starts = _starts(sun, M, R)
+    starts = _starts(sun, M, START_RESISTANCES if R is None else (R,), free)
     if not starts:
         raise IdentificationError(
             "Sun et al.'s estimate has no unstable real pole with a negative gain, so "
             "there is no start for the physical fit (the record may not be a suspension "
             "under feedback, or far too short)"
         )
+    R = float(starts[0][1][3]) if R is None else R  # the model's R when it is not free
     delta = T / p
     yf = Y.ravel() - float(np.mean(Y))
     uf = np.repeat(u - float(np.mean(u)), p)
     burn = _burn_in(starts, M, R, delta, yf.size) if burn_in is None else int(burn_in)
-    if yf.size - burn < 50 * 6:
+    n_theta = len(starts[0][1]) + 3
+    if yf.size - burn < 50 * n_theta:
         raise DataError(
             f"the record has {yf.size} output samples, {yf.size - burn} after the "
-            "predictor's start-up: at least 300 are needed for 6 parameters"
+            f"predictor's start-up: at least {50 * n_theta} are needed for {n_theta} "
+            "parameters"
         )
     Ad, Bd = _sampled(starts[0][1], M, R, delta)
     k_scale = np.maximum(np.abs(_kalman_gain(Ad, Bd, START_FORCE_LEVELS[1])), 1e-12)
     pred = _Predictor(yf, uf, M, R, delta, burn, k_scale, np.log(starts[0][1]))
     best, table = _fit(pred, starts, max_nfev)
+    if not best.success or best.nfev >= max_nfev:
+        notes.append(
+            f"the fit stopped after {best.nfev} evaluations without meeting its tolerance"
+        )
+    rho = pred.predictor_radius(best.x)
+    if rho**burn > 1e-2:
+        notes.append(
+            f"the predictor's slowest mode ({rho:.4g} per sample) had not died out within "
+            f"the {burn} samples dropped; pass burn_in= a larger number"
+        )
+    options = dict(mass=M, resistance=None if free else R, gravity=g, output=output,
+                   free_resistance=free, burn_in=burn, max_nfev=max_nfev, p=p)  # fmt: skip
+    extras = {"starts": table, "intersample_pole_rad_s": sun.parameters["pole_rad_s"]}
+    extras["intersample_physical"] = {
+        k: sun.parameters[k] for k in ("alpha", "eta", "L", "R") if k in sun.parameters
+    }
+    return _result(data, pred, best, g, options, notes, extras)
+
+
+def _result(data, pred, best, g, options, notes, extras):  # type: ignore[no-untyped-def]
+    """The :class:`IdentificationResult`: the derived parameters by the delta method from
+    the physical ones' Cramér-Rao covariance, the T-model, the inter-sample numerators."""
+    p, T, n = data.p, data.dt, pred.n_phys
     theta = best.x
-    cov6 = _covariance(pred, theta)
-    Y_op = _operating_point(data)
-    names, derived = _derived(M, R, g, delta, p, Y_op)
-    values, cov = propagate_covariance(derived, theta[:3], cov6[:3, :3])
+    cov_theta = _covariance(pred, theta)
+    M, R, delta = pred.M, pred.R, pred.delta
+    names, derived = _derived(M, R, g, delta, p, _operating_point(data), free=n == 4)
+    values, cov = propagate_covariance(derived, theta[:n], cov_theta[:n, :n])
     parameters = dict(zip(names, values.tolist()))
     if parameters["pole_rad_s"] <= 0:
         raise IdentificationError(
             f"the fit ended without an unstable pole (largest {parameters['pole_rad_s']:.4g} "
             "rad/s): eq. (27)'s suspension is unstable, so the record does not fit it"
         )
-    if not best.success or best.nfev >= max_nfev:
-        notes.append(
-            f"the fit stopped after {best.nfev} evaluations without meeting its tolerance"
-        )
-    e = best.fun
-    rho = pred.predictor_radius(theta)
-    if rho**burn > 1e-2:
-        notes.append(
-            f"the predictor's slowest mode ({rho:.4g} per sample) had not died out within "
-            f"the {burn} samples dropped; pass burn_in= a larger number"
-        )
     a_full, b_full = np.r_[1.0, values[:3]], np.r_[0.0, values[3:6]]
-    B_inter, B_cov = propagate_covariance(_numerators(M, R, delta, p), theta[:3], cov6[:3, :3])
-    A_c, B_c = _continuous(np.exp(theta[:3]), M, R)
-    options = dict(mass=M, resistance=R, gravity=g, output=output, burn_in=burn,
-                   max_nfev=max_nfev, p=p)  # fmt: skip
-    yv = yf[burn:]
+    B_inter, B_cov = propagate_covariance(
+        _numerators(M, R, delta, p), theta[:n], cov_theta[:n, :n]
+    )
+    A_c, B_c = _continuous(np.exp(theta[:n]), M, R)
+    e = best.fun
+    yv = pred.y[pred.burn :]
+    extras = {
+        "B_intersample": B_inter.reshape(p - 1, 4).tolist(),
+        "B_intersample_std_error": np.sqrt(np.clip(np.diag(B_cov), 0, None))
+        .reshape(p - 1, 4)
+        .tolist(),
+        "kalman_gain": (theta[n:] * pred.k_scale).tolist(),
+        "kalman_gain_std": (np.sqrt(np.diag(cov_theta)[n:]) * pred.k_scale).tolist(),
+        **extras,
+    }
     return IdentificationResult(
         method="intersample-ml",
         model=simo_polynomials_to_state_space(a_full, [b_full], T, output_names=("y",)),
         parameters=parameters,
         covariance=0.5 * (cov + cov.T),
-        n_samples=N,
+        n_samples=data.n_samples,
         options=options,
         residuals=e[:, None],
         fit={
             "one_step_fit_percent": 100.0 * (1.0 - float(np.linalg.norm(e) / np.linalg.norm(yv))),
             "sigma_e": float(np.sqrt(np.mean(e**2))),
-            "predictor_radius": rho,
+            "predictor_radius": pred.predictor_radius(theta),
         },
         notes=tuple(notes),
         continuous_model=StateSpace(
             A_c, B_c[:, :1], np.array([[1.0, 0.0, 0.0]]), None, None, STATE_NAMES, ("u",), ("y",)
         ),
-        extras={
-            "B_intersample": B_inter.reshape(p - 1, 4).tolist(),
-            "B_intersample_std_error": np.sqrt(np.clip(np.diag(B_cov), 0, None))
-            .reshape(p - 1, 4)
-            .tolist(),
-            "kalman_gain": (theta[3:6] * pred.k_scale).tolist(),
-            "kalman_gain_std": (np.sqrt(np.diag(cov6)[3:6]) * pred.k_scale).tolist(),
-            "starts": table,
-            "intersample_pole_rad_s": sun.parameters["pole_rad_s"],
-            "intersample_physical": {
-                k: sun.parameters[k] for k in ("alpha", "eta", "L") if k in sun.parameters
-            },
-        },
+        extras=extras,
     )
 
 
@@ -378,11 +420,10 @@ def _checked(data, mass, resistance, gravity, output, burn_in):  # type: ignore[
             "closed loop is not informative (Sun et al.'s Case 1); record the output p >= 2 "
             "times per control period"
         )
-    if M is None or R is None:
+    if M is None:
         raise DataError(
-            "intersample-ml needs the ball's mass and the coil circuit's resistance "
-            "(options mass=, resistance=, or loop['physical']['M'], ['R'] in the recording); "
-            "`intersample` identifies the polynomials without them"
+            "intersample-ml needs the ball's mass (option mass=, or loop['physical']['M'] "
+            "in the recording); `intersample` identifies the polynomials without it"
         )
     if burn_in is not None and (isinstance(burn_in, bool) or burn_in < 0):
         raise DataError(f"`burn_in` must be an integer >= 0; got {burn_in!r}")
@@ -417,7 +458,7 @@ def _operating_point(data: ClosedLoopData) -> float | None:
 
 
 def _numerators(M: float, R: float, delta: float, p: int):  # type: ignore[no-untyped-def]
-    """The map ``[ln alpha, ln eta, ln L] -> B_1..B_{p-1}`` (Theorem 2, z^0..z^-3), flat."""
+    """The map ``ln [alpha, eta, L(, R)] -> B_1..B_{p-1}`` (Theorem 2, z^0..z^-3), flat."""
 
     def f(x: np.ndarray) -> np.ndarray:
         return intersample_numerators(_delta_model(np.exp(x), M, R, delta), p)[1][1:].ravel()
@@ -431,22 +472,25 @@ def _delta_model(phys: np.ndarray, M: float, R: float, delta: float) -> StateSpa
     return discretize(StateSpace(A, B[:, :1], np.array([[1.0, 0.0, 0.0]]), None, None), delta)
 
 
-def _derived(M: float, R: float, g: float, delta: float, p: int, Y_op: float | None):  # type: ignore[no-untyped-def]
-    """Names and the map ``[ln alpha, ln eta, ln L] -> [a, b, pole_z, pole_rad_s,
-    alpha, eta, L, gap, I, Q, L_inf, (Y_offset)]`` (intersample's order)."""
+def _derived(  # type: ignore[no-untyped-def]
+    M: float, R: float, g: float, delta: float, p: int, Y_op: float | None, *, free: bool
+):
+    """Names and the map ``ln [alpha, eta, L(, R)] -> [a, b, pole_z, pole_rad_s, alpha,
+    eta, L, (R), gap, I, Q, L_inf, (Y_offset)]`` (intersample's order)."""
     names = [f"a{k}" for k in (1, 2, 3)] + [f"b{k}" for k in (1, 2, 3)]
-    names += ["pole_z", "pole_rad_s", "alpha", "eta", "L", "gap", "I", "Q", "L_inf"]
-    if Y_op is not None:
-        names.append("Y_offset")
+    names += ["pole_z", "pole_rad_s", "alpha", "eta", "L", *(["R"] if free else [])]
+    names += ["gap", "I", "Q", "L_inf", *(["Y_offset"] if Y_op is not None else [])]
 
     def f(x: np.ndarray) -> np.ndarray:
-        al, eta, L = np.exp(x)
-        A, _ = _continuous(np.array([al, eta, L]), M, R)
-        a, Bj = intersample_numerators(_delta_model(np.exp(x), M, R, delta), p)
+        phys = np.exp(x)
+        al, eta, L = phys[:3]
+        A, _ = _continuous(phys, M, R)
+        a, Bj = intersample_numerators(_delta_model(phys, M, R, delta), p)
         pole = float(np.max(np.linalg.eigvals(A).real))
         gap, I_ = 2 * M * g / al, 2 * M * g / eta
         Q = eta * gap**2 / I_
-        out = [*a[1:], *Bj[0, 1:], np.exp(pole * delta * p), pole, al, eta, L, gap, I_, Q]
+        out = [*a[1:], *Bj[0, 1:], np.exp(pole * delta * p), pole, al, eta, L, *phys[3:]]
+        out += [gap, I_, Q]
         out.append(L - Q / gap)
         if Y_op is not None:
             out.append(gap - Y_op)
@@ -466,6 +510,8 @@ OPTIONS = {
         Option("gravity", "float", "gravity (default: data.loop['physical']['g'] or "
                "9.80665)", low=0, low_open=True, unit="m/s^2"),
         Option("output", "int", "output channel (position) when y has several", low=0),
+        Option("free_resistance", "bool", "estimate R even where it is known (a coil "
+               "that heats up)"),
         Option("burn_in", "int", "prediction errors dropped at the start (default: the "
                "predictor's transient)", low=0, optional=True),
         Option("max_nfev", "int", "limit on prediction-error evaluations per finished fit",
