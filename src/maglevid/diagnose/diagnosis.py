@@ -39,6 +39,10 @@ _FRAME_COLUMNS = (
 )  # fmt: skip
 
 
+#: The two-coil bearing's parameters, whose table header explains the free estimates.
+_BEARING_NAMES = frozenset({"R1", "R2", "L1", "L2", "ki1", "ki2", "kw1", "kw2", "x0"})
+
+
 def _percent_interval(c: ParameterChange) -> tuple[float, float]:
     """The change's confidence interval in % of the baseline (NaN for a zero baseline)."""
     b = c.baseline if c.baseline != 0 else float("nan")
@@ -173,17 +177,23 @@ class Diagnosis:
         )
         if self.changes:
             joint = max(c.joint_over for c in self.changes)
+            bearing = any(c.name in _BEARING_NAMES for c in self.changes)
             lines.append(
-                "free estimates (every parameter fitted, m and i0 at the baseline's: a "
-                "change of m scales every coil and amplifier parameter alike; the "
-                "verdict's number is the constrained fit of its cause"
+                (
+                    "free estimates (every parameter fitted, m and i0 at the baseline's: a "
+                    "change of m scales every coil and amplifier parameter alike; the "
+                    "verdict's number is the constrained fit of its cause"
+                    if bearing
+                    else "estimates against the baseline"
+                )
                 + (
-                    f"; the intervals hold for all {joint} at once, so a healthy machine "
-                    "shows none 'changed' by chance, the verdict's cause's on its own"
+                    f"{'; ' if bearing else ' ('}the intervals hold for all {joint} at "
+                    "once, so a healthy machine shows none 'changed' by chance"
+                    + (", the verdict's cause's on its own" if bearing else "")
                     if joint > 1
                     else ""
                 )
-                + "):"
+                + ("):" if bearing or joint > 1 else ":")
             )
             lines.append(
                 f"{'parameter':>10} {'baseline':>12} {'estimate':>12} {'change %':>10} "

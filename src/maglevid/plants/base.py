@@ -38,8 +38,10 @@ __all__ = [
     "cannot_diagnose",
     "kind_of",
     "kinds_in_order",
+    "moved_in_words",
     "register_kind",
     "shape_of",
+    "verdict_without_isolation",
 ]
 
 #: The kind that recognises every recording: tried after all others.
@@ -173,6 +175,30 @@ def cannot_diagnose(run: DiagnosisRun, reasons: list[str], *, prefix: str = "") 
 
 
 KINDS: dict[str, PlantKind] = {}
+
+
+def verdict_without_isolation(changes: list[Any], notes: list[str]) -> tuple[str, str]:
+    """The verdict of a kind without a fault model: the significant changes with their
+    numbers ("Changed against the baseline: ..."), else within tolerance, else none."""
+    sig = [ch for ch in changes if ch.significant]
+    if sig:
+        notes.append("no fault isolation: the change is reported with its numbers only")
+        return "Changed against the baseline: " + ", ".join(
+            f"{ch.name} {ch.change_percent:+.1f} %" for ch in sig
+        ), "unexplained_change"
+    if any(ch.statistically_significant for ch in changes):
+        return "Change within tolerance: " + moved_in_words(changes), "within_tolerance"
+    return "No significant change", "no_change"
+
+
+def moved_in_words(changes: list[Any]) -> str:
+    """The statistically significant changes in words ("unstable pole +4.5 %"), or ''."""
+    label = {"pole_rad_s": "unstable pole"}
+    return ", ".join(
+        f"{label.get(ch.name, ch.name)} {ch.change_percent:+.1f} %"
+        for ch in changes
+        if ch.statistically_significant
+    )
 
 
 def register_kind(kind: PlantKind, *, replace: bool = False) -> PlantKind:

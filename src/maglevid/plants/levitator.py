@@ -36,7 +36,15 @@ from maglevid.diagnose.diagnosis import Diagnosis, QualityCheck
 from maglevid.diagnose.resolve import bounds_side
 from maglevid.exceptions import DataError, MaglevidError
 from maglevid.plants.amb import STAGES, AMBStages
-from maglevid.plants.base import BaseKind, DiagnosisRun, as_mapping, cannot_diagnose, shape_of
+from maglevid.plants.base import (
+    BaseKind,
+    DiagnosisRun,
+    as_mapping,
+    cannot_diagnose,
+    moved_in_words,
+    shape_of,
+    verdict_without_isolation,
+)
 
 __all__ = ["KIND", "Levitator", "LevitatorStages"]
 
@@ -194,7 +202,7 @@ class LevitatorStages:
         ]
         iso = self._isolation(run)
         if iso is None:
-            verdict, code = _verdict_without_isolation(changes, run.notes)
+            verdict, code = verdict_without_isolation(changes, run.notes)
         else:
             reasons += isolation_reasons(iso, c.params)
             verdict, code = _verdict(changes, iso, c.params, run.tolerances, run.level)
@@ -211,18 +219,6 @@ class LevitatorStages:
             notes=tuple(run.notes),
             **run.common,
         )
-
-
-def _verdict_without_isolation(changes: list[Any], notes: list[str]) -> tuple[str, str]:
-    sig = [ch for ch in changes if ch.significant]
-    if sig:
-        notes.append("no fault isolation: the change is reported with its numbers only")
-        return "Changed against the baseline: " + ", ".join(
-            f"{ch.name} {ch.change_percent:+.1f} %" for ch in sig
-        ), "unexplained_change"
-    if any(ch.statistically_significant for ch in changes):
-        return "Change within tolerance: " + _moved(changes), "within_tolerance"
-    return "No significant change", "no_change"
 
 
 def _moves(
@@ -327,16 +323,6 @@ def _sides_without_cause(
     return out, limited
 
 
-def _moved(changes: list[Any]) -> str:
-    """The statistically significant changes in words ("unstable pole +4.5 %"), or ''."""
-    label = {"pole_rad_s": "unstable pole"}
-    return ", ".join(
-        f"{label.get(ch.name, ch.name)} {ch.change_percent:+.1f} %"
-        for ch in changes
-        if ch.statistically_significant
-    )
-
-
 def _free_beyond(changes: list[Any]) -> bool:
     """Some free estimate's interval lies wholly beyond its tolerance."""
     return any(
@@ -428,7 +414,7 @@ def _verdict_of_moves(
                 "bench measurement of the quantity would)",
                 "inconclusive",
             )
-        moved = _moved(changes)
+        moved = moved_in_words(changes)
         if moved:  # the moves named
             return "Change within tolerance: " + moved, "within_tolerance"
         return "No significant change", "no_change"

@@ -14,14 +14,35 @@ without isolation.
 
 from __future__ import annotations
 
+import difflib
 from collections.abc import Mapping
+from dataclasses import dataclass
 from types import MappingProxyType
+from typing import Any
+
+import numpy as np
 
 from maglevid.data import ClosedLoopData
-from maglevid.plants.amb import STAGES, AMBStages
-from maglevid.plants.base import BaseKind, shape_of
+from maglevid.diagnose.checks import (
+    check_channels_move,
+    check_length,
+    check_output_clipping,
+    check_sample_time,
+    check_saturation,
+)
+from maglevid.diagnose.compare import compare_parameters
+from maglevid.diagnose.diagnosis import Diagnosis, QualityCheck
+from maglevid.exceptions import DataError, MaglevidError
+from maglevid.plants.base import (
+    BaseKind,
+    DiagnosisRun,
+    as_mapping,
+    cannot_diagnose,
+    shape_of,
+    verdict_without_isolation,
+)
 
-__all__ = ["KIND", "InterSampledSuspension"]
+__all__ = ["COMPARED", "KIND", "InterSampledSuspension", "SuspensionStages"]
 
 
 class InterSampledSuspension(BaseKind):
@@ -75,8 +96,220 @@ class InterSampledSuspension(BaseKind):
             return self.default_method, self.method_reason
         return self.fallback_method, self.fallback_reason
 
-    def stages(self, method: str) -> AMBStages:
+    def stages(self, method: str) -> SuspensionStages:
         return STAGES
 
 
+#: What a diagnosis compares: the unstable pole and eq. (27)'s physics (``R`` where the
+#: method estimated it); ``I`` and ``Y_offset`` follow from ``eta`` and ``gap``.
+COMPARED = ("pole_rad_s", "alpha", "eta", "L", "R", "gap", "Q", "L_inf")
+
+
+@dataclass
+class _Base:
+    values: dict[str, tuple[float, float]]
+    source: str
+
+
+class SuspensionStages:
+    """The suspension's diagnosis: the record's own checks (a noise-driven loop has no
+    excitation ``r``: Sun et al.'s setting), the baseline (the design the recording
+    states in ``loop["design"]``, the machine's history, or a mapping of parameter
+    values), the physical parameters compared jointly; no fault model, so a change is
+    reported with its numbers, not isolated."""
+
+    drift_parameters: tuple[str, ...] = COMPARED
+
+    def quality(self, run: DiagnosisRun) -> tuple[QualityCheck, ...]:
+        data = run.data
+        return (
+            check_length(data),
+            check_channels_move(data),
+            check_sample_time(data),
+            check_saturation(data),
+            check_output_clipping(data),
+        )
+
+    def baseline(self, run: DiagnosisRun) -> None:
+        """Resolve the baseline before identifying (a bad one is the caller's error)."""
+        b = run.baseline
+        if isinstance(b, Mapping) and not isinstance(b, str):
+            run.base = _Base(_given(b), "given values")
+        elif b in ("nominal", None):
+            design = as_mapping(run.data.loop).get("design")
+            if not design:
+                raise DataError(
+                    "baseline='nominal' needs the suspension's design in the recording "
+                    "(loop['design']: alpha, eta, L, ...); compare with the machine's history "
+                    "(--baseline history with --machine and --store) or give the values "
+                    "(a JSON file of " + ", ".join(COMPARED) + ")"
+                )
+            run.base = _Base(_given(design), "design (loop['design'] in the recording)")
+        elif b == "history":
+            if run.store is None or run.machine is None:
+                raise DataError("baseline='history' needs `history` (a store) and `machine`")
+            try:
+                stored = run.store.latest_estimates(
+                    run.machine, method=run.method, before=run.when,
+                    exclude_recording=run.common["recording_hash"],
+                )  # fmt: skip
+            except MaglevidError:  # a machine not in the store yet: its first record
+                stored = {}
+            values = {k: (e.value, e.std_error or 0.0) for k, e in stored.items() if k in COMPARED}
+            run.base = _Base(values, "earlier identification (history)" if values else "")
+        else:
+            raise DataError(
+                "`baseline` must be 'nominal', 'history' or a mapping of the suspension's "
+                f"parameters; got {b!r}"
+            )
+
+    def compare(self, run: DiagnosisRun) -> Diagnosis | None:
+        result, base = run.result, run.base
+        se = result.std_errors()
+        estimates = {
+            k: (result.parameters[k], se.get(k, float("nan")))
+            for k in COMPARED
+            if k in result.parameters
+        }
+        if not any(k in estimates for k in ("alpha", "eta", "L")):
+            return cannot_diagnose(
+                run,
+                [
+                    f"{run.method} gave no physical parameters (the ball's mass is needed: "
+                    "loop['physical']['M'] or --option mass=...)"
+                ],
+            )
+        if not base.values:
+            return _without_baseline(run, estimates)
+        changes = compare_parameters(
+            estimates, base.values, tolerances=run.tolerances, level=run.level, joint=True
+        )
+        if not changes:
+            return cannot_diagnose(
+                run,
+                ["the baseline names none of " + ", ".join(estimates) + ": nothing to compare"],
+            )
+        run.compared = changes
+        return None
+
+    def isolate(self, run: DiagnosisRun) -> Diagnosis:
+        """No fault model: the changes with their numbers; a question the record cannot
+        decide (an interval across the tolerance) is "inconclusive", with the record
+        length that would decide it."""
+        changes, result = run.compared, run.result
+        verdict, code = verdict_without_isolation(changes, run.notes)
+        open_ = [ch for ch in changes if ch.status == "not resolved"]
+        if code in ("no_change", "within_tolerance") and open_:
+            verdict, code = _inconclusive(open_, run.data.n_samples * run.data.dt), "inconclusive"
+        reasons = [
+            f"{_label(ch.name)} {ch.estimate:.4g} vs baseline {ch.baseline:.4g}: "
+            f"{ch.change_percent:+.1f} % ({ch.status})"
+            for ch in changes
+        ]
+        return Diagnosis(
+            verdict=verdict,
+            verdict_code=code,
+            reasons=tuple(reasons),
+            identification=result,
+            changes=tuple(changes),
+            quality=run.quality,
+            baseline={
+                "source": run.base.source,
+                "parameters": {k: list(v) for k, v in run.base.values.items()},
+            },
+            identified_model=result.continuous_model,
+            notes=(*run.notes, "maglevid has no fault model of the suspension: no isolation"),
+            **run.common,
+        )
+
+
+def _inconclusive(open_: list[Any], duration: float) -> str:
+    """The verdict for changes whose interval crosses the tolerance, and the record length
+    that would bring each interval's half-width down to the tolerance (the estimate's
+    variance falls as 1/length; the baseline's does not)."""
+    words, factors, fixed = [], [], []
+    for ch in open_:
+        b = abs(ch.baseline)
+        half = 0.5 * (ch.change_ci[1] - ch.change_ci[0]) / b
+        total = float(np.hypot(ch.std_error, ch.baseline_std_error)) / b
+        z = half / total if total > 0 else 0.0
+        words.append(f"{_word(ch.name)} {ch.change_percent:+.1f} % (±{100 * half:.2g} %)")
+        room = (ch.tolerance / z) ** 2 - (ch.baseline_std_error / b) ** 2 if z > 0 else -1.0
+        if room > 0 and ch.std_error > 0:
+            factors.append((ch.std_error / b) ** 2 / room)
+        else:
+            fixed.append(_word(ch.name))
+    tol = 100 * open_[0].tolerance
+    advice = []
+    if factors:
+        f = max(factors)
+        advice.append(
+            f"about {f * duration:.3g} s of the same loop ({f:.2g}x this record) would "
+            f"bring the intervals to ±{tol:.3g} %"
+        )
+    if fixed:
+        advice.append(
+            f"{', '.join(fixed)}: the baseline's own uncertainty exceeds the tolerance "
+            "whatever this record's length (a longer baseline record would decide)"
+        )
+    return (
+        f"Inconclusive: the record cannot tell whether these moved beyond ±{tol:.3g} %: "
+        + ", ".join(words)
+        + "; "
+        + "; ".join(advice)
+    )
+
+
+def _word(name: str) -> str:
+    return {"pole_rad_s": "unstable pole"}.get(name, name)
+
+
+def _label(name: str) -> str:
+    return {"pole_rad_s": "unstable pole [rad/s]"}.get(name, name)
+
+
+def _given(values: Mapping[str, Any]) -> dict[str, tuple[float, float]]:
+    """A baseline of values: names of the suspension's parameters, finite and positive."""
+    names = tuple(KIND.parameters)
+    out = {}
+    for k, v in values.items():
+        if k not in names:
+            close = difflib.get_close_matches(str(k), names, n=1)
+            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            raise DataError(
+                f"the baseline's {k!r} is not a parameter of the suspension{hint}; known: "
+                + ", ".join(names)
+            )
+        try:
+            x = float(v)
+        except (TypeError, ValueError):
+            x = float("nan")
+        if isinstance(v, bool) or not np.isfinite(x) or (k != "Y_offset" and x <= 0):
+            raise DataError(f"the baseline's {k} is {v!r}: it must be a finite number (SI)")
+        out[k] = (x, 0.0)
+    if not out:
+        raise DataError("the baseline names no parameters of the suspension")
+    return out
+
+
+def _without_baseline(run: DiagnosisRun, estimates: dict[str, tuple[float, float]]) -> Diagnosis:
+    """The first record of a machine: identified, stored, nothing compared."""
+    res = run.result
+    reasons = tuple(
+        f"{_label(k)} {v:.4g} ± {1.96 * s:.2g} (95 %)" for k, (v, s) in estimates.items()
+    )
+    return Diagnosis(
+        verdict="No baseline: identified, not compared",
+        verdict_code="no_change",
+        reasons=reasons,
+        identification=res,
+        quality=run.quality,
+        baseline={"source": "none", "parameters": {}},
+        identified_model=res.continuous_model,
+        notes=(*run.notes, "record this diagnosis in a history store to compare later ones"),
+        **run.common,
+    )
+
+
+STAGES = SuspensionStages()
 KIND = InterSampledSuspension()

@@ -29,6 +29,7 @@ from __future__ import annotations
 import argparse
 import logging
 from collections.abc import Callable, Iterable
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -48,6 +49,7 @@ from maglevid.physics.suspension import (
     polynomials_from_state_space,
     suspension_state_space,
 )
+from maglevid.simulate._faults import check_faults, parse_fault
 
 __all__ = [
     "CONTROLLERS",
@@ -123,6 +125,7 @@ def simulate_suspension(
     substeps: int = 4,
     warmup: float = 1.0,
     force_std: float = 0.0,
+    design: SuspensionParameters | None = None,
     rng: np.random.Generator | int | None = None,
 ) -> ClosedLoopData:
     """Simulate the inter-sampled closed loop of Sun et al. and return the recording.
@@ -150,6 +153,11 @@ def simulate_suspension(
         (nonlinear plant only; 0 by default, the paper's setting: sensor noise
         alone). A force inside the loop is what Sun et al.'s output-error steps
         cannot tell from the plant (docs/sun.md, "Beyond the paper").
+    design : SuspensionParameters, optional
+        What the recording states as the suspension's design (``loop["design"]``:
+        the diagnosis's nominal baseline; ``loop["physical"]``'s mass and resistance,
+        which the engineer knows): ``params`` by default; the nominal suspension when
+        ``params`` carries a fault.
     rng : numpy.random.Generator or int, optional
         Source of the noise; the same seed gives the same record.
 
@@ -158,8 +166,9 @@ def simulate_suspension(
     ClosedLoopData
         ``y`` (N p, 1) measured gap deviation [m], ``u`` and ``u_f`` (N, 1) the
         controller's voltage [V]; ``loop`` = controller, ``T``, operating point
-        (sensor reading ``Y``) and the printed ``M``, ``R``; ``metadata["truth"]``
-        the true model (:func:`suspension_truth`), plus seed and options.
+        (sensor reading ``Y``), the design's ``M``, ``R`` (``physical``) and its
+        physical parameters (``design``); ``metadata["truth"]`` the true model
+        (:func:`suspension_truth`), plus seed and options.
 
     Raises
     ------
@@ -185,22 +194,7 @@ def simulate_suspension(
     if plant not in ("linear", "nonlinear"):
         raise DataError(f"`plant` must be 'linear' or 'nonlinear'; got {plant!r}")
     duration = check_positive(duration, "duration")
-    noise_std = float(noise_std)
-    if not np.isfinite(noise_std) or noise_std < 0:
-        raise DataError(f"`noise_std` must be >= 0; got {noise_std!r}")
-    if isinstance(substeps, bool) or not isinstance(substeps, (int, np.integer)) or substeps < 1:
-        raise DataError(f"`substeps` must be an integer >= 1; got {substeps!r}")
-    warmup = float(warmup)
-    if not np.isfinite(warmup) or warmup < 0:
-        raise DataError(f"`warmup` must be >= 0 seconds; got {warmup!r}")
-    force_std = float(force_std)
-    if not np.isfinite(force_std) or force_std < 0:
-        raise DataError(f"`force_std` must be >= 0 N; got {force_std!r}")
-    if force_std and plant != "nonlinear":
-        raise DataError(
-            "`force_std` needs plant='nonlinear' (the linear plant is the paper's "
-            "simulation: sensor noise alone)"
-        )
+    noise_std, warmup, force_std = _checked_levels(noise_std, substeps, warmup, force_std, plant)
     seed = rng if isinstance(rng, (int, np.integer)) else None
     rng = np.random.default_rng(rng)
 
@@ -225,12 +219,14 @@ def simulate_suspension(
     y = y[n_warm:]
     u = u[n_warm:]
 
+    design = params if design is None else design
     loop = {
         "controller": controller.to_dict(),
         "T": dt,
         "reference": 0.0,
         "operating_point": {"Y": params.Y},
-        "physical": {"M": params.M, "R": params.R, "g": params.g},
+        "physical": {"M": design.M, "R": design.R, "g": design.g},
+        "design": design_values(design),
     }
     metadata = {
         "scenario": SCENARIO,
@@ -254,6 +250,44 @@ def simulate_suspension(
         loop=loop,
         metadata=metadata,
     )
+
+
+def _checked_levels(  # type: ignore[no-untyped-def]
+    noise_std, substeps, warmup, force_std, plant
+) -> tuple[float, float, float]:
+    """The noise, warm-up and force options as floats, or the DataError naming the bad one."""
+    noise_std = float(noise_std)
+    if not np.isfinite(noise_std) or noise_std < 0:
+        raise DataError(f"`noise_std` must be >= 0; got {noise_std!r}")
+    if isinstance(substeps, bool) or not isinstance(substeps, (int, np.integer)) or substeps < 1:
+        raise DataError(f"`substeps` must be an integer >= 1; got {substeps!r}")
+    warmup = float(warmup)
+    if not np.isfinite(warmup) or warmup < 0:
+        raise DataError(f"`warmup` must be >= 0 seconds; got {warmup!r}")
+    force_std = float(force_std)
+    if not np.isfinite(force_std) or force_std < 0:
+        raise DataError(f"`force_std` must be >= 0 N; got {force_std!r}")
+    if force_std and plant != "nonlinear":
+        raise DataError(
+            "`force_std` needs plant='nonlinear' (the linear plant is the paper's "
+            "simulation: sensor noise alone)"
+        )
+    return noise_std, warmup, force_std
+
+
+def design_values(params: SuspensionParameters) -> dict[str, float]:
+    """What a recording states as the suspension's design (``loop["design"]``): the
+    physical parameters a diagnosis compares, and the unstable pole [rad/s]."""
+    s = np.linalg.eigvals(suspension_state_space(params).A)
+    return {
+        "pole_rad_s": float(np.max(s.real)),
+        "alpha": params.alpha,
+        "eta": params.eta,
+        "L": params.L,
+        "gap": params.gap,
+        "Q": params.Q,
+        "L_inf": params.L_inf,
+    }
 
 
 def _simulate_linear(
@@ -337,8 +371,30 @@ def _simulate_nonlinear(
 
 
 # ----------------------------------------------------------------- scenario
+#: What ``--fault NAME=FACTOR`` may multiply: the ball's mass, the coil's inductance law
+#: (``Q``, eq. (23)'s constant: shorted turns; ``L_inf``) and the gap sensor's offset
+#: (``Y_offset``: the ball held at another physical gap). Not ``R``: the likelihood takes
+#: the coil's resistance as the recording states it (docs/sun.md, Section 6).
+FAULT_NAMES = ("M", "Q", "L_inf", "Y_offset")
+
+
+def faulty_parameters(
+    nominal: SuspensionParameters, faults: Iterable[tuple[str, float]]
+) -> SuspensionParameters:
+    """``nominal`` with each named parameter multiplied by its factor."""
+    faults = list(faults)
+    check_faults(faults, FAULT_NAMES)
+    return replace(nominal, **{k: getattr(nominal, k) * f for k, f in faults})
+
+
 def add_scenario_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--p", type=int, default=3, help="output samples per control period")
+    parser.add_argument(
+        "--fault", action="append", type=parse_fault, default=[], metavar="NAME=FACTOR",
+        help="multiply a parameter of the simulated suspension (M ball mass, Q and L_inf of "
+        "the inductance law, Y_offset the gap sensor's offset), e.g. --fault Q=0.9; the "
+        "recording states the nominal design; repeatable",
+    )  # fmt: skip
     parser.add_argument("--duration", type=float, default=18.0, help="record length [s]")
     parser.add_argument(
         "--noise-std-mm", type=float, default=0.1, help="output noise std [mm] (paper: 0.1)"
@@ -373,10 +429,12 @@ def run_scenario(
     ``progress`` is accepted for the scenario contract and not used: one
     simulation call, nothing to count.
     """
+    nominal = SuspensionParameters.nominal(Y=args.Y_mm * 1e-3)
     return simulate_suspension(
         p=args.p,
         duration=args.duration,
-        params=SuspensionParameters.nominal(Y=args.Y_mm * 1e-3),
+        params=faulty_parameters(nominal, args.fault),
+        design=nominal,
         controller=args.controller,
         noise_std=args.noise_std_mm * 1e-3,
         plant=args.plant,
