@@ -1219,6 +1219,17 @@ def data_matrix_singular_values(
     return np.linalg.svd(Phi, compute_uv=False)
 
 
+#: The output channel and the known physics, options of both inter-sample methods.
+PHYSICS_OPTIONS = (
+    Option("output", "int", "output channel (position) when y has several", low=0),
+    Option("mass", "float", "ball mass (default: data.loop['physical']['M'])", low=0,
+           low_open=True, unit="kg"),
+    Option("resistance", "float", "coil-circuit resistance (default: "
+           "data.loop['physical']['R'])", low=0, low_open=True, unit="ohm"),
+    Option("gravity", "float", "gravity (default: data.loop['physical']['g'] or "
+           "9.80665)", low=0, low_open=True, unit="m/s^2"),
+)  # fmt: skip
+
 METHODS = {"intersample": fit_intersample}
 #: Its options, declared once (maglevid.identify.options; defaults: fit_intersample's).
 OPTIONS = {
@@ -1234,12 +1245,6 @@ OPTIONS = {
         Option("numerator", "str", "eq. (15) physical numerator or step 2 IV (non-causal "
                "or delayed instrument)", choices=NUMERATORS),
         Option("gain_from", "str", "where eq. (15) takes B_j(1)", choices=GAIN_SOURCES),
-        Option("output", "int", "output channel (position) when y has several", low=0),
-        Option("mass", "float", "ball mass (default: data.loop['physical']['M'])", low=0,
-               low_open=True, unit="kg"),
-        Option("resistance", "float", "coil-circuit resistance (default: "
-               "data.loop['physical']['R'])", low=0, low_open=True, unit="ohm"),
-        Option("gravity", "float", "gravity (default: data.loop['physical']['g'] or "
-               "9.80665)", low=0, low_open=True, unit="m/s^2"),
+        *PHYSICS_OPTIONS,
     )
 }  # fmt: skip

@@ -45,7 +45,12 @@ from scipy import optimize, signal
 from maglevid.data import ClosedLoopData
 from maglevid.exceptions import DataError, IdentificationError, ModelError
 from maglevid.identify.closedloop import simo_polynomials_to_state_space
-from maglevid.identify.intersample import _known_physics, _signals, fit_intersample
+from maglevid.identify.intersample import (
+    PHYSICS_OPTIONS,
+    _known_physics,
+    _signals,
+    fit_intersample,
+)
 from maglevid.identify.multirate import intersample_numerators
 from maglevid.identify.options import Option
 from maglevid.identify.result import IdentificationResult, propagate_covariance
@@ -503,13 +508,7 @@ METHODS = {"intersample-ml": fit_intersample_ml}
 #: Its options, declared once (maglevid.identify.options; defaults: fit_intersample_ml's).
 OPTIONS = {
     "intersample-ml": (
-        Option("mass", "float", "ball mass (default: data.loop['physical']['M'])", low=0,
-               low_open=True, unit="kg"),
-        Option("resistance", "float", "coil-circuit resistance (default: "
-               "data.loop['physical']['R'])", low=0, low_open=True, unit="ohm"),
-        Option("gravity", "float", "gravity (default: data.loop['physical']['g'] or "
-               "9.80665)", low=0, low_open=True, unit="m/s^2"),
-        Option("output", "int", "output channel (position) when y has several", low=0),
+        *PHYSICS_OPTIONS,
         Option("free_resistance", "bool", "estimate R even where it is known (a coil "
                "that heats up)"),
         Option("burn_in", "int", "prediction errors dropped at the start (default: the "
