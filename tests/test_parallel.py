@@ -48,3 +48,24 @@ def test_library_code_runs_in_order_where_workers_would_be_spawned(monkeypatch) 
 
     monkeypatch.setattr(par, "start_method", lambda: "spawn")
     assert par.map_in_processes(math.sqrt, [4.0, 9.0], 2, spawn=False) == ([2.0, 3.0], 1, "serial")
+
+
+def test_a_command_runs_on_one_blas_thread_unless_the_environment_chose(monkeypatch):
+    """Small matrices on a second BLAS thread made `maglevid identify` of a suspension
+    2.5x slower (parallel.one_blas_thread_here); a number in the environment wins."""
+    from threadpoolctl import threadpool_info
+
+    from maglevid.parallel import one_blas_thread_here
+
+    def blas_threads():
+        return {p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas"}
+
+    for k in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        monkeypatch.delenv(k, raising=False)
+    before = blas_threads()
+    with one_blas_thread_here():
+        assert blas_threads() == {1}
+    assert blas_threads() == before
+    monkeypatch.setenv("OPENBLAS_NUM_THREADS", "2")
+    with one_blas_thread_here():
+        assert blas_threads() == before  # the user's choice is left alone

@@ -30,7 +30,13 @@ from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from typing import Any
 
-__all__ = ["available_cores", "map_in_processes", "one_blas_thread", "start_method"]
+__all__ = [
+    "available_cores",
+    "map_in_processes",
+    "one_blas_thread",
+    "one_blas_thread_here",
+    "start_method",
+]
 
 _BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 
@@ -57,6 +63,26 @@ def one_blas_thread() -> Iterator[None]:
                 os.environ.pop(k, None)
             else:
                 os.environ[k] = v
+
+
+@contextlib.contextmanager
+def one_blas_thread_here() -> Iterator[None]:
+    """One BLAS thread in this process while inside, unless the environment chose a number
+    (``OPENBLAS_NUM_THREADS`` and the like). maglevid's matrices are small: a second BLAS
+    thread on them costs more than it gives (docs/performance.md, "Threads"); measured on
+    the 2-core machine, `maglevid identify` of an inter-sampled suspension 9.8 s -> 3.9 s,
+    `maglevid diagnose` of a bearing record 2.8 s -> 1.9 s. The numpy already loaded keeps
+    its thread pool, limited through threadpoolctl (without it, nothing changes)."""
+    if any(os.environ.get(k) for k in _BLAS_THREAD_VARIABLES):
+        yield
+        return
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:  # pragma: no cover - a core dependency; an old install lacks it
+        yield
+        return
+    with threadpool_limits(limits=1, user_api="blas"):
+        yield
 
 
 def start_method() -> str:

@@ -15,6 +15,7 @@ import maglevid
 from maglevid._plugins import modules_with
 from maglevid.exceptions import MaglevidError
 from maglevid.jsonable import to_json_text
+from maglevid.parallel import one_blas_thread_here
 
 __all__ = ["build_parser", "main"]
 
@@ -158,7 +159,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
-        with _numerical_warnings_logged():
+        with _numerical_warnings_logged(), one_blas_thread_here():
             result = args._run(args)
         if result is not None:
             _print(args, result)
