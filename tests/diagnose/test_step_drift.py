@@ -116,3 +116,13 @@ def test_drift_already_past_its_limit_is_not_projected(tmp_path):
     (d,) = _drifts(store, _diag(), 0.05, 0.01)
     assert d["kind"] == "drift" and d["projected_crossing"] is None and d["already_beyond"]
     store.close()
+
+
+def test_a_trend_never_comes_from_the_future(tmp_path):
+    """The trend of a diagnosis stops at its own recording: a second `make demo` into the
+    same folder (the first run's later weeks already stored) alarmed on day 0."""
+    store = _store_history(tmp_path, [1.0 - 0.02 * i for i in range(8)])
+    assert _drifts(store, _diag(), 0.05, 0.01, when=T0 + timedelta(days=14)) == []
+    (d,) = _drifts(store, _diag(), 0.05, 0.01, when=(T0 + timedelta(days=49)).isoformat())
+    assert d["kind"] == "drift"
+    store.close()

@@ -198,9 +198,11 @@ def _with_drifts(
     tolerances: float | Mapping[str, float],
     alpha: float,
     parameters: tuple[str, ...],
+    when: Any = None,
 ) -> Diagnosis:
-    """Stage 5, after storing: the machine's history tested for drift and steps."""
-    drifts = _drifts(store, diag, tolerances, alpha, parameters)
+    """Stage 5, after storing: the machine's history up to this recording (``when``)
+    tested for drift and steps."""
+    drifts = _drifts(store, diag, tolerances, alpha, parameters, when)
     if not drifts:
         return diag
     words = "; ".join(_drift_words(d) for d in drifts)
@@ -300,7 +302,7 @@ def diagnose(
         diag = _isolate(run, stages)
     diag = _record(run.store, diag, data, run.when, method_options, run.notes)
     if verdict_reached and run.store is not None and drift and stages.drift_parameters:
-        diag = _with_drifts(run.store, diag, tol, alpha, stages.drift_parameters)
+        diag = _with_drifts(run.store, diag, tol, alpha, stages.drift_parameters, run.when)
     return diag
 
 
@@ -404,8 +406,12 @@ def _drifts(
     tolerances: float | Mapping[str, float],
     alpha: float,
     parameters: tuple[str, ...] = DIAGNOSED_PARAMETERS,
+    when: Any = None,
 ) -> list[dict[str, Any]]:
-    """Trend test on each diagnosed parameter of the machine's stored history.
+    """Trend test on each diagnosed parameter of the machine's stored history, up to and
+    including the recording diagnosed (``when``; a trend, like a baseline, never comes
+    from the future: a second `make demo` into the same folder alarmed on day 0 from the
+    first run's later records, found from outside, twentieth session).
 
     ``parameters``: the plant kind's drift parameters (default the two-coil
     AMB's 13). ``alpha`` is the family-wise level over the parameters: each of the
@@ -417,8 +423,10 @@ def _drifts(
     drift alarms over 12 looks within alpha (docs/history.md, repeated looks).
     """
     from maglevid.diagnose.drift import STEP_SHARE, detect_drift, detect_step
+    from maglevid.diagnose.history import _as_utc
 
     alpha_each = alpha / len(parameters)
+    until = None if when is None else _as_utc("recorded_at", when).timestamp()
     model_error = {c.name: c.model_error for c in diag.changes}
     out = []
     base = diag.baseline.get("parameters", {}) if diag.baseline else {}
@@ -428,6 +436,8 @@ def _drifts(
         except MaglevidError:
             continue
         ok = np.isfinite(tr.value) & np.isfinite(tr.std_error) & (tr.std_error > 0)
+        if until is not None:
+            ok &= tr.time <= until
         if ok.sum() < MIN_DRIFT_POINTS or np.ptp(tr.time[ok]) <= 0:
             continue
         b = float(base[k][0]) if k in base else float(tr.value[ok][0])

@@ -427,8 +427,9 @@ def _checked(data, mass, resistance, gravity, output, burn_in):  # type: ignore[
         )
     if M is None:
         raise DataError(
-            "intersample-ml needs the ball's mass (option mass=, or loop['physical']['M'] "
-            "in the recording); `intersample` identifies the polynomials without it"
+            "intersample-ml needs the ball's mass: mass=... (maglevid identify --option "
+            "mass=0.54), or loop['physical']['M'] in the recording; `intersample` identifies "
+            "the polynomials without it"
         )
     if burn_in is not None and (isinstance(burn_in, bool) or burn_in < 0):
         raise DataError(f"`burn_in` must be an integer >= 0; got {burn_in!r}")
