@@ -329,3 +329,17 @@ def test_one_amplifier_with_less_headroom_moves_the_excitation_to_the_other(desi
     assert plan.to_dict()["amplifier_limit"] == (4.0, 0.5)
     with pytest.raises(DataError, match="one per input"):
         plan_experiment(design, n_samples=10, excitation_std=1.0, max_excitation_std=(1, 2, 3))
+
+
+def test_plan_of_another_kind_says_where_its_answer_is(tmp_path, capsys):
+    """An inter-sampled suspension's recording: the plan is the bearing's Cramér-Rao bound
+    ("the ml method needs one output sample per control period; got p=3" said nothing of
+    where the suspension's answer is)."""
+    from maglevid.io import write_recording
+    from maglevid.simulate.suspension import simulate_suspension
+
+    path = write_recording(simulate_suspension(p=3, duration=1.0, rng=1), tmp_path / "s.npz")
+    assert main(["plan", str(path)]) == 1
+    err = capsys.readouterr().err
+    assert "two-coil bearing" in err and "intersampled-suspension" in err
+    assert "maglevid diagnose" in err

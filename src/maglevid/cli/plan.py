@@ -269,6 +269,7 @@ def _plan_recording(args: argparse.Namespace, noise: Any, options: dict, plan_fn
     from maglevid.io import read_recording
 
     data = read_recording(args.recording, mapping=args.mapping)
+    _two_coil_bearing(data)
     has_truth = "truth_v" in data.metadata or "operating_point_true" in data.metadata
     v = None
     if args.from_fit or not has_truth or (noise is None and NoiseModel.from_data(data) is None):
@@ -282,6 +283,26 @@ def _plan_recording(args: argparse.Namespace, noise: Any, options: dict, plan_fn
 
         raise DataError("--excitation-std/--seconds describe a design; a recording's own are used")
     return plan_fn(data, v=v, noise=noise, **options)
+
+
+def _two_coil_bearing(data: Any) -> None:
+    """The plan is the two-coil bearing's Cramér-Rao bound; another kind is told where its
+    own answer is (an inter-sampled suspension: "ml ... got p=3" said nothing of that)."""
+    from maglevid.exceptions import DataError
+    from maglevid.plants import infer_kind
+
+    kind, why = infer_kind(data)
+    if kind == "amb-two-coil":
+        return
+    where = (
+        "`maglevid diagnose` states the record length an inconclusive question needs"
+        if kind == "intersampled-suspension"
+        else "`maglevid identify` gives its estimates with their intervals"
+    )
+    raise DataError(
+        f"maglevid plan designs experiments for the two-coil bearing (the Cramér-Rao bound "
+        f"of its ml method); this recording is of kind {kind} ({why}): {where}"
+    )
 
 
 def format_text(result: dict[str, Any]) -> str:
