@@ -73,8 +73,10 @@ def test_bad_baselines_are_the_callers_errors():
     rec = _record(81, duration=3.0)
     with pytest.raises(DataError, match="did you mean 'alpha'"):
         diagnose(rec, baseline={"alhpa": 1000.0})
-    with pytest.raises(DataError, match="finite number"):
+    with pytest.raises(DataError, match="finite positive number"):
         diagnose(rec, baseline={"L": -1.0})
+    with pytest.raises(DataError, match="not a parameter of the suspension"):
+        diagnose(rec, baseline={"I": 1.25})  # follows from eta: not compared
     bare = simulate_suspension(p=3, duration=3.0, rng=1)
     bare = type(bare)(y=bare.y, u=bare.u, dt=bare.dt, p=bare.p, loop={"physical": {"M": 0.54}})
     with pytest.raises(DataError, match="loop\\['design'\\]"):

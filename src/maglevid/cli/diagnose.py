@@ -35,6 +35,9 @@ m [kg], i0 [A], x0 [m], R1 R2 [ohm], Ls1 Ls2 [H], K1 K2 = N^2 A mu0 [H*m],
 kw1 kw2 [V/V]. With all eleven the fault is isolated (which coil, amplifier,
 ...); a partial set (e.g. {"R1": 17.5, "kw1": 1.0}) is compared parameter by
 parameter without isolation. Values are taken as exact (no standard error).
+For an inter-sampled suspension (Sun et al.) the names are pole_rad_s [1/s],
+alpha [N/m], eta [N/A], L [H], R [ohm], gap [m], Q [H*m], L_inf [H], e.g.
+{"alpha": 1011, "eta": 8.45, "L": 0.872}; compared jointly, without isolation.
 """
 
 

@@ -269,8 +269,9 @@ def _label(name: str) -> str:
 
 
 def _given(values: Mapping[str, Any]) -> dict[str, tuple[float, float]]:
-    """A baseline of values: names of the suspension's parameters, finite and positive."""
-    names = tuple(KIND.parameters)
+    """A baseline of values: names of the compared parameters (:data:`COMPARED`; ``I`` and
+    ``Y_offset`` follow from ``eta`` and ``gap``), finite and positive."""
+    names = COMPARED
     out = {}
     for k, v in values.items():
         if k not in names:
@@ -284,8 +285,10 @@ def _given(values: Mapping[str, Any]) -> dict[str, tuple[float, float]]:
             x = float(v)
         except (TypeError, ValueError):
             x = float("nan")
-        if isinstance(v, bool) or not np.isfinite(x) or (k != "Y_offset" and x <= 0):
-            raise DataError(f"the baseline's {k} is {v!r}: it must be a finite number (SI)")
+        if isinstance(v, bool) or not np.isfinite(x) or x <= 0:
+            raise DataError(
+                f"the baseline's {k} is {v!r}: it must be a finite positive number (SI units)"
+            )
         out[k] = (x, 0.0)
     if not out:
         raise DataError("the baseline names no parameters of the suspension")
