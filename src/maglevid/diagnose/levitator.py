@@ -283,34 +283,17 @@ def levitator_baseline_values(base: Any, y_ref: float) -> dict[str, tuple[float,
 
 
 def levitator_without_baseline(
-    result: Any,
-    estimates: dict[str, tuple[float, float]],
-    y_ref: float,
-    quality: Any,
-    notes: list[str],
-    common: dict[str, Any],
-) -> Any:
-    """The diagnosis of a levitator log with no published physics and no history: the
-    identified pole and parameters with their intervals, nothing compared."""
-    from maglevid.diagnose.diagnosis import Diagnosis
-
+    result: Any, estimates: dict[str, tuple[float, float]], y_ref: float
+) -> str:
+    """What a levitator log with no published physics and no history says: the identified
+    pole with its interval, nothing compared (the reason of
+    :func:`~maglevid.plants.base.identified_not_compared`)."""
     p, se = estimates["pole_rad_s"]
     lo, hi = (result.extras.get("consensus") or {}).get("ci95", (p - 1.96 * se, p + 1.96 * se))
-    reasons = (
+    return (
         f"unstable pole {p:.4g} rad/s (95 % CI {lo:.4g} … {hi:.4g}) at the operating gap "
         f"{1e3 * y_ref:.3g} mm; no baseline (no published physics in the recording, no "
-        "history): nothing to compare with",
-    )
-    return Diagnosis(
-        verdict="No baseline: identified, not compared",
-        verdict_code="no_change",
-        reasons=reasons,
-        identification=result,
-        quality=quality,
-        baseline={"source": "none", "parameters": {}},
-        identified_model=result.continuous_model,
-        notes=(*notes, "record this diagnosis in a history store to compare later ones with it"),
-        **common,
+        "history): nothing to compare with"
     )
 
 

@@ -44,7 +44,10 @@ from scipy import optimize, signal
 
 from maglevid.data import ClosedLoopData
 from maglevid.exceptions import DataError, IdentificationError, ModelError
-from maglevid.identify.closedloop import simo_polynomials_to_state_space
+from maglevid.identify.closedloop import (
+    covariance_from_jacobian,
+    simo_polynomials_to_state_space,
+)
 from maglevid.identify.intersample import (
     PHYSICS_OPTIONS,
     _known_physics,
@@ -437,8 +440,10 @@ def _checked(data, mass, resistance, gravity, output, burn_in):  # type: ignore[
 
 
 def _covariance(pred: _Predictor, theta: np.ndarray) -> np.ndarray:
-    """``s^2 (J^T J)^{-1}`` of the prediction errors (central differences, columns
-    scaled to unit norm before the inverse)."""
+    """``s^2 (J^T J)^{-1}`` of the prediction errors (central differences, steps of
+    ``1e-5`` in the logs and the scaled gain; the project's
+    :func:`~maglevid.identify.closedloop.covariance_from_jacobian` on the columns scaled
+    to unit norm)."""
     e0 = pred.errors(theta)
     J = np.empty((e0.size, theta.size))
     for i in range(theta.size):
@@ -447,15 +452,9 @@ def _covariance(pred: _Predictor, theta: np.ndarray) -> np.ndarray:
         tp[i] += h
         tm[i] -= h
         J[:, i] = (pred.errors(tp) - pred.errors(tm)) / (2.0 * h)
-    s2 = float(e0 @ e0) / (e0.size - theta.size)
     d = np.linalg.norm(J, axis=0)
     d[d == 0] = 1.0
-    H = (J / d).T @ (J / d)
-    try:
-        Hinv = sla.cho_solve(sla.cho_factor(H, lower=True), np.eye(theta.size))
-    except np.linalg.LinAlgError:
-        Hinv = np.linalg.pinv(H, hermitian=True)
-    return s2 * Hinv / np.outer(d, d)
+    return covariance_from_jacobian(J / d, e0, theta.size) / np.outer(d, d)
 
 
 def _operating_point(data: ClosedLoopData) -> float | None:

@@ -16,7 +16,6 @@ baseline and not isolated (no v-space model of its faults).
 
 from __future__ import annotations
 
-import difflib
 from collections.abc import Mapping
 from dataclasses import dataclass, fields, replace
 from types import MappingProxyType
@@ -59,6 +58,7 @@ from maglevid.plants.base import (
     DiagnosisRun,
     as_mapping,
     cannot_diagnose,
+    checked_baseline_values,
     shape_of,
 )
 
@@ -772,36 +772,13 @@ _BASELINE_NAMES = frozenset(_physical_dict(AMBParameters.nominal())) | {"ks_sum"
 
 
 def _checked_baseline(baseline: Mapping[str, Any]) -> dict[str, float]:
-    """A given baseline's values, each a known name with a finite positive value.
-
-    A misspelt name was ignored and a NaN compared as "unchanged" (both gave a green
-    "No significant change" that compared nothing), a string raised a traceback, a
-    negative value a -200 % "fault" (found from outside, thirteenth session of issue
-    16): each is the caller's error, said before any fitting."""
-    if not baseline:
-        raise DataError(
-            "the baseline names no parameters; give the bearing's values, e.g. "
-            '{"R1": 17.5, "R2": 17.5, ...} (maglevid diagnose --help lists the names)'
-        )
-    out = {}
-    for k, v in baseline.items():
-        if k not in _BASELINE_NAMES:
-            close = difflib.get_close_matches(str(k), sorted(_BASELINE_NAMES), n=1)
-            hint = f" (did you mean {close[0]!r}?)" if close else ""
-            raise DataError(
-                f"the baseline's {k!r} is not a parameter of the bearing{hint}; known: "
-                + ", ".join(sorted(_BASELINE_NAMES, key=str.lower))
-            )
-        try:
-            x = float(v)
-        except (TypeError, ValueError):
-            x = float("nan")
-        if not (np.isfinite(x) and x > 0.0) or isinstance(v, bool):
-            raise DataError(
-                f"the baseline's {k} is {v!r}: it must be a finite positive number (SI units)"
-            )
-        out[k] = x
-    return out
+    """A given baseline's values, each a known name with a finite positive value
+    (:func:`~maglevid.plants.base.checked_baseline_values`)."""
+    return checked_baseline_values(
+        baseline, sorted(_BASELINE_NAMES), plant="bearing",
+        example='{"R1": 17.5, "R2": 17.5, ...}',
+        listed=sorted(_BASELINE_NAMES, key=str.lower),
+    )  # fmt: skip
 
 
 def _given_baseline(baseline: Any, notes: list[str]) -> tuple[AMBParameters | None, _Values, str]:

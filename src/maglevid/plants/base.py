@@ -17,7 +17,9 @@ recognises everything) always last.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+import difflib
+import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
@@ -36,6 +38,8 @@ __all__ = [
     "PlantKind",
     "as_mapping",
     "cannot_diagnose",
+    "checked_baseline_values",
+    "identified_not_compared",
     "kind_of",
     "kinds_in_order",
     "moved_in_words",
@@ -175,6 +179,69 @@ def cannot_diagnose(run: DiagnosisRun, reasons: list[str], *, prefix: str = "") 
 
 
 KINDS: dict[str, PlantKind] = {}
+
+
+def identified_not_compared(run: DiagnosisRun, reasons: list[str]) -> Diagnosis:
+    """The verdict of a first record with no baseline (no stated design, no history):
+    identified with its intervals (``reasons``), nothing compared; stored, it is the
+    next record's baseline."""
+    from maglevid.diagnose.diagnosis import Diagnosis
+
+    res = run.result
+    return Diagnosis(
+        verdict="No baseline: identified, not compared",
+        verdict_code="no_change",
+        reasons=tuple(reasons),
+        identification=res,
+        quality=run.quality,
+        baseline={"source": "none", "parameters": {}},
+        identified_model=res.continuous_model,
+        notes=(
+            *run.notes,
+            "record this diagnosis in a history store to compare later ones with it",
+        ),
+        **run.common,
+    )
+
+
+def checked_baseline_values(
+    values: Mapping[str, Any],
+    names: Sequence[str],
+    *,
+    plant: str,
+    example: str,
+    listed: Sequence[str] | None = None,
+) -> dict[str, float]:
+    """A baseline given as values: each a known name (``names``; ``listed`` the order the
+    error lists them in, default ``names``) with a finite positive value, else the
+    DataError that says which and why. A misspelt name was ignored and a NaN compared as
+    "unchanged", a string raised a traceback, a negative value read as a -200 % fault
+    (found from outside, issue 16, thirteenth session): each is the caller's error, said
+    before any fitting. ``plant`` ("bearing") and ``example`` (JSON) word the messages."""
+    if not values:
+        raise DataError(
+            f"the baseline names no parameters; give the {plant}'s values, e.g. {example} "
+            "(maglevid diagnose --help lists the names)"
+        )
+    out = {}
+    for k, v in values.items():
+        if k not in names:
+            close = difflib.get_close_matches(str(k), list(names), n=1)
+            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            raise DataError(
+                f"the baseline's {k!r} is not a parameter of the {plant}{hint}; known: "
+                + ", ".join(names if listed is None else listed)
+            )
+        try:
+            x = float(v)
+        except (TypeError, ValueError):
+            x = float("nan")
+        if not (math.isfinite(x) and x > 0.0) or isinstance(v, bool):
+            raise DataError(
+                f"the baseline's {k} is {v!r}: it must be a finite positive number (SI units)"
+            )
+        out[k] = x
+    return out
 
 
 def verdict_without_isolation(changes: list[Any], notes: list[str]) -> tuple[str, str]:

@@ -41,6 +41,7 @@ from maglevid.plants.base import (
     DiagnosisRun,
     as_mapping,
     cannot_diagnose,
+    identified_not_compared,
     moved_in_words,
     shape_of,
     verdict_without_isolation,
@@ -146,8 +147,8 @@ class LevitatorStages:
         source = "earlier identification (history)" if run.base else ""
         published = lev.levitator_baseline(data)
         if not values and published is None:
-            return lev.levitator_without_baseline(
-                result, estimates, y_ref, run.quality, run.notes, run.common
+            return identified_not_compared(
+                run, [lev.levitator_without_baseline(result, estimates, y_ref)]
             )
         m = published.m if published is not None else float(result.options.get("m", 0.018))
         params = lev.levitator_parameters_of(run.base, m) if values else None

@@ -14,7 +14,6 @@ without isolation.
 
 from __future__ import annotations
 
-import difflib
 from collections.abc import Mapping
 from dataclasses import dataclass
 from types import MappingProxyType
@@ -38,6 +37,8 @@ from maglevid.plants.base import (
     DiagnosisRun,
     as_mapping,
     cannot_diagnose,
+    checked_baseline_values,
+    identified_not_compared,
     shape_of,
     verdict_without_isolation,
 )
@@ -180,7 +181,13 @@ class SuspensionStages:
                 ],
             )
         if not base.values:
-            return _without_baseline(run, estimates)
+            return identified_not_compared(
+                run,
+                [
+                    f"{_label(k)} {v:.4g} ± {1.96 * s:.2g} (95 %)"
+                    for k, (v, s) in estimates.items()
+                ],
+            )
         changes = compare_parameters(
             estimates, base.values, tolerances=run.tolerances, level=run.level, joint=True
         )
@@ -270,48 +277,11 @@ def _label(name: str) -> str:
 
 def _given(values: Mapping[str, Any]) -> dict[str, tuple[float, float]]:
     """A baseline of values: names of the compared parameters (:data:`COMPARED`; ``I`` and
-    ``Y_offset`` follow from ``eta`` and ``gap``), finite and positive."""
-    names = COMPARED
-    out = {}
-    for k, v in values.items():
-        if k not in names:
-            close = difflib.get_close_matches(str(k), names, n=1)
-            hint = f" (did you mean {close[0]!r}?)" if close else ""
-            raise DataError(
-                f"the baseline's {k!r} is not a parameter of the suspension{hint}; known: "
-                + ", ".join(names)
-            )
-        try:
-            x = float(v)
-        except (TypeError, ValueError):
-            x = float("nan")
-        if isinstance(v, bool) or not np.isfinite(x) or x <= 0:
-            raise DataError(
-                f"the baseline's {k} is {v!r}: it must be a finite positive number (SI units)"
-            )
-        out[k] = (x, 0.0)
-    if not out:
-        raise DataError("the baseline names no parameters of the suspension")
-    return out
-
-
-def _without_baseline(run: DiagnosisRun, estimates: dict[str, tuple[float, float]]) -> Diagnosis:
-    """The first record of a machine: identified, stored, nothing compared."""
-    res = run.result
-    reasons = tuple(
-        f"{_label(k)} {v:.4g} ± {1.96 * s:.2g} (95 %)" for k, (v, s) in estimates.items()
+    ``Y_offset`` follow from ``eta`` and ``gap``), finite and positive, taken as exact."""
+    checked = checked_baseline_values(
+        values, COMPARED, plant="suspension", example='{"alpha": 1011, "eta": 8.45, "L": 0.872}'
     )
-    return Diagnosis(
-        verdict="No baseline: identified, not compared",
-        verdict_code="no_change",
-        reasons=reasons,
-        identification=res,
-        quality=run.quality,
-        baseline={"source": "none", "parameters": {}},
-        identified_model=res.continuous_model,
-        notes=(*run.notes, "record this diagnosis in a history store to compare later ones"),
-        **run.common,
-    )
+    return {k: (x, 0.0) for k, x in checked.items()}
 
 
 STAGES = SuspensionStages()
