@@ -455,6 +455,31 @@ def _force_std(force_std: Any, plant_model: str) -> float:
     return f
 
 
+def _unbalance(unbalance: Any, plant_model: str, dt: float) -> tuple[float, float] | None:
+    """``(amplitude [N], frequency [Hz])`` checked, or None."""
+    if unbalance is None:
+        return None
+    try:
+        amp, hz = (float(x) for x in unbalance)
+    except (TypeError, ValueError):
+        raise DataError(
+            f"`unbalance` must be (amplitude [N], frequency [Hz]); got {unbalance!r}"
+        ) from None
+    if not (math.isfinite(amp) and amp >= 0):
+        raise DataError(f"`unbalance`: the amplitude must be a number >= 0 [N]; got {amp!r}")
+    if not (math.isfinite(hz) and 0 < hz < 0.5 / dt):
+        raise DataError(
+            f"`unbalance`: the frequency must lie in (0, {0.5 / dt:g}) Hz, below the Nyquist "
+            f"frequency of dt = {dt:g} s; got {hz!r}"
+        )
+    if plant_model != "nonlinear":
+        raise DataError(
+            "an unbalance force needs the nonlinear plant (plant_model='nonlinear'); the "
+            "linear plant of eqs. (3)-(4) has no force input"
+        )
+    return amp, hz
+
+
 def _linear_operating_point(
     plant: AMBParameters,
     nominal: AMBParameters,
@@ -518,6 +543,7 @@ def simulate_amb_loop(
     noise_std: Sequence[float] = DEFAULT_NOISE_STD,
     plant_model: str = "nonlinear",
     force_std: float | None = None,
+    unbalance: Sequence[float] | None = None,
     substeps: int = DEFAULT_SUBSTEPS,
     rng: Any = None,
     observer_model: str = "nominal",
@@ -561,6 +587,11 @@ def simulate_amb_loop(
         over each period, drawn after the noise (nonlinear plant only). Default
         :data:`DEFAULT_FORCE_STD` for the nonlinear plant, 0 for the linear one
         (which has no force input).
+    unbalance : (2,) sequence, optional
+        ``(amplitude [N], frequency [Hz])`` of a sinusoidal force on the rotor, held
+        over each period, phase 0 at the first sample: a rotor's unbalance at its
+        running speed (nonlinear plant only; no draw from ``rng``, so the other
+        signals of a seed do not change). Default: none.
     substeps : int
         RK4 steps per control period (nonlinear plant only).
     rng : numpy.random.Generator, int or None
@@ -712,6 +743,7 @@ class _Setup:
     force_std: float
     substeps: int
     observer_model: str
+    unbalance: tuple[float, float] | None = None
 
 
 def _setup(args: dict[str, Any]) -> _Setup:
@@ -726,6 +758,7 @@ def _setup(args: dict[str, Any]) -> _Setup:
     _check_bias_current(plant, nominal, plant_model)
     noise = _noise_std(args["noise_std"])
     fstd = _force_std(args["force_std"], plant_model)
+    unbalance = _unbalance(args["unbalance"], plant_model, dt)
     observer_model = args["observer_model"]
     controller, observer = _controller_observer(
         plant, nominal, dt, args["controller"], args["observer"], observer_model
@@ -734,7 +767,7 @@ def _setup(args: dict[str, Any]) -> _Setup:
     bearing = _Bearing(plant, nominal, controller, observer, dt, gains)
     return _Setup(
         bearing, cond, plant_model, n_samples, args["excitation_std"], excitation, noise, fstd,
-        substeps, observer_model,
+        substeps, observer_model, unbalance,
     )  # fmt: skip
 
 
@@ -746,6 +779,10 @@ def _draw(s: _Setup, rng: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray | Non
     # Noise drawn after the excitation, so r does not depend on noise_std.
     v = gen.standard_normal((n, 3)) * noise if np.any(noise) else np.zeros((n, 3))
     force = gen.standard_normal(n) * fstd if fstd > 0 else None  # after the noise
+    if s.unbalance is not None:  # deterministic: no draw
+        amp, hz = s.unbalance
+        sine = amp * np.sin(2.0 * np.pi * hz * s.bearing.dt * np.arange(n))
+        force = sine if force is None else force + sine
     plant = s.bearing.plant
     meta = {
         "simulated": True, "truth": plant.to_dict(), "truth_v": plant.v().tolist(),
@@ -754,6 +791,7 @@ def _draw(s: _Setup, rng: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray | Non
             "kind": s.excitation, "std": np.broadcast_to(s.excitation_std, (2,)).tolist()
         },
         "noise_std": noise.tolist(), "force_std": fstd, "observer_model": s.observer_model,
+        **({"unbalance": list(s.unbalance)} if s.unbalance is not None else {}),
         "sensor_gains": dict(zip(SENSOR_GAINS, s.bearing.gains, strict=True)),
     }  # fmt: skip
     return r, v, force, meta
@@ -1095,6 +1133,14 @@ def add_scenario_arguments(parser: argparse.ArgumentParser) -> None:
         f"{DEFAULT_FORCE_STD} N, 0 for the linear plant)",
     )
     parser.add_argument(
+        "--unbalance",
+        type=_amplitude_frequency,
+        default=None,
+        metavar="N,HZ",
+        help="sinusoidal force on the rotor: amplitude [N] and frequency [Hz], e.g. 1,50 "
+        "(a rotor's unbalance at 3000 rpm; nonlinear plant)",
+    )
+    parser.add_argument(
         "--substeps",
         type=int,
         default=DEFAULT_SUBSTEPS,
@@ -1142,7 +1188,21 @@ def run_scenario(
         substeps=args.substeps,
         observer_model=args.observer_model,
         force_std=args.force_std,
+        unbalance=args.unbalance,
         rng=args.seed,
         progress=chunks,
         sensor_gains=gains,
     )
+
+
+def _amplitude_frequency(text: str) -> tuple[float, float]:
+    """``"1,50"`` -> ``(1.0, 50.0)`` (``--unbalance``)."""
+    parts = text.split(",")
+    try:
+        if len(parts) != 2:
+            raise ValueError
+        return float(parts[0]), float(parts[1])
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected AMPLITUDE,FREQUENCY, e.g. 1,50 (1 N at 50 Hz); got {text!r}"
+        ) from None
