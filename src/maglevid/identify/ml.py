@@ -67,6 +67,16 @@ from maglevid.identify.cramer_rao import (
 )
 from maglevid.identify.options import AMB_OPTIONS, Option
 from maglevid.identify.pbsid import fit_pbsid
+from maglevid.identify.periodic import (
+    MAX_LINES,
+    START_STAT,
+    amplitude_text,
+    check_lines,
+    excursion_note,
+    find_lines,
+    line_amplitudes,
+    line_sequences,
+)
 from maglevid.identify.physical import fit_physical, loop_recorded
 from maglevid.identify.result import IdentificationResult, propagate_covariance
 from maglevid.identify.uncertainty import one_step_fit_percent, operating_point
@@ -105,6 +115,7 @@ def fit_ml(
     max_iter: int = 60,
     m: float | None = None,
     i0: float | None = None,
+    periodic: Any = "auto",
 ) -> IdentificationResult:
     """Maximum-likelihood v1..v9 and physical parameters of the two-coil AMB (module notes).
 
@@ -133,13 +144,21 @@ def fit_ml(
         Fisher-scoring iterations at most.
     m, i0 : float, optional
         Mass and bias current; default ``data.loop["operating_point"]``.
+    periodic : "auto", "none" or frequencies [Hz]
+        Periodic disturbances (unbalance at the running speed and its harmonics,
+        mains hum): a sinusoid of free amplitude and phase in each channel's
+        prediction error at each line, profiled out
+        (:mod:`maglevid.identify.periodic`). ``"auto"`` (default): the lines
+        found in the prediction errors at the start and at the optimum;
+        ``"none"``: no line; or the frequencies, e.g. the rotor's running speed.
 
     Returns
     -------
     IdentificationResult
         ``method="ml"``; v1..v9 then the physical parameters (or ratios) with
         their covariance; innovations as residuals; noise levels, offsets,
-        Kalman gain and iterations in ``extras``.
+        Kalman gain, iterations and the periodic lines (``periodic_hz``, their
+        amplitudes in ``y`` per channel, ``periodic_amplitude``) in ``extras``.
 
     Raises
     ------
@@ -150,7 +169,7 @@ def fit_ml(
         The predictor does not exist at the start, or no descent is found.
     """
     try:
-        return _fit_ml(data, start, noise_std, force_std, amplifier_std, max_iter, m, i0)
+        return _fit_ml(data, start, noise_std, force_std, amplifier_std, max_iter, m, i0, periodic)
     except (np.linalg.LinAlgError, FloatingPointError, ValueError, sla.LinAlgWarning) as exc:
         # A saturated or constant record makes the DARE, the Lyapunov equation or
         # an inverse fail inside numpy/scipy (LinAlgError, or a ValueError on
@@ -185,8 +204,11 @@ def _fit_ml(
     max_iter: int,
     m: float | None,
     i0: float | None,
+    periodic: Any = "auto",
 ) -> IdentificationResult:
     y, u = _signals(data)
+    lines = check_lines(periodic, data.dt)
+    auto = lines is None  # "auto": the lines are looked for
     op_m, op_i0 = operating_point(data.loop)
     m = op_m if m is None else m
     i0 = op_i0 if i0 is None else i0
@@ -213,7 +235,75 @@ def _fit_ml(
     force0, est_force = _force(data, force_std)
     noise = NoiseModel(noise.sensor_std, force_std=force0, amplifier_std=noise.amplifier_std)
     lay = _Layout(noise, estimate_noise, est_force)
-    sp = _spectra(y, u, _predictor_radius(lay, v0, data.dt, m), key=data)
+    rho = _predictor_radius(lay, v0, data.dt, m)
+    if auto:  # the lines in the start's prediction errors first
+        lines = _start_lines(data, y, u, lay, v0, m)
+    sp = _spectra(y, u, rho, key=data, lines=lines, dt=data.dt)
+    theta, final, it, converged = _fit_from_starts(
+        data, sp, y, u, lay, (v0, start_kind), notes, m, max_iter, (noise, estimate_noise)
+    )
+    if auto:  # and those that show at the optimum
+        for _ in range(_LINE_ROUNDS):
+            new, _ = find_lines(final["eps"], final["S"], y.shape[0], data.dt, known=lines,
+                                max_lines=MAX_LINES - len(lines))  # fmt: skip
+            if not new:
+                break
+            lines = lines + new
+            sp = _spectra(y, u, rho, key=data, lines=lines, dt=data.dt)
+            run = _optimise(sp, y, theta[:9], lay, dt=data.dt, m=m, max_iter=max_iter,
+                            theta0=theta)  # fmt: skip
+            theta, final, n_it, converged = _finished(y, sp, run, lay, data.dt, m, max_iter)
+            it += n_it
+    if sp.lags:
+        notes.append(f"eq. (1) from the record's lagged products up to lag {sp.lags} "
+                     "(large-N path; equal to the DFT path to rho^L)")  # fmt: skip
+    if lines:
+        notes.append(_lines_note(y, data, lines, auto=auto))
+        op = data.loop.get("operating_point") if isinstance(data.loop, Mapping) else None
+        op = op if isinstance(op, Mapping) else {}
+        x0, i0_ = op.get("x0"), i0
+        warn = excursion_note(line_amplitudes(y, data.dt, lines), (x0, i0_, i0_),
+                              data.channel_names("y"), lines)  # fmt: skip
+        if warn:
+            notes.append(warn)
+    if not converged:
+        notes.append(f"Fisher scoring stopped after {it} iterations without converging")
+    return _result(
+        data,
+        theta,
+        final,
+        lay,
+        m=m,
+        i0=i0,
+        iterations=it,
+        options={
+            "start": start_kind,
+            "noise_std": noise_std if isinstance(noise_std, str) else list(noise.sensor_std),
+            "force_std": force_std if isinstance(force_std, str) else float(force_std),
+            "amplifier_std": list(noise.amplifier_std),
+            "max_iter": int(max_iter),
+            "m": m,
+            "i0": i0,
+            "periodic": "auto" if auto else list(lines),
+        },
+        notes=notes,
+        converged=converged,
+        v_start=v0,
+        lines=lines,
+    )
+
+
+#: Rounds of "find the lines at the optimum, refit from it" at most (periodic="auto").
+_LINE_ROUNDS = 2
+
+
+def _fit_from_starts(data, sp, y, u, lay, v0_kind, notes, m, max_iter, noise_est):  # type: ignore[no-untyped-def]
+    """Fisher scoring from the ordered starts (:func:`_ordered_starts`), the force
+    disturbance's restarts where the first does not converge, the better end kept;
+    finished on the DFT bins (:func:`_finished`). Returns theta, the final evaluation
+    (its ``eps`` on the DFT bins), the iterations and whether it converged."""
+    (v0, start_kind), (noise, estimate_noise) = v0_kind, noise_est
+    est_force = lay.est_force
     starts = _ordered_starts(data, sp, lay, v0, start_kind, m, notes, y, u)
     best = None
     for k, (vs, kind) in enumerate(starts):
@@ -240,35 +330,49 @@ def _fit_ml(
             if vs is not None and all(kd != "subspace" for _, kd in starts):
                 starts.append((vs, "subspace"))
     assert best is not None
-    (theta, final, it, converged, _), v0, _ = best
+    return _finished(y, sp, best[0], lay, data.dt, m, max_iter)
+
+
+def _finished(y, sp, run, lay, dt, m, max_iter):  # type: ignore[no-untyped-def]
+    """A run's ``(theta, final, iterations, converged)`` with the innovations on the DFT
+    bins (after the lag path, :func:`_exact_finish`)."""
+    theta, final, it, converged, _ = run
     if sp.lags:
         theta, final, it, converged = _exact_finish(
-            y, sp, theta, final, lay, it, converged, dt=data.dt, m=m, max_iter=max_iter
+            y, sp, theta, final, lay, it, converged, dt=dt, m=m, max_iter=max_iter
         )
-        notes.append(f"eq. (1) from the record's lagged products up to lag {sp.lags} "
-                     "(large-N path; equal to the DFT path to rho^L)")  # fmt: skip
-    if not converged:
-        notes.append(f"Fisher scoring stopped after {it} iterations without converging")
-    return _result(
-        data,
-        theta,
-        final,
-        lay,
-        m=m,
-        i0=i0,
-        iterations=it,
-        options={
-            "start": start_kind,
-            "noise_std": noise_std if isinstance(noise_std, str) else list(noise.sensor_std),
-            "force_std": force_std if isinstance(force_std, str) else float(force_std),
-            "amplifier_std": list(noise.amplifier_std),
-            "max_iter": int(max_iter),
-            "m": m,
-            "i0": i0,
-        },
-        notes=notes,
-        converged=converged,
-        v_start=v0,
+    return theta, final, it, converged
+
+
+def _start_lines(data, y, u, lay, v0, m) -> tuple[float, ...]:  # type: ignore[no-untyped-def]
+    """The periodic lines in the prediction errors at the start (none where the
+    start has no predictor)."""
+    sp = _Spectra(y, u)
+    st = _trial(lambda th, _: _evaluate(lay.model(th, data.dt, m), sp, derivatives=False),
+                lay.theta(v0), False)  # fmt: skip
+    if st is None:
+        return ()
+    eps = _bin_errors(lay.model(lay.theta(v0), data.dt, m), st, sp)
+    return find_lines(eps, st["S"], y.shape[0], data.dt, min_stat=START_STAT, signals=y)[0]
+
+
+def _lines_note(y: np.ndarray, data: ClosedLoopData, lines: tuple[float, ...], auto: bool) -> str:
+    """What the fit did about the periodic lines, with their amplitudes in ``y``."""
+    amp = line_amplitudes(y, data.dt, lines)
+    names, units = data.channel_names("y"), data.channel_units("y")
+    parts = []
+    for f, a in zip(lines, amp, strict=True):
+        each = ", ".join(
+            f"{n} {amplitude_text(v, un)}" for n, v, un in zip(names, a, units, strict=True)
+        )
+        parts.append(f"{f:.4g} Hz ({each})")
+    how = ("found in the prediction errors (far beyond white errors: a periodic "
+           "disturbance such as unbalance at the running speed, its harmonics or mains "
+           "hum)") if auto else "given"  # fmt: skip
+    return (
+        f"periodic lines {how}: {'; '.join(parts)} (amplitude in y); a sinusoid of free "
+        "amplitude and phase in each channel's prediction error at each was profiled out, "
+        "losing the information of those frequencies only"
     )
 
 
@@ -400,8 +504,7 @@ def _exact_finish(
     (rho^L above 100 :data:`_LAG_TOL`) the fit is finished on the DFT path."""
     exact = sp.dft
     model = lay.model(theta, dt, m)
-    K, tau = final["K"], final["tau"]
-    F = model.A - K @ model.C
+    F = model.A - final["K"] @ model.C
     if float(np.max(np.abs(np.linalg.eigvals(F)))) ** sp.lags > 100.0 * _LAG_TOL:
         runs = [_optimise(exact, y, theta[:9], lay, dt=dt, m=m, max_iter=max_iter,
                           theta0=theta)]  # fmt: skip
@@ -418,9 +521,18 @@ def _exact_finish(
                                   theta0=np.clip(restart, lo, hi)))  # fmt: skip
         theta, final, n_it, converged, _ = min(runs, key=lambda r: (not r[3], r[4]))
         return theta, final, it + n_it, converged
+    return theta, {**final, "eps": _bin_errors(model, final, exact)}, it, converged
+
+
+def _bin_errors(model: Any, st: dict[str, Any], exact: _Spectra) -> np.ndarray:
+    """The innovations on the DFT bins, ``Y - C Xh - D s``, from an evaluation's ``K``,
+    ``tau`` and lines ``s`` (``Xh = (zI - F)^-1 (B U + K Y + z tau)``)."""
+    K, tau = st["K"], st["tau"]
+    F = model.A - K @ model.C
     drive = exact.U @ model.B.T + exact.Y @ K.T + exact.z[:, None] * tau[None, :]
     Xh = _Resolvent(F, exact.z).apply(drive[:, None, :], np.eye(F.shape[0]))[:, 0, :]
-    return theta, {**final, "eps": exact.Y - Xh @ model.C.T}, it, converged
+    eps = exact.Y - Xh @ model.C.T
+    return eps if st.get("lines") is None else eps - exact.D @ st["lines"]
 
 
 def _nominal_v(data: ClosedLoopData) -> np.ndarray | None:
@@ -620,11 +732,14 @@ class _Spectra:
     entries with the same sums (the large-N path).
     """
 
-    def __init__(self, y: np.ndarray, u: np.ndarray) -> None:
+    def __init__(self, y: np.ndarray, u: np.ndarray, seq: np.ndarray | None = None) -> None:
         N = y.shape[0]
         self.N = N
         self.Y = np.fft.rfft(y, axis=0)
         self.U = np.fft.rfft(u, axis=0)
+        # the periodic lines' unit sinusoids (maglevid.identify.periodic), or None
+        self.seq = seq if seq is not None and seq.shape[1] else None
+        self.D = None if self.seq is None else np.fft.rfft(self.seq, axis=0)
         M = self.Y.shape[0]
         self.z = np.exp(2j * np.pi * np.arange(M) / N)
         w = np.full(M, 2.0)
@@ -655,21 +770,45 @@ _LAG_TOL = 1e-7
 
 #: The lag path's entries of recent records (ClosedLoopData is immutable), so a
 #: second fit of the same record (another start) does not recompute them.
-_LAG_CACHE: weakref.WeakKeyDictionary[Any, dict[int, _Spectra]] = weakref.WeakKeyDictionary()
+_LAG_CACHE: weakref.WeakKeyDictionary[Any, dict[Any, _Spectra]] = weakref.WeakKeyDictionary()
 
 
-def _spectra(y: np.ndarray, u: np.ndarray, rho: float | None, key: Any = None) -> _Spectra:
-    """The exact DFT entries, or the lag path's when they are much fewer (N large)."""
+def _spectra(
+    y: np.ndarray,
+    u: np.ndarray,
+    rho: float | None,
+    key: Any = None,
+    *,
+    lines: tuple[float, ...] = (),
+    dt: float = 1.0,
+) -> _Spectra:
+    """The exact DFT entries, or the lag path's when they are much fewer (N large);
+    ``lines``: the frequencies [Hz] of the periodic lines profiled out (period ``dt``).
+
+    With lines, ``y`` and ``u`` first lose their least-squares sinusoids at those
+    frequencies (each channel): the errors change by sinusoids of the lines' frequencies
+    filtered by the predictor, i.e. a sinusoid and a transient of its modes, which the
+    profiled lines and ``tau`` absorb exactly, so eq. (1), its gradient and the
+    information with the nuisance eliminated are unchanged; but the entries no longer
+    carry the lines' energy (a 1 N unbalance: ~1e6 times a bin's noise), whose rounding
+    and the lag path's truncation (``rho^L`` times it) otherwise swamped the information
+    (found at N = 1e5: the scoring's information not positive definite).
+    """
+    seq = line_sequences(y.shape[0], dt, lines) if lines else None
+    if seq is not None:
+        X = np.column_stack([seq, np.ones(y.shape[0])])
+        y = y - seq @ np.linalg.lstsq(X, y, rcond=None)[0][:-1]
+        u = u - seq @ np.linalg.lstsq(X, u, rcond=None)[0][:-1]
     if rho is None or not 0.0 < rho < 1.0:
-        return _Spectra(y, u)
+        return _Spectra(y, u, seq)
     lags = int(np.ceil(np.log(_LAG_TOL) / np.log(rho)))
     grid = 1 << int(np.ceil(np.log2(2 * lags + 2)))
-    if 6 * (grid // 2 + 1) * _LAG_MIN_RATIO > y.shape[0] // 2 + 1:
-        return _Spectra(y, u)
+    if (6 + 2 * len(lines)) * (grid // 2 + 1) * _LAG_MIN_RATIO > y.shape[0] // 2 + 1:
+        return _Spectra(y, u, seq)
     cache = _LAG_CACHE.setdefault(key, {}) if key is not None else {}
-    if grid not in cache:
-        cache[grid] = _lag_spectra(_Spectra(y, u), y, u, grid)
-    return cache[grid]
+    if (grid, lines) not in cache:
+        cache[grid, lines] = _lag_spectra(_Spectra(y, u, seq), y, u, grid)
+    return cache[grid, lines]
 
 
 def _lag_spectra(sp: _Spectra, y: np.ndarray, u: np.ndarray, grid: int) -> _Spectra:
@@ -697,7 +836,10 @@ def _lag_spectra(sp: _Spectra, y: np.ndarray, u: np.ndarray, grid: int) -> _Spec
     """
     N = sp.N
     lags = grid // 2 - 1
-    Zt = np.concatenate([sp.Y.T, sp.U.T])  # (5, M), rows contiguous
+    seq = np.zeros((N, 0)) if sp.seq is None else sp.seq  # the lines' sinusoids: inputs too
+    u = np.concatenate([u, seq], axis=1)
+    parts = [sp.Y.T, sp.U.T] + ([] if sp.D is None else [sp.D.T])
+    Zt = np.concatenate(parts)  # (5 + 2 H, M), rows contiguous
     Zt[:, 0] = 0.0  # the mean removed
     Zc = Zt.conj()
     c = Zt.shape[0]
@@ -730,7 +872,9 @@ def _lag_spectra(sp: _Spectra, y: np.ndarray, u: np.ndarray, grid: int) -> _Spec
     ent = V.transpose(0, 2, 1).reshape(-1, c + 1)  # entry (m, eigenvector)
     out = object.__new__(_Spectra)
     out.N = N
-    out.Y, out.U, out.kappa = ent[:, :3], ent[:, 3:5], ent[:, 5]
+    out.Y, out.U, out.kappa = ent[:, :3], ent[:, 3:5], ent[:, c]
+    out.seq = sp.seq
+    out.D = None if sp.seq is None else ent[:, 5:c]
     out.z = np.repeat(np.exp(2j * np.pi * np.arange(Mh) / grid), c + 1)
     out.w = np.abs(w)
     out.sign = np.sign(w)
@@ -891,20 +1035,28 @@ def _evaluate(model: Any, sp: _Spectra, *, derivatives: bool, stride: int = 1) -
     # Whitened innovations Li eps = Li Y - Li C (zI-F)^-1 (B U + K Y) - Li Phi tau
     drive = (sp.U @ B.T + sp.Y @ K.T)[:, None, :]
     e0w = ((sp.Y @ Li.T)[:, None, :] - res.apply(drive, LC))[:, 0, :] * sw[:, None]
-    tau, Phi_tau = _profile_transient(res, LC, zk * sw, e0w, sg)
-    ew = e0w - Phi_tau  # whitened, weighted innovations
+    lines = None  # the periodic lines' sinusoids in the prediction errors, (2 H, ny)
+    if sp.D is None:
+        tau, fitted = _profile_transient(res, LC, zk * sw, e0w, sg)
+    else:
+        Psi = np.einsum("fj,ic->fijc", sp.D * sw[:, None], Li).reshape(len(z), Li.shape[0], -1)
+        tau, lines, fitted = _profile_transient_lines(res, LC, zk * sw, Psi, e0w, sg)
+    ew = e0w - fitted  # whitened, weighted innovations
     ews_ = ew if sg is None else ew * sg[:, None]
     sum_ww = np.vdot(ew, ews_).real / N  # sum_k eps^T S^-1 eps (Parseval)
     _, logdet = np.linalg.slogdet(S)
-    out: dict[str, Any] = {"nll": 0.5 * sum_ww + 0.5 * N * logdet, "S": S, "K": K}
+    out: dict[str, Any] = {
+        "nll": 0.5 * sum_ww + 0.5 * N * logdet, "S": S, "K": K, "tau": tau, "lines": lines
+    }  # fmt: skip
     if not derivatives:
         return out
     dK, dS = predictor_derivatives(model, K, P, S)
     p = model.n_params
     # Xh = (zI-F)^-1 (B U + K Y + z tau), eps = Y - C Xh (unweighted DFTs)
     Xh = res.apply(drive + (zk[:, None] * tau[None, :])[:, None, :], np.eye(n))[:, 0, :]
-    eps = sp.Y - Xh @ C.T
-    ews = eps * sw[:, None]
+    eps = sp.Y - Xh @ C.T  # the predictor's errors; the innovations less the lines:
+    innov = eps if lines is None else eps - sp.D @ lines
+    ews = innov * sw[:, None]
     sum_ee = np.real((ews if sg is None else ews * sg[:, None]).T @ ews.conj()) / N
     # Gradient of eq. (1) by the adjoint of eq. (3): with psi_i = -Li C (zI-F)^-1 W_i,
     # W_i = A_i Xh + B_i U + K_i E, sum_f psi_i^H ew = sum_f W_i^H mu with
@@ -941,10 +1093,74 @@ def _evaluate(model: Any, sp: _Spectra, *, derivatives: bool, stride: int = 1) -
     grad[:p] += 0.5 * N * np.trace(SidS, axis1=1, axis2=2) - 0.5 * np.einsum(
         "pij,ji->p", SidS @ Si, sum_ee
     )
+    if lines is not None:  # the lines' sinusoids: nuisance parameters after tau
+        info = _line_information(res, LC, info, Psi, sg, sw, model, dK, Xh, sp.U, eps, zk, N)
+        grad = np.concatenate([grad, np.zeros(Psi.shape[2])])
     out["fisher"] = 0.5 * (info + info.T)
     out["gradient"] = grad
-    out["eps"] = eps
-    out["tau"] = tau
+    out["eps"] = innov
+    return out
+
+
+def _profile_transient_lines(  # type: ignore[no-untyped-def]
+    res: _Resolvent, LC: np.ndarray, zw: np.ndarray, Psi: np.ndarray, e0w, sign
+):
+    """Least-squares ``tau`` and lines' sinusoids ``s`` of ``e0w - Phi tau - Psi s``.
+
+    ``Psi`` (M, ny, 2 H ny): the whitened, weighted unit sinusoids per channel
+    (column ``j ny + c``: ``sw_f L^-1[:, c] D_f[j]``, ``D`` the lines' DFT),
+    :mod:`maglevid.identify.periodic`. Returns ``tau``, ``s`` (2 H, ny) and the fitted
+    ``Phi tau + Psi s``. ``Phi`` is formed (M, ny, n): with lines the frequencies are
+    the DFT's or the lag path's entries, and the columns few.
+    """
+    X = np.concatenate([res.matrix(LC) * zw[:, None, None], Psi], axis=2)
+    P = _gram(X.transpose(0, 2, 1), sign)
+    ws = e0w if sign is None else e0w * sign[:, None]
+    b = np.real(np.einsum("fik,fi->k", X.conj(), ws))
+    sol = np.linalg.lstsq(P, b, rcond=None)[0]
+    n = LC.shape[1]
+    return sol[:n], sol[n:].reshape(-1, LC.shape[0]), np.einsum("fik,k->fi", X, sol)
+
+
+def _line_information(  # type: ignore[no-untyped-def]
+    res, LC, info, Psi, sign, sw, model, dK, Xh, U, eps, zk, N
+) -> np.ndarray:
+    """Eq. (2) bordered by the lines' sinusoids (nuisance parameters after ``tau``).
+
+    Their sensitivity is ``-Psi`` (not filtered: they enter the errors directly);
+    the cross terms with a parameter's ``-Li C (zI - F)^-1 W_i sw`` come from the
+    adjoint ``v = Psi^H Li C (zI - F)^-1`` per column, as the gradient's do (every
+    frequency: a line's information sits at a few of them, which a stride would miss).
+    """
+    q = Psi.shape[2]
+    Q = np.conj(Psi).transpose(0, 2, 1) @ LC  # (M, q, n) rows Psi_col^H Li C
+    if res.eig:
+        Vt = ((Q @ res.V) * res.T[:, None, :]) @ res.Vi
+    else:
+        Vt = np.einsum("fci,fij->fcj", Q, res.G)
+    wgt = sw if sign is None else sw * sign
+    Vw = Vt * wgt[:, None, None]  # (M, q, n)
+    p = model.n_params
+
+    def cross(src: np.ndarray) -> np.ndarray:  # Re sum_f Vw_f[c, k] src_f[l] -> (q, n, l)
+        return np.real(np.einsum("fck,fl->ckl", Vw, src))
+
+    ixs = (
+        np.einsum("pkl,ckl->pc", model.dA, cross(Xh))
+        + np.einsum("pkl,ckl->pc", model.dB, cross(U))
+        + np.einsum("pkl,ckl->pc", dK, cross(eps))
+    )
+    its = np.real(np.einsum("fck,f->kc", Vw, zk))
+    iss = _gram(Psi.transpose(0, 2, 1), sign)
+    ixs, its, iss = ixs / N, its / N, iss / N  # Parseval, as eq. (2)'s
+    k = info.shape[0]
+    out = np.zeros((k + q, k + q))
+    out[:k, :k] = info
+    out[:p, k:] = ixs
+    out[p:k, k:] = its
+    out[k:, :p] = ixs.T
+    out[k:, p:k] = its.T
+    out[k:, k:] = iss
     return out
 
 
@@ -1096,6 +1312,7 @@ def _result(
     notes: list[str],
     converged: bool,
     v_start: np.ndarray,
+    lines: tuple[float, ...] = (),
 ) -> IdentificationResult:
     """Model, parameters with covariance (inverse Fisher, delta method) and diagnostics."""
     v = theta[:9]
@@ -1137,6 +1354,8 @@ def _result(
     fitd["neg_log_likelihood"] = float(final["nll"])
     fitd["structure_residual"] = 0.0  # the model is parameterised in eq. (4) itself
     sensor = lay.sensor(theta)
+    line_names = [f"line{h}_{q}_{n}" for h in range(len(lines)) for q in ("cos", "sin")
+                  for n in data.channel_names("y")]  # fmt: skip
     return IdentificationResult(
         method="ml",
         model=amb_state_space(v, data.dt),  # eq. (7): the ZOH model in physical coordinates
@@ -1161,7 +1380,9 @@ def _result(
             "converged": converged,
             "v_start": v_start,
             "fisher": info,
-            "fisher_names": (*model.names, "tau0", "tau1", "tau2", "tau3"),
+            "fisher_names": (*model.names, "tau0", "tau1", "tau2", "tau3", *line_names),
+            "periodic_hz": np.array(lines, dtype=float),
+            "periodic_amplitude": line_amplitudes(y, data.dt, lines),
         },
     )
 
@@ -1179,6 +1400,8 @@ OPTIONS = {
         Option("amplifier_std", "floats", "amplifier input noise per sample (known)", low=0,
                unit="V"),
         Option("max_iter", "int", "Fisher-scoring iterations at most", low=1),
+        Option("periodic", "object", "periodic disturbances (unbalance, mains hum) profiled "
+               "out: 'auto' (found in the prediction errors), 'none' or frequencies [Hz]"),
         AMB_OPTIONS["m"],
         AMB_OPTIONS["i0"],
     )
