@@ -33,6 +33,8 @@ from typing import Any
 
 import numpy as np
 
+from benchmarks.judge import calibration_bands
+
 #: ``name -> (plant, sensor noise [m], force [N rms])``.
 CASES: dict[str, tuple[str, float, float]] = {
     "linear": ("linear", 1e-4, 0.0),
@@ -147,19 +149,6 @@ def markdown_section(result: dict[str, Any]) -> list[str]:
                 + " |"
             )
     return L
-
-
-def calibration_bands(records: int) -> tuple[tuple[float, float], tuple[float, float]]:
-    """Where a calibrated estimator's RMS z and 95 % coverage fall on ``records`` records,
-    98 % of the time: ``sqrt(chi2_n / n)`` and the binomial's +-2.33 sd (alpha, eta, L
-    and the pole move together, so a record counts once)."""
-    from scipy import stats
-
-    n = max(int(records), 1)
-    lo, hi = stats.chi2.ppf([0.01, 0.99], n)
-    rms = (float(np.sqrt(lo / n)), float(np.sqrt(hi / n)))
-    half = 2.33 * float(np.sqrt(0.95 * 0.05 / n))
-    return rms, (max(0.0, 0.95 - half), 1.0)
 
 
 def targets(result: dict[str, Any], judge: Any) -> None:

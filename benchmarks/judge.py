@@ -247,3 +247,17 @@ class Judge:
         return [
             f"**{v.target}.** {v.plan}" for v in self.verdicts if v.status == NOT_MET and v.plan
         ]
+
+
+def calibration_bands(records: int) -> tuple[tuple[float, float], tuple[float, float]]:
+    """Where a calibrated estimator's RMS z and 95 % coverage fall on ``records`` records,
+    98 % of the time: ``sqrt(chi2_n / n)`` and the binomial's +-2.33 sd. A record counts
+    once, whatever the parameters pooled from it (they move together: the suspension's
+    alpha, eta, L and pole; the bearing's v1..v9), which widens the bands."""
+    from scipy import stats
+
+    n = max(int(records), 1)
+    lo, hi = stats.chi2.ppf([0.01, 0.99], n)
+    rms = (math.sqrt(lo / n), math.sqrt(hi / n))
+    half = 2.33 * math.sqrt(0.95 * 0.05 / n)
+    return rms, (max(0.0, 0.95 - half), 1.0)

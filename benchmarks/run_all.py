@@ -1830,6 +1830,7 @@ PLUGINS: tuple[str, ...] = (
     "benchmarks.bench_ml_crb",  # issue 13: maximum likelihood against the Cramér-Rao bound
     "benchmarks.bench_pbsid",  # issue 16: PBSID-opt / SSARX
     "benchmarks.bench_suspension_hard",  # Sun et al. against ML on the hard suspension
+    "benchmarks.bench_unbalance",  # the bearing's ML with a rotor's unbalance (its lines)
     "benchmarks.bench_slow_tests",  # the `slow` tests, left out of `make test`
 )
 
