@@ -220,3 +220,18 @@ def test_a_sensor_line_is_profiled_out_too():
     z, _ = _z(res, np.asarray(d.metadata["operating_point_true"]["v"]))
     assert np.max(np.abs(z)) < 4.0
     assert res.extras["periodic_hz"] == pytest.approx([60.0], abs=0.01)
+
+
+def test_a_method_that_does_not_model_lines_says_they_are_there(unbalanced):
+    """PBSID-opt's structured fit takes its errors as white: with the unbalance it reads
+    v1..v3 ~93 % off, and now its result says the lines are in its residuals; a healthy
+    record's does not (the contract of every method, identify/registry.py)."""
+    from maglevid.identify.registry import get_method
+
+    pbsid = get_method("pbsid")
+    res = pbsid(unbalanced, coordinates="physical")
+    note = next(n for n in res.notes if n.startswith("periodic lines in the residuals"))
+    assert "residuals at 50, " in note and "pbsid does not model them" in note
+    healthy = pbsid(simulate_amb_loop(NOMINAL, n_samples=30_000, rng=37001),
+                    coordinates="physical")  # fmt: skip
+    assert not any("periodic" in n for n in healthy.notes)

@@ -40,6 +40,7 @@ import numpy as np
 from maglevid._plugins import modules_with
 from maglevid.exceptions import DataError, MaglevidError
 from maglevid.identify.options import Option, bind_defaults, check_options, describe_option
+from maglevid.identify.periodic import unmodelled_lines_note
 
 __all__ = [
     "UNSUPPORTED_POLE_NOTE",
@@ -134,9 +135,28 @@ def _under_contract(
             text = str(exc)
             prefix = "" if text.startswith(f"{name}:") else f"{name}: "
             raise DataError(f"{prefix}{text or type(exc).__name__}") from exc
-        return check_unstable_poles(result)
+        return _note_unmodelled_lines(name, check_unstable_poles(result), data)
 
     return run
+
+
+def _note_unmodelled_lines(name: str, result: Any, data: Any) -> Any:
+    """``result`` with a note when its residuals carry periodic lines its method does not
+    model (:func:`maglevid.identify.periodic.unmodelled_lines_note`); a method that
+    models them (``extras["periodic_hz"]``: ``ml``) or a record with inter-samples is
+    left alone."""
+    extras = getattr(result, "extras", None) or {}
+    n, dt = getattr(data, "n_samples", None), getattr(data, "dt", None)
+    if (
+        "periodic_hz" in extras
+        or getattr(data, "p", 1) != 1
+        or n is None
+        or dt is None
+        or not hasattr(result, "notes")
+    ):
+        return result
+    note = unmodelled_lines_note(name, getattr(result, "residuals", None), n, dt)
+    return result if note is None else replace(result, notes=(*result.notes, note))
 
 
 def describe_methods() -> dict[str, str]:
