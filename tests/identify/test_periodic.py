@@ -235,3 +235,22 @@ def test_a_method_that_does_not_model_lines_says_they_are_there(unbalanced):
     healthy = pbsid(simulate_amb_loop(NOMINAL, n_samples=30_000, rng=37001),
                     coordinates="physical")  # fmt: skip
     assert not any("periodic" in n for n in healthy.notes)
+
+
+def test_a_line_whose_frequency_drifts_is_said_to_be_unsettled():
+    """A sinusoid taken out at the best fixed frequency leaves a drifting line's
+    neighbours raised (50 -> 50.25 Hz over the record), a steady one's white."""
+    from maglevid.identify.periodic import unsettled_lines
+
+    rng = np.random.default_rng(4)
+    n = 30_000
+    t = DT * np.arange(n)
+    chirp = np.sin(2 * np.pi * (50 * t + 0.5 * 0.25 / (n * DT) * t**2))
+    f = 50.125
+    X = line_sequences(n, DT, (f,))
+    rest = chirp - X @ np.linalg.lstsq(X, chirp, rcond=None)[0]  # what a fit leaves
+    e = rng.standard_normal((n, 3))
+    e[:, 0] += 10 * rest
+    assert unsettled_lines(_spectrum(e), np.eye(3), n, DT, (f,)) == (f,)
+    white = rng.standard_normal((n, 3))
+    assert unsettled_lines(_spectrum(white), np.eye(3), n, DT, (f,)) == ()

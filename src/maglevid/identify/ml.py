@@ -76,6 +76,7 @@ from maglevid.identify.periodic import (
     find_lines,
     line_amplitudes,
     line_sequences,
+    unsettled_lines,
 )
 from maglevid.identify.physical import fit_physical, loop_recorded
 from maglevid.identify.result import IdentificationResult, propagate_covariance
@@ -266,6 +267,16 @@ def _fit_ml(
                               data.channel_names("y"), lines)  # fmt: skip
         if warn:
             notes.append(warn)
+        moving = unsettled_lines(final["eps"], final["S"], y.shape[0], data.dt, lines)
+        if moving:
+            notes.append(
+                f"the line(s) at {', '.join(f'{f:.4g}' for f in moving)} Hz change over the "
+                "record (their neighbouring frequencies stay raised after a fixed sinusoid is "
+                "taken out: a running speed or an amplitude that varies): the estimates are "
+                "biased by what is left (measured over 3 s: a 0.1 % speed drift, v1..v3 up to "
+                "2.7 standard errors off; 0.5 %, 17); a record at steady speed, or a shorter "
+                "one, resolves it"
+            )
     if not converged:
         notes.append(f"Fisher scoring stopped after {it} iterations without converging")
     return _result(
