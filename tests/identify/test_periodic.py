@@ -254,3 +254,23 @@ def test_a_line_whose_frequency_drifts_is_said_to_be_unsettled():
     assert unsettled_lines(_spectrum(e), np.eye(3), n, DT, (f,)) == (f,)
     white = rng.standard_normal((n, 3))
     assert unsettled_lines(_spectrum(white), np.eye(3), n, DT, (f,)) == ()
+
+
+def test_a_diagnosis_off_an_unsettled_line_is_inconclusive():
+    """The bearing's verdict (plants/amb.py): a fault or an unexplained change read off a
+    record whose line drifts becomes inconclusive, the change kept in the reasons; no
+    change stays no change."""
+    from types import SimpleNamespace
+
+    from maglevid.plants.amb import _unsettled_lines
+
+    drifting = SimpleNamespace(extras={"periodic_unsettled_hz": np.array([50.13])})
+    reasons: list[str] = []
+    verdict, code = _unsettled_lines(drifting, "Unexplained change", "unexplained_change",
+                                     reasons)  # fmt: skip
+    assert code == "inconclusive" and "50.13 Hz" in verdict and "steady speed" in verdict
+    assert reasons == ["read off this record: Unexplained change"]
+    assert _unsettled_lines(drifting, "No significant change", "no_change", []) == (
+        "No significant change", "no_change")  # fmt: skip
+    steady = SimpleNamespace(extras={"periodic_unsettled_hz": np.array([])})
+    assert _unsettled_lines(steady, "Fault", "fault", []) == ("Fault", "fault")

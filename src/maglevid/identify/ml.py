@@ -258,6 +258,7 @@ def _fit_ml(
     if sp.lags:
         notes.append(f"eq. (1) from the record's lagged products up to lag {sp.lags} "
                      "(large-N path; equal to the DFT path to rho^L)")  # fmt: skip
+    moving: tuple[float, ...] = ()
     if lines:
         notes.append(_lines_note(y, data, lines, auto=auto))
         op = data.loop.get("operating_point") if isinstance(data.loop, Mapping) else None
@@ -301,6 +302,7 @@ def _fit_ml(
         converged=converged,
         v_start=v0,
         lines=lines,
+        unsettled=moving,
     )
 
 
@@ -1324,6 +1326,7 @@ def _result(
     converged: bool,
     v_start: np.ndarray,
     lines: tuple[float, ...] = (),
+    unsettled: tuple[float, ...] = (),
 ) -> IdentificationResult:
     """Model, parameters with covariance (inverse Fisher, delta method) and diagnostics."""
     v = theta[:9]
@@ -1394,6 +1397,7 @@ def _result(
             "fisher_names": (*model.names, "tau0", "tau1", "tau2", "tau3", *line_names),
             "periodic_hz": np.array(lines, dtype=float),
             "periodic_amplitude": line_amplitudes(y, data.dt, lines),
+            "periodic_unsettled_hz": np.array(unsettled, dtype=float),
         },
     )
 

@@ -910,6 +910,7 @@ class AMBStages:
             run.notes.extend([why] if why else [])
         changes = _cause_on_its_own(c.changes, iso, run.level)
         verdict, code, reasons = _verdict(changes, iso, tol, unresolved, run.level)
+        verdict, code = _unsettled_lines(run.result, verdict, code, reasons)
         if iso is not None and iso.explained:
             reasons[1:1] = _sensor_note(iso.best, base.params)
         if code == "unexplained_change":
@@ -946,6 +947,27 @@ class AMBStages:
             resolution=tuple(u.to_dict() for u in unresolved),
             **run.common,
         )
+
+
+def _unsettled_lines(result: Any, verdict: str, code: str, reasons: list[str]) -> tuple[str, str]:
+    """A change read off a record whose periodic line changes over it is inconclusive.
+
+    Found from outside: a 1 N unbalance whose speed drifted 0.5 % over a 3 s record left
+    v1..v3 17 standard errors off after the best fixed sinusoid, and a healthy bearing
+    read "Unexplained change"; ml names such lines (``periodic_unsettled_hz``,
+    docs/gosiewski.md, "Periodic disturbances"). The change found stays in the reasons.
+    """
+    moving = (getattr(result, "extras", None) or {}).get("periodic_unsettled_hz")
+    if moving is None or not len(moving) or code not in ("fault", "unexplained_change"):
+        return verdict, code
+    reasons.insert(0, f"read off this record: {verdict}")
+    where = ", ".join(f"{f:.4g}" for f in moving)
+    return (
+        f"Inconclusive: the periodic line at {where} Hz (unbalance, hum) changes over the "
+        "record, and what one sinusoid leaves of it biases the estimates; a record at "
+        "steady speed (or a shorter one) resolves it",
+        "inconclusive",
+    )
 
 
 #: The v-space stages, shared with the kinds that have no diagnosis of their own.
