@@ -68,6 +68,7 @@ from maglevid.identify.cramer_rao import (
 from maglevid.identify.options import AMB_OPTIONS, Option
 from maglevid.identify.pbsid import fit_pbsid
 from maglevid.identify.periodic import (
+    ENVELOPE,
     MAX_LINES,
     START_STAT,
     amplitude_text,
@@ -255,12 +256,30 @@ def _fit_ml(
                             theta0=theta)  # fmt: skip
             theta, final, n_it, converged = _finished(y, sp, run, lay, data.dt, m, max_iter)
             it += n_it
+    envelope: tuple[int, ...] = ()
+    if auto and lines:  # a line a fixed sinusoid leaves unsettled gets an envelope
+        moving = unsettled_lines(final["eps"], final["S"], y.shape[0], data.dt, lines)
+        if moving:
+            envelope = tuple(ENVELOPE if f in moving else 0 for f in lines)
+            sp = _spectra(y, u, rho, key=data, lines=lines, dt=data.dt, degrees=envelope)
+            run = _optimise(sp, y, theta[:9], lay, dt=data.dt, m=m, max_iter=max_iter,
+                            theta0=theta)  # fmt: skip
+            theta, final, n_it, converged = _finished(y, sp, run, lay, data.dt, m, max_iter)
+            it += n_it
     if sp.lags:
         notes.append(f"eq. (1) from the record's lagged products up to lag {sp.lags} "
                      "(large-N path; equal to the DFT path to rho^L)")  # fmt: skip
     moving: tuple[float, ...] = ()
     if lines:
         notes.append(_lines_note(y, data, lines, auto=auto))
+        if any(envelope):
+            drift = ", ".join(f"{f:.4g}" for f, d in zip(lines, envelope, strict=True) if d)
+            notes.append(
+                f"the line(s) at {drift} Hz change over the record (a fixed sinusoid left "
+                "their neighbouring frequencies raised: a running speed or an amplitude that "
+                f"varies): each was taken out with a degree-{ENVELOPE} envelope (Legendre "
+                "polynomials in time)"
+            )
         op = data.loop.get("operating_point") if isinstance(data.loop, Mapping) else None
         op = op if isinstance(op, Mapping) else {}
         x0, i0_ = op.get("x0"), i0
@@ -303,6 +322,7 @@ def _fit_ml(
         v_start=v0,
         lines=lines,
         unsettled=moving,
+        envelope=envelope,
     )
 
 
@@ -794,6 +814,7 @@ def _spectra(
     *,
     lines: tuple[float, ...] = (),
     dt: float = 1.0,
+    degrees: tuple[int, ...] = (),
 ) -> _Spectra:
     """The exact DFT entries, or the lag path's when they are much fewer (N large);
     ``lines``: the frequencies [Hz] of the periodic lines profiled out (period ``dt``).
@@ -807,7 +828,7 @@ def _spectra(
     and the lag path's truncation (``rho^L`` times it) otherwise swamped the information
     (found at N = 1e5: the scoring's information not positive definite).
     """
-    seq = line_sequences(y.shape[0], dt, lines) if lines else None
+    seq = line_sequences(y.shape[0], dt, lines, degrees) if lines else None
     if seq is not None:
         X = np.column_stack([seq, np.ones(y.shape[0])])
         y = y - seq @ np.linalg.lstsq(X, y, rcond=None)[0][:-1]
@@ -819,9 +840,9 @@ def _spectra(
     if (6 + 2 * len(lines)) * (grid // 2 + 1) * _LAG_MIN_RATIO > y.shape[0] // 2 + 1:
         return _Spectra(y, u, seq)
     cache = _LAG_CACHE.setdefault(key, {}) if key is not None else {}
-    if (grid, lines) not in cache:
-        cache[grid, lines] = _lag_spectra(_Spectra(y, u, seq), y, u, grid)
-    return cache[grid, lines]
+    if (grid, lines, degrees) not in cache:
+        cache[grid, lines, degrees] = _lag_spectra(_Spectra(y, u, seq), y, u, grid)
+    return cache[grid, lines, degrees]
 
 
 def _lag_spectra(sp: _Spectra, y: np.ndarray, u: np.ndarray, grid: int) -> _Spectra:
@@ -1327,6 +1348,7 @@ def _result(
     v_start: np.ndarray,
     lines: tuple[float, ...] = (),
     unsettled: tuple[float, ...] = (),
+    envelope: tuple[int, ...] = (),
 ) -> IdentificationResult:
     """Model, parameters with covariance (inverse Fisher, delta method) and diagnostics."""
     v = theta[:9]
@@ -1368,7 +1390,9 @@ def _result(
     fitd["neg_log_likelihood"] = float(final["nll"])
     fitd["structure_residual"] = 0.0  # the model is parameterised in eq. (4) itself
     sensor = lay.sensor(theta)
-    line_names = [f"line{h}_{q}_{n}" for h in range(len(lines)) for q in ("cos", "sin")
+    degrees = list(envelope) + [0] * (len(lines) - len(envelope))
+    line_names = [f"line{h}_{q}{j or ''}_{n}" for h in range(len(lines))
+                  for j in range(degrees[h] + 1) for q in ("cos", "sin")
                   for n in data.channel_names("y")]  # fmt: skip
     return IdentificationResult(
         method="ml",
@@ -1398,6 +1422,7 @@ def _result(
             "periodic_hz": np.array(lines, dtype=float),
             "periodic_amplitude": line_amplitudes(y, data.dt, lines),
             "periodic_unsettled_hz": np.array(unsettled, dtype=float),
+            "periodic_envelope_degree": np.array(degrees, dtype=int),
         },
     )
 

@@ -44,6 +44,7 @@ import scipy.stats as sstats
 from maglevid.exceptions import DataError
 
 __all__ = [
+    "ENVELOPE",
     "EXCURSION",
     "MAX_LINES",
     "START_STAT",
@@ -58,6 +59,9 @@ __all__ = [
 
 #: Lines modelled at most (the strongest); each costs ``2 ny`` nuisance parameters.
 MAX_LINES = 8
+#: Degree of the Legendre envelope a line gets when a fixed sinusoid leaves it unsettled
+#: (:func:`unsettled_lines`): ``2 ny (ENVELOPE + 1)`` nuisance parameters for it.
+ENVELOPE = 4
 #: Probability that a record of white prediction errors shows one line or more.
 FALSE_ALARM = 1e-4
 #: The statistic a line needs in the prediction errors of a fit's start. They are not
@@ -90,13 +94,23 @@ _LOW_BINS = 3
 _WIDTH = 2
 
 
-def line_sequences(n: int, dt: float, freqs_hz: Sequence[float]) -> np.ndarray:
-    """``(n, 2 H)``: ``cos, sin`` of ``2 pi f_h t`` at ``t = k dt`` for each line."""
+def line_sequences(
+    n: int, dt: float, freqs_hz: Sequence[float], degrees: Sequence[int] = ()
+) -> np.ndarray:
+    """``(n, sum 2 (d_h + 1))``: ``cos, sin`` of ``2 pi f_h t`` at ``t = k dt`` for each
+    line, each times the Legendre polynomials ``P_0 .. P_d`` of ``t`` over the record
+    (``degrees``, default 0: a fixed sinusoid; a degree ``d`` holds a line whose
+    frequency or amplitude changes over the record, :data:`ENVELOPE`)."""
     t = np.arange(n) * dt
+    s = 2.0 * np.arange(n) / max(n - 1, 1) - 1.0
+    degs = list(degrees) + [0] * (len(freqs_hz) - len(degrees))
     cols = []
-    for f in freqs_hz:
+    for f, d in zip(freqs_hz, degs, strict=True):
         w = 2.0 * np.pi * float(f) * t
-        cols += [np.cos(w), np.sin(w)]
+        c, si = np.cos(w), np.sin(w)
+        for j in range(int(d) + 1):
+            pj = np.polynomial.legendre.legval(s, [0] * j + [1]) if j else 1.0
+            cols += [pj * c, pj * si]
     return np.column_stack(cols) if cols else np.zeros((n, 0))
 
 
