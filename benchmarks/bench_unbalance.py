@@ -24,10 +24,7 @@ Run from the repository root::
 
 from __future__ import annotations
 
-import argparse
-import json
 import statistics
-import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
 from typing import Any
@@ -180,19 +177,9 @@ else:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--records", type=int, default=RECORDS)
-    ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--json", help="write the raw result here")
-    args = ap.parse_args(argv)
-    t0 = time.perf_counter()
-    result = run(args.records, args.workers)
-    if args.json:
-        with open(args.json, "w") as fh:
-            json.dump(result, fh, indent=1)
-    print("\n".join(markdown_section(result)))
-    print(f"\n({time.perf_counter() - t0:.0f} s wall)", file=sys.stderr)
-    return 0
+    from benchmarks.sections import records_main
+
+    return records_main(argv, doc=__doc__ or "", run=run, report=markdown_section, records=RECORDS)
 
 
 if __name__ == "__main__":

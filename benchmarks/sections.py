@@ -21,7 +21,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-__all__ = ["Section", "load_plugin"]
+__all__ = ["Section", "load_plugin", "records_main"]
 
 
 @dataclass(frozen=True)
@@ -109,3 +109,34 @@ def _main_section(module: str) -> Section:
         return [head, "", res["markdown"].strip()]
 
     return Section(name, measure, report)
+
+
+def records_main(
+    argv: list[str] | None,
+    *,
+    doc: str,
+    run: Callable[[int, int], dict[str, Any]],
+    report: Callable[[dict[str, Any]], list[str]],
+    records: int,
+) -> int:
+    """The command line of a Monte Carlo section (``--records``, ``--workers``,
+    ``--json``): ``run(records, workers)``, its Markdown on stdout, the wall time on
+    stderr."""
+    import argparse
+    import json
+    import sys
+    import time
+
+    ap = argparse.ArgumentParser(description=doc.splitlines()[0])
+    ap.add_argument("--records", type=int, default=records)
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--json", help="write the raw result here")
+    args = ap.parse_args(argv)
+    t0 = time.perf_counter()
+    result = run(args.records, args.workers)
+    if args.json:
+        with open(args.json, "w") as fh:
+            json.dump(result, fh, indent=1)
+    print("\n".join(report(result)))
+    print(f"\n({time.perf_counter() - t0:.0f} s wall)", file=sys.stderr)
+    return 0
