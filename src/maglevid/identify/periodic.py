@@ -30,6 +30,11 @@ wider). The frequency is refined between the neighbouring bins to the maximum of
 periodogram (no window: the sinusoid is fitted to the unwindowed record). Measured:
 no line in 300 records of 3 x 30 000 white errors; none on six healthy records of the
 nonlinear bearing; a 0.03 N line at 50 Hz found on each of four.
+
+A line whose frequency or amplitude changes over the record (a running speed that
+drifts) leaves its neighbouring bins raised after a fixed sinusoid
+(:func:`unsettled_lines`); it is then taken out as its sinusoid times Legendre
+polynomials of time (:data:`ENVELOPE`, :func:`line_sequences`).
 """
 
 from __future__ import annotations
@@ -84,7 +89,7 @@ EXCURSION = 0.03
 #: ~3 % here, is in the threshold: :func:`_threshold`; with 50 bins and the plain
 #: chi-square quantile, 3 of 30 records of white errors showed a "line").
 _LOCAL = 250
-#: Fewer bins on each side (a record of fewer than ~200 samples) and no line is looked for.
+#: Fewer bins on each side (a record of fewer than ~400 samples) and no line is looked for.
 _LOCAL_MIN = 25
 #: Bins at the low end never called a line (the offsets' bin and its neighbours:
 #: a drift, not a period).
