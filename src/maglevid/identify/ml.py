@@ -76,6 +76,7 @@ from maglevid.identify.periodic import (
     excursion_note,
     find_lines,
     line_amplitudes,
+    line_coefficients,
     line_sequences,
     unsettled_lines,
 )
@@ -252,9 +253,7 @@ def _fit_ml(
                 break
             lines = lines + new
             sp = _spectra(y, u, rho, key=data, lines=lines, dt=data.dt)
-            run = _optimise(sp, y, theta[:9], lay, dt=data.dt, m=m, max_iter=max_iter,
-                            theta0=theta)  # fmt: skip
-            theta, final, n_it, converged = _finished(y, sp, run, lay, data.dt, m, max_iter)
+            theta, final, n_it, converged = _refit(sp, y, theta, lay, data.dt, m, max_iter)
             it += n_it
     envelope: tuple[int, ...] = ()
     if auto and lines:  # a line a fixed sinusoid leaves unsettled gets an envelope
@@ -262,9 +261,7 @@ def _fit_ml(
         if moving:
             envelope = tuple(ENVELOPE if f in moving else 0 for f in lines)
             sp = _spectra(y, u, rho, key=data, lines=lines, dt=data.dt, degrees=envelope)
-            run = _optimise(sp, y, theta[:9], lay, dt=data.dt, m=m, max_iter=max_iter,
-                            theta0=theta)  # fmt: skip
-            theta, final, n_it, converged = _finished(y, sp, run, lay, data.dt, m, max_iter)
+            theta, final, n_it, converged = _refit(sp, y, theta, lay, data.dt, m, max_iter)
             it += n_it
     if sp.lags:
         notes.append(f"eq. (1) from the record's lagged products up to lag {sp.lags} "
@@ -364,6 +361,12 @@ def _fit_from_starts(data, sp, y, u, lay, v0_kind, notes, m, max_iter, noise_est
                 starts.append((vs, "subspace"))
     assert best is not None
     return _finished(y, sp, best[0], lay, data.dt, m, max_iter)
+
+
+def _refit(sp, y, theta, lay, dt, m, max_iter):  # type: ignore[no-untyped-def]
+    """The scoring again from ``theta`` on new entries (lines added, or an envelope)."""
+    run = _optimise(sp, y, theta[:9], lay, dt=dt, m=m, max_iter=max_iter, theta0=theta)
+    return _finished(y, sp, run, lay, dt, m, max_iter)
 
 
 def _finished(y, sp, run, lay, dt, m, max_iter):  # type: ignore[no-untyped-def]
@@ -830,9 +833,8 @@ def _spectra(
     """
     seq = line_sequences(y.shape[0], dt, lines, degrees) if lines else None
     if seq is not None:
-        X = np.column_stack([seq, np.ones(y.shape[0])])
-        y = y - seq @ np.linalg.lstsq(X, y, rcond=None)[0][:-1]
-        u = u - seq @ np.linalg.lstsq(X, u, rcond=None)[0][:-1]
+        y = y - seq @ line_coefficients(y, seq)
+        u = u - seq @ line_coefficients(u, seq)
     if rho is None or not 0.0 < rho < 1.0:
         return _Spectra(y, u, seq)
     lags = int(np.ceil(np.log(_LAG_TOL) / np.log(rho)))

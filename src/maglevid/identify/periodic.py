@@ -57,6 +57,7 @@ __all__ = [
     "check_lines",
     "find_lines",
     "line_amplitudes",
+    "line_coefficients",
     "line_sequences",
     "refined_frequency",
     "unsettled_lines",
@@ -177,13 +178,7 @@ def find_lines(
     local = min(_LOCAL, M // 8)
     if local < _LOCAL_MIN or max_lines <= 0:
         return (), ()
-    L = np.linalg.cholesky(0.5 * (S + S.T))
-    W = np.linalg.solve(L, E.T).T  # whitened errors per bin
-    # each channel against its own local level: a band where one channel's errors are
-    # louder does not give the sum a heavier tail than chi-square's
-    level = _local_median(np.abs(W) ** 2, local)
-    level = np.maximum(level, 1e-300) / sstats.chi2.median(2)
-    stat = np.sum(np.abs(W) ** 2 / level, axis=1)
+    W, level, stat = _statistic(E, S, local)
     dof = 2 * ny
     thresh = max(_threshold(false_alarm / M, ny, 2 * local + 1), min_stat)
     taken = np.zeros(M, dtype=bool)
@@ -239,6 +234,17 @@ def _white_after(W, w_err, f_hz, k, level, dof, dt, extra=0.0) -> bool:  # type:
     D = np.fft.rfft(X, axis=0)[lo:hi]
     rest = np.sum(np.abs(W[lo:hi] - D @ coef) ** 2 / level[lo:hi], axis=1)
     return float(rest.mean()) <= dof + 3.0 * np.sqrt(2.0 * dof / rest.size) + extra
+
+
+def _statistic(E: np.ndarray, S: np.ndarray, local: int) -> tuple[np.ndarray, ...]:
+    """``(W, level, stat)``: the errors whitened by ``S`` per bin, each channel's local
+    level (chi-square(2) units) and the bins' statistic, chi-square(``2 ny``) for white
+    errors. Each channel is judged against its own level: a band where one channel's
+    errors are louder does not give the sum a heavier tail than chi-square's."""
+    L = np.linalg.cholesky(0.5 * (S + S.T))
+    W = np.linalg.solve(L, E.T).T
+    level = np.maximum(_local_median(np.abs(W) ** 2, local), 1e-300) / sstats.chi2.median(2)
+    return W, level, np.sum(np.abs(W) ** 2 / level, axis=1)
 
 
 def _local_median(P: np.ndarray, local: int) -> np.ndarray:
@@ -298,9 +304,15 @@ def line_amplitudes(y: np.ndarray, dt: float, freqs_hz: Sequence[float]) -> np.n
     """``(H, ny)``: each line's amplitude in each channel of ``y`` (least squares of the
     lines' sinusoids and a constant; what the record shows, whatever drives it)."""
     y = np.asarray(y, dtype=float)
-    X = np.column_stack([line_sequences(y.shape[0], dt, freqs_hz), np.ones(y.shape[0])])
-    c = np.linalg.lstsq(X, y, rcond=None)[0][:-1]
+    c = line_coefficients(y, line_sequences(y.shape[0], dt, freqs_hz))
     return np.hypot(c[0::2], c[1::2])
+
+
+def line_coefficients(x: np.ndarray, seq: np.ndarray) -> np.ndarray:
+    """Least-squares coefficients of the columns of ``seq`` (a constant fitted beside
+    them and left out) in each column of ``x``: ``x`` less ``seq @`` them has no line."""
+    X = np.column_stack([seq, np.ones(x.shape[0])])
+    return np.linalg.lstsq(X, x, rcond=None)[0][:-1]
 
 
 _PREFIXES = ((1e-9, "n"), (1e-6, "u"), (1e-3, "m"), (1.0, ""), (1e3, "k"))
@@ -389,16 +401,13 @@ def unsettled_lines(E: np.ndarray, S: np.ndarray, n: int, dt: float,
     Measured: a 1 N line whose frequency rose 50 -> 50.25 Hz over a 3 s record left its
     neighbours at 16-500 (white: 6) after the best single sinusoid, and v1..v3 17
     standard errors off. Sinusoids at the neighbouring bins did not whiten it (the
-    chirp's leakage reaches ~8 bins); a polynomial envelope per line would (not built).
+    chirp's leakage reaches ~8 bins); a polynomial envelope does (:data:`ENVELOPE`).
     """
     M, ny = E.shape
     local = min(_LOCAL, M // 8)
     if local < _LOCAL_MIN or not lines:
         return ()
-    L = np.linalg.cholesky(0.5 * (S + S.T))
-    W = np.linalg.solve(L, E.T).T
-    level = _local_median(np.abs(W) ** 2, local) / sstats.chi2.median(2)
-    stat = np.sum(np.abs(W) ** 2 / np.maximum(level, 1e-300), axis=1)
+    stat = _statistic(E, S, local)[2]
     dof = 2 * ny
     out = []
     for f in lines:
