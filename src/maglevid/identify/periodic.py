@@ -39,7 +39,8 @@ polynomials of time (:data:`ENVELOPE`, :func:`line_sequences`).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -56,10 +57,14 @@ __all__ = [
     "amplitude_text",
     "check_lines",
     "find_lines",
+    "fit_without_lines",
     "line_amplitudes",
     "line_coefficients",
     "line_sequences",
     "refined_frequency",
+    "remove_lines",
+    "residual_lines",
+    "unmodelled_lines_note",
     "unsettled_lines",
 ]
 
@@ -351,15 +356,31 @@ def excursion_note(amplitudes: np.ndarray, scale: Sequence[float | None], names:
     )
 
 
-def unmodelled_lines_note(method: str, residuals: Any, n_samples: int, dt: float) -> str | None:
-    """A note when a fit's residuals (control rate, time first) carry periodic lines that
-    its method does not model, else None.
+def residual_lines(
+    residuals: Any,
+    n_samples: int,
+    dt: float,
+    *,
+    known: Sequence[float] = (),
+    signals: np.ndarray | None = None,
+    max_lines: int = MAX_LINES,
+) -> tuple[float, ...]:
+    """Lines in a fit's residuals (control rate, time first) beyond what white errors
+    allow, strongest first (:func:`find_lines`; ``signals``: the record's channels the
+    frequencies are refined on). ``()`` where the residuals cannot be judged: None, with
+    gaps (not finite), far shorter than the record (segments) or of singular covariance."""
+    spec = _residual_spectrum(residuals, n_samples)
+    if spec is None:
+        return ()
+    E, S, n = spec
+    if signals is not None and np.shape(signals)[0] != n:
+        signals = None
+    return find_lines(E, S, n, dt, known=known, signals=signals, max_lines=max_lines)[0]
 
-    Found from outside: with a 1 N unbalance at 50 Hz on the simulated bearing, PBSID-opt
-    and SSARX (structured fit) read v1..v3 93 % off (108 standard errors) and said
-    nothing; their residuals carry the line. Residuals with gaps (not finite) or far
-    shorter than the record (segments) are not judged.
-    """
+
+def _residual_spectrum(residuals: Any, n_samples: int) -> tuple[np.ndarray, ...] | None:
+    """``(E, S, n)``: the residuals' real DFT, covariance and length, or None (see
+    :func:`residual_lines`)."""
     if residuals is None:
         return None
     e = np.asarray(residuals, dtype=float)
@@ -371,7 +392,20 @@ def unmodelled_lines_note(method: str, residuals: Any, n_samples: int, dt: float
         np.linalg.cholesky(S)
     except np.linalg.LinAlgError:
         return None
-    freqs, _ = find_lines(np.fft.rfft(e, axis=0), S, e.shape[0], dt)
+    return np.fft.rfft(e, axis=0), S, e.shape[0]
+
+
+def unmodelled_lines_note(method: str, residuals: Any, n_samples: int, dt: float) -> str | None:
+    """A note when a fit's residuals (control rate, time first) carry periodic lines that
+    its method does not model, else None.
+
+    Found from outside: with a 1 N unbalance at 50 Hz on the simulated bearing, PBSID-opt
+    and SSARX (structured fit) read v1..v3 93 % off (108 standard errors) and said
+    nothing; their residuals carry the line (they now take such lines out themselves
+    through the registry: :func:`fit_without_lines`). Residuals with gaps (not finite)
+    or far shorter than the record (segments) are not judged.
+    """
+    freqs = residual_lines(residuals, n_samples, dt)
     if not freqs:
         return None
     where = ", ".join(f"{f:.4g}" for f in sorted(freqs))
@@ -380,8 +414,152 @@ def unmodelled_lines_note(method: str, residuals: Any, n_samples: int, dt: float
         "periodic disturbance: unbalance at the running speed, its harmonics, mains hum); "
         f"{method} does not model them. A fit that takes its errors as white is biased by "
         "them (with a 1 N unbalance at 50 Hz on the simulated bearing PBSID-opt and SSARX "
-        "read v1..v3 93 % off; instrumental variables stay consistent); the bearing's ml "
-        "(the diagnosis default) profiles them out"
+        "read v1..v3 93 % off unless the lines are taken out, their option periodic; "
+        "instrumental variables stay consistent); the bearing's ml profiles them out"
+    )
+
+
+def remove_lines(
+    x: np.ndarray, dt: float, freqs_hz: Sequence[float], degrees: Sequence[int] = ()
+) -> np.ndarray:
+    """``x`` (time first) less its least-squares sinusoids at ``freqs_hz`` (each times
+    Legendre polynomials up to its entry of ``degrees``: :func:`line_sequences`); a
+    constant is fitted beside them and kept. A new array; ``x`` is not modified."""
+    x = np.asarray(x, dtype=float)
+    flat = x.reshape(x.shape[0], -1)
+    seq = line_sequences(flat.shape[0], dt, freqs_hz, degrees)
+    return (flat - seq @ line_coefficients(flat, seq)).reshape(x.shape)
+
+
+#: Searches of a fit's residuals after the first fit (a weaker line shows once the
+#: stronger ones are out); each new line costs a refit.
+_RESIDUAL_ROUNDS = 2
+
+
+def fit_without_lines(
+    fit: Callable[[np.ndarray, np.ndarray], Any],
+    y: Any,
+    u: Any,
+    dt: float,
+    periodic: Any,
+    *,
+    method: str,
+    excitation: Any = None,
+) -> Any:
+    """``fit(y, u)`` on the record with its periodic lines taken out of every channel.
+
+    For a method that takes its errors as white and reads only the record's second
+    moments (PBSID-opt, SSARX): a fixed line entering a stable linear loop anywhere
+    shows in every channel of ``y`` and ``u`` as a sinusoid of its frequency in steady
+    state; its least-squares sinusoid is removed from each channel before the fit (two
+    numbers per channel and line, no other change to the data). Measured on the
+    simulator's nonlinear bearing with a 1 N unbalance at 50 Hz (30 000 samples, 6
+    records): PBSID-opt's RMS z of v1..v9 49 -> 1.09 (healthy records: 1.09), SSARX's
+    49 -> 1.17 (1.17).
+
+    ``periodic`` (:func:`check_lines`): ``"none"`` fits the record as it is; frequencies
+    take those lines out; ``"auto"`` fits, searches the fit's residuals
+    (:func:`residual_lines`, frequencies refined on ``y``), and refits without the lines
+    found (up to :data:`_RESIDUAL_ROUNDS` searches); a line a fixed sinusoid leaves
+    unsettled (:func:`unsettled_lines`) is taken out with a degree-:data:`ENVELOPE`
+    envelope. ``fit(y, u)`` returns a result with ``residuals`` (control rate), ``extras``
+    and ``notes`` (a dataclass); except with ``"none"`` the result's ``extras`` gain
+    ``periodic_hz`` (the lines taken out; empty when none was found),
+    ``periodic_amplitude`` (``(H, ny)``, in ``y``) and ``envelope_degree``.
+
+    ``excitation``: the recorded excitation ``r`` (time first), if any. A line found in
+    the residuals where ``r`` itself has a line (:func:`_excitation_lines`) is the
+    experiment's own excitation -- a model error at its frequency, not a disturbance --
+    and is left in (taking it out would take the information out): noted.
+    """
+    lines = check_lines(periodic, dt)
+    if lines == ():
+        return fit(y, u)
+    y = np.asarray(y, dtype=float)
+    u = np.asarray(u, dtype=float)
+    auto = lines is None
+    degrees: tuple[int, ...] = ()
+    if auto:
+        res, lines = fit(y, u), ()
+        kept: tuple[float, ...] = ()
+        for _ in range(_RESIDUAL_ROUNDS):
+            new = residual_lines(res.residuals, y.shape[0], dt, known=lines + kept,
+                                 signals=y, max_lines=MAX_LINES - len(lines))  # fmt: skip
+            ours = _excitation_lines(excitation, dt, new)
+            kept += ours
+            new = tuple(f for f in new if f not in ours)
+            if not new:
+                break
+            lines = lines + new
+            res = fit(remove_lines(y, dt, lines), remove_lines(u, dt, lines))
+        spec = _residual_spectrum(res.residuals, y.shape[0]) if lines else None
+        moving = unsettled_lines(*spec, dt, lines) if spec is not None else ()
+        if moving:
+            degrees = tuple(ENVELOPE if f in moving else 0 for f in lines)
+            res = fit(remove_lines(y, dt, lines, degrees), remove_lines(u, dt, lines, degrees))
+    else:
+        res = fit(remove_lines(y, dt, lines), remove_lines(u, dt, lines))
+    amp = line_amplitudes(y, dt, lines) if lines else np.zeros((0, y.shape[1]))
+    extras = {**res.extras, "periodic_hz": tuple(lines), "periodic_amplitude": amp,
+              "envelope_degree": degrees or (0,) * len(lines)}  # fmt: skip
+    notes = tuple(res.notes)
+    if lines:
+        notes += (_removed_note(method, lines, amp, degrees, auto),)
+    if auto and kept:
+        notes += (
+            f"the residuals carry lines at {', '.join(f'{f:.4g}' for f in kept)} Hz where the "
+            "excitation r has lines too: the experiment's own excitation (a model error at "
+            "its frequency, not a disturbance), left in the record",
+        )
+    return replace(res, extras=extras, notes=notes)
+
+
+#: A line of the residuals is the excitation's own where ``r``'s periodogram at it (the
+#: largest of the bins within ``_WIDTH``) exceeds this many times its local median (a
+#: white ``r``'s bins reach ~20x at 1e-4 per record of 1e4 bins).
+_EXCITATION_RATIO = 100.0
+
+
+def _excitation_lines(r: Any, dt: float, freqs_hz: Sequence[float]) -> tuple[float, ...]:
+    """The frequencies of ``freqs_hz`` where the excitation ``r`` has a line."""
+    if r is None or not freqs_hz:
+        return ()
+    x = np.asarray(r, dtype=float)
+    x = x.reshape(x.shape[0], -1)
+    if x.shape[0] < 2 * _LOCAL_MIN or not np.all(np.isfinite(x)):
+        return ()
+    P = np.sum(np.abs(np.fft.rfft(x - x.mean(axis=0), axis=0)) ** 2, axis=1)
+    n = x.shape[0]
+    out = []
+    for f in freqs_hz:
+        k = round(f * n * dt)
+        near = P[max(k - _WIDTH, 1) : k + _WIDTH + 1]
+        level = np.median(P[max(k - _LOCAL, 1) : k + _LOCAL + 1])
+        if near.size and level > 0 and float(near.max()) > _EXCITATION_RATIO * level:
+            out.append(f)
+        elif near.size and level == 0 and float(near.max()) > 0:
+            out.append(f)
+    return tuple(out)
+
+
+def _removed_note(method: str, lines: Sequence[float], amp: np.ndarray,
+                  degrees: Sequence[int], auto: bool) -> str:  # fmt: skip
+    where = "; ".join(
+        f"{f:.4g} Hz (y amplitudes " + ", ".join(f"{a:.2g}" for a in amp[h]) + ")"
+        for h, f in enumerate(lines)
+    )
+    how = "found in the first fit's residuals" if auto else "as given"
+    drift = [f"{f:.4g}" for f, d in zip(lines, degrees, strict=False) if d]
+    env = (
+        f"; the line(s) at {', '.join(drift)} Hz change over the record and were taken out "
+        f"with a degree-{ENVELOPE} envelope (Legendre polynomials in time)"
+        if drift
+        else ""
+    )
+    return (
+        f"periodic lines ({how}) at {where} were taken out of every channel of y and u "
+        f"before the {method} fit (a least-squares sinusoid each: the steady response of a "
+        f"fixed line in a linear loop){env}"
     )
 
 

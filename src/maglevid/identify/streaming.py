@@ -563,11 +563,19 @@ def fit_predictor_streamed(
 
     The lagged products of :class:`~maglevid.identify.pbsid.PredictorAccumulator`;
     equals :func:`~maglevid.identify.pbsid.fit_pbsid` / ``fit_ssarx`` on the whole
-    record to rounding, without ``residuals``. ``fit_options`` (order,
+    record to rounding, without ``residuals`` (and without ``periodic`` lines taken
+    out: that needs the record in memory, refused). ``fit_options`` (order,
     feedthrough, weighting, rank_tol, coordinates, physical_fit) go to its
     ``fit``; ``structure_past`` is the window of ``physical_fit="structured"``
     (default: chosen from the data, up to ``DEFAULT_STRUCTURE_PAST`` lags kept).
     """
+    periodic = fit_options.pop("periodic", "none")
+    if not (isinstance(periodic, str) and periodic == "none"):
+        raise DataError(
+            f"`periodic`={periodic!r}: the lines are taken out of every channel before the "
+            "lagged products, which needs the whole record in memory; a streamed fit is one "
+            "pass over it: identify without streaming (--no-stream), or with periodic='none'"
+        )
     fit = fit_options.get("physical_fit") or (
         "structured" if fit_options.get("coordinates") == "physical" else "transform"
     )  # pbsid's default
