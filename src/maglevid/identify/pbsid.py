@@ -1331,7 +1331,11 @@ def _fit_lines(
     (``periodic``: :func:`~maglevid.identify.periodic.fit_without_lines`)."""
     name = "PBSID-opt" if algorithm == "pbsid" else "SSARX"
     return fit_without_lines(
-        lambda y_, u_: _fit_in_memory(algorithm, y_, u_, kw), y, u, kw["dt"], periodic,
+        lambda y_, u_: _fit_in_memory(algorithm, y_, u_, kw),
+        y,
+        u,
+        kw["dt"],
+        periodic,
         method=name,
     )
 
