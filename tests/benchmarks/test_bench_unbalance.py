@@ -20,7 +20,7 @@ def _rows(case: str, n: int, *, z: float, line: float | None) -> list[dict]:
 
 def _result(n: int = 40, **override) -> dict:
     rows = []
-    for case, (unbalance, _, _, _) in CASES.items():
+    for case, (unbalance, *_) in CASES.items():
         z, line = override.get(case, (1.0, None if unbalance is None else unbalance[1]))
         rows += _rows(case, n, z=z, line=line)
     return {"records": n, "summary": {c: _summary(rows, c) for c in CASES}}

@@ -1415,15 +1415,11 @@ def fit_pbsid(
         ``ceil(ln N / (-2 ln rho))`` with ``rho`` the transform's predictor
         spectral radius, docs/subspace.md (P16); within what the record supports).
     periodic : "none", "auto" or float or sequence of float
-        Periodic disturbances (unbalance at the running speed, mains hum): the
-        least-squares sinusoid at each line is taken out of every channel of ``y``
-        and ``u`` before the fit (:func:`maglevid.identify.periodic.fit_without_lines`;
-        a fit that takes its errors as white is biased by a line: 1 N at 50 Hz on the
-        simulated bearing put v1..v3 93 % off). ``"none"`` (default here: the search
-        costs a fifth of a fit at N = 1e4 and more than one at 1e6), frequencies [Hz],
-        or ``"auto"``: the lines the first fit's residuals carry, refitted without them
-        (the default of ``maglevid identify`` and ``diagnose``, whose checks search the
-        residuals anyway). With lines, ``extras["periodic_hz"]`` and a note.
+        Periodic lines (unbalance, mains hum) whose least-squares sinusoids are taken out
+        of every channel before the fit (1 N at 50 Hz put the bearing's v1..v3 93 % off;
+        :func:`maglevid.identify.periodic.fit_without_lines`): ``"none"`` (default here:
+        the search costs a fifth of a fit at N = 1e4), frequencies [Hz], or ``"auto"``
+        (those of the first fit's residuals; the CLI's default in physical coordinates).
     rng : numpy.random.Generator, optional
         Unused (deterministic); accepted for a uniform ``fit_*`` API.
 
