@@ -525,8 +525,9 @@ class _Criterion:
         """:meth:`delta` and the prediction errors' covariance at ``theta`` (what the final
         step keeps): the rows ``dX = V(p) - V(theta)`` encoded once."""
         rows = self._rows_x  # the last block (the current sample's) stays 0
-        np.subtract(p.V, self.markov(th), out=rows[: self.P])
-        return self._change(p, self.gram.encode_blocks(rows), W)
+        with np.errstate(over="ignore", invalid="ignore"):  # a step past the stable region
+            np.subtract(p.V, self.markov(th), out=rows[: self.P])
+            return self._change(p, self.gram.encode_blocks(rows), W)
 
     def change(self, p: _Point, q: _Point, W: np.ndarray) -> float:
         """``J(q) - J(p)`` of two built points: :meth:`delta` with ``dX``'s encoding the
@@ -730,8 +731,8 @@ def _undamped(crit, p, step, d, W, trusted, dc0=None):  # type: ignore[no-untype
             return step, dc0, None, 0
         step, h0 = 0.5 * step, 1
     elif trusted:
-        q = crit.point(p.theta + step / d)
-        dc = crit.change(p, q, W)
+        q = _finite_point(crit, p.theta + step / d)
+        dc = float("inf") if q is None else crit.change(p, q, W)
         if dc <= 0.0:
             return step, dc, q, 0
         if _HALVINGS == 0:
@@ -743,6 +744,19 @@ def _undamped(crit, p, step, d, W, trusted, dc0=None):  # type: ignore[no-untype
             break
         step = 0.5 * step
     return step, dc, None, h
+
+
+def _finite_point(crit: _Criterion, th: np.ndarray) -> _Point | None:
+    """``crit.point(th)``, or None where the predictor's powers overflow: a trusted full
+    step far past the stable region (found from outside: a 1 um sensor line at 50 Hz on
+    the bearing's position sent one to ``|Abar^P|`` ~ 1e308, and the fit ended in a
+    ValueError of the sequence basis' QR instead of halving the step)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        try:
+            q = crit.point(th)
+        except (ValueError, np.linalg.LinAlgError):
+            return None
+    return q if np.all(np.isfinite(q.M)) else None
 
 
 def _newton_step(Hs: np.ndarray, gs: np.ndarray, d: np.ndarray, Sq: np.ndarray | None):
