@@ -310,7 +310,7 @@ def test_fit_without_lines_given_auto_and_none():
     res = fit_without_lines(fit, y, u, DT, "auto", method="x")
     assert len(calls) == 1 and res.extras["periodic_hz"][0] == pytest.approx(50.0, abs=0.01)
     assert res.extras["periodic_amplitude"][0] == pytest.approx([0.5] * 3, rel=0.05)
-    assert "as given" not in res.notes[-1] and "found in the first" in res.notes[-1]
+    assert "as given" not in res.notes[-1] and "found in the record" in res.notes[-1]
     calls.clear()  # weak (~300 in y: under START_STAT in the record, a line in the errors)
     weak = noise_y + 0.1 * unit[:, None]
     res = fit_without_lines(fit, weak, noise_u, DT, "auto", method="x")

@@ -1419,7 +1419,8 @@ def fit_pbsid(
         of every channel before the fit (1 N at 50 Hz put the bearing's v1..v3 93 % off;
         :func:`maglevid.identify.periodic.fit_without_lines`): ``"none"`` (default here:
         the search costs a fifth of a fit at N = 1e4), frequencies [Hz], or ``"auto"``
-        (those of the first fit's residuals; the CLI's default in physical coordinates).
+        (strong in the record, or in the first fit's residuals; the CLI's default in
+        physical coordinates).
     rng : numpy.random.Generator, optional
         Unused (deterministic); accepted for a uniform ``fit_*`` API.
 
@@ -1585,9 +1586,9 @@ def _method(algorithm: str, summary: str):  # type: ignore[no-untyped-def]
                 "the recording lacks"
             )
         options.setdefault("dt", data.dt)
-        # the bearing's fit (physical coordinates) takes the lines its first fit's residuals
-        # carry out; elsewhere the registry's check only names them (docs/subspace.md,
-        # "Periodic disturbances": on the UAQ levitator's records taking them out moved the
+        # the bearing's fit (physical coordinates) takes the record's periodic lines out;
+        # elsewhere the registry's check only names them (docs/gosiewski.md, "Periodic
+        # disturbances": on the UAQ levitator's records taking them out moved the
         # automatic order, 3 -> 45 on one)
         if options.get("coordinates") == "physical":
             options.setdefault("periodic", "auto")
@@ -1657,10 +1658,10 @@ def _declaration(algorithm: str) -> tuple[Option, ...]:
             low=1,
         ),
         Option("periodic", "object", "periodic disturbances (unbalance, mains hum) taken "
-               "out of every channel before the fit: 'auto' (found in the first fit's "
-               "residuals, not where the excitation r has a line; the default with "
-               "coordinates='physical'), 'none' (the default otherwise) or frequencies "
-               "[Hz]"),
+               "out of every channel before the fit: 'auto' (found in the record and "
+               "the first fit's residuals, not where the excitation r has a line; the "
+               "default with coordinates='physical'), 'none' (the default otherwise) or "
+               "frequencies [Hz]"),
     ]  # fmt: skip
     return bind_defaults(opts, fit_pbsid if algorithm == "pbsid" else fit_ssarx)
 

@@ -604,7 +604,7 @@ def _removed_note(method: str, lines: Sequence[float], amp: np.ndarray,
         f"{f:.4g} Hz (y amplitudes " + ", ".join(f"{a:.2g}" for a in amp[h]) + ")"
         for h, f in enumerate(lines)
     )
-    how = "found in the first fit's residuals" if auto else "as given"
+    how = "found in the record and the first fit's residuals" if auto else "as given"
     drift = [f"{f:.4g}" for f, d in zip(lines, degrees, strict=False) if d]
     env = (
         f"; the line(s) at {', '.join(drift)} Hz change over the record and were taken out "
