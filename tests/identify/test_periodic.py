@@ -356,6 +356,19 @@ def test_a_streamed_fit_refuses_lines(tmp_path):
         fit_predictor_streamed(d, periodic=[50.0])
 
 
+def test_a_streamed_fit_says_when_the_record_carries_lines(unbalanced):
+    """The streamed PBSID-opt cannot take the unbalance out; it finds it in the first
+    chunk and says its estimate is biased and what to do. A healthy record: no note."""
+    from maglevid.identify.streaming import fit_predictor_streamed
+
+    res = fit_predictor_streamed(unbalanced, coordinates="physical", chunk_size=10_000)
+    note = next(n for n in res.notes if "carry periodic lines" in n)
+    assert "first 10000 samples" in note and "at 50 Hz" in note and "--no-stream" in note
+    healthy = simulate_amb_loop(NOMINAL, n_samples=30_000, rng=37001)
+    res = fit_predictor_streamed(healthy, coordinates="physical", chunk_size=10_000)
+    assert not any("periodic" in n for n in res.notes)
+
+
 def test_a_line_whose_frequency_drifts_is_said_to_be_unsettled():
     """A sinusoid taken out at the best fixed frequency leaves a drifting line's
     neighbours raised (50 -> 50.25 Hz over the record), a steady one's white."""

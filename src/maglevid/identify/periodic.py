@@ -56,6 +56,7 @@ __all__ = [
     "START_STAT",
     "amplitude_text",
     "check_lines",
+    "excitation_lines",
     "find_lines",
     "fit_without_lines",
     "line_amplitudes",
@@ -488,13 +489,13 @@ def fit_without_lines(
     kept: tuple[float, ...] = ()
     if auto:
         strong = record_lines(y, u, dt)
-        kept = _excitation_lines(excitation, dt, strong)
+        kept = excitation_lines(excitation, dt, strong)
         lines = tuple(f for f in strong if f not in kept)
         res, failed = _first_fit(fit, probe, *_without(y, u, dt, lines))
         for _ in range(_RESIDUAL_ROUNDS):
             new = residual_lines(res.residuals, y.shape[0], dt, known=lines + kept,
                                  signals=y, max_lines=MAX_LINES - len(lines))  # fmt: skip
-            ours = _excitation_lines(excitation, dt, new)
+            ours = excitation_lines(excitation, dt, new)
             kept += ours
             new = tuple(f for f in new if f not in ours)
             if not new:
@@ -576,7 +577,7 @@ def _first_fit(fit, probe, y, u):  # type: ignore[no-untyped-def]
 _EXCITATION_RATIO = 100.0
 
 
-def _excitation_lines(r: Any, dt: float, freqs_hz: Sequence[float]) -> tuple[float, ...]:
+def excitation_lines(r: Any, dt: float, freqs_hz: Sequence[float]) -> tuple[float, ...]:
     """The frequencies of ``freqs_hz`` where the excitation ``r`` has a line."""
     if r is None or not freqs_hz:
         return ()

@@ -69,6 +69,7 @@ from maglevid.identify.pbsid import (
     DEFAULT_STRUCTURE_PAST,
     PredictorAccumulator,
 )
+from maglevid.identify.periodic import excitation_lines, record_lines
 from maglevid.identify.physical import (
     _plant_signals,
     physical_labels,
@@ -416,8 +417,10 @@ def _feed_plant_io(
     progress: Progress | None,
     method: str,
     make: Callable[[int, int], Any],
+    first: Callable[[ClosedLoopData], None] | None = None,
 ) -> tuple[Any, float, int]:
-    """One pass: ``make(ny, nu)`` builds the accumulator, fed ``(y_control, u)`` per chunk.
+    """One pass: ``make(ny, nu)`` builds the accumulator, fed ``(y_control, u)`` per chunk
+    (``first``, if given, also sees the first chunk).
 
     Returns the accumulator, ``dt`` and the number of chunks.
     """
@@ -434,6 +437,8 @@ def _feed_plant_io(
         if acc is None:
             dt = data.dt
             acc = make(data.ny, data.nu)
+            if first is not None:
+                first(data)
         elif abs(data.dt - dt) > 1e-12 * dt:
             raise DataError(f"chunk {n_chunks} has dt={data.dt:g} s; the first had {dt:g} s")
         acc.update(data.y_control, data.u)
@@ -580,6 +585,7 @@ def fit_predictor_streamed(
         "structured" if fit_options.get("coordinates") == "physical" else "transform"
     )  # pbsid's default
     keep = DEFAULT_STRUCTURE_PAST if fit == "structured" else None
+    lines: list[Any] = []  # (samples searched, frequencies) of the first chunk
     acc, dt, n_chunks = _feed_plant_io(
         _opener(source, chunk_size),
         progress,
@@ -595,11 +601,37 @@ def fit_predictor_streamed(
             structure_past=structure_past,
             structure_lags=keep,
         ),
+        first=lambda data: lines.append(_first_chunk_lines(data)),
     )
     fit_options.setdefault("dt", dt)
     res = acc.fit(**fit_options)
-    note = f"streamed: {acc.n_samples} samples in {n_chunks} chunk(s), one pass"
-    return replace(res, notes=(*res.notes, note))
+    notes = [f"streamed: {acc.n_samples} samples in {n_chunks} chunk(s), one pass"]
+    searched, found = lines[0]
+    if found:
+        notes.append(
+            f"the record's first {searched} samples carry periodic lines at "
+            f"{', '.join(f'{f:.4g}' for f in found)} Hz (unbalance, hum): "
+            "a streamed fit cannot take them out and its estimate is biased by them (1 N "
+            "of unbalance at 50 Hz put the bearing's v1..v3 93 % off); identify the record "
+            "in memory (--no-stream), where PBSID-opt and SSARX take them out"
+        )
+    return replace(res, notes=(*res.notes, *notes))
+
+
+#: Samples of the first chunk a streamed predictor fit searches for strong periodic lines
+#: (``periodic.record_lines``: ~0.1 s here; 13 s of record at 10 kHz, bins of 0.08 Hz).
+_LINE_CHECK_SAMPLES = 1 << 17
+
+
+def _first_chunk_lines(data: ClosedLoopData) -> tuple[int, tuple[float, ...]]:
+    """``(samples searched, lines)``: strong lines in the first samples of a streamed
+    record, less those the recorded excitation carries (the experiment's own)."""
+    k = _LINE_CHECK_SAMPLES
+    y, u = np.asarray(data.y_control)[:k], np.asarray(data.u)[:k]
+    found = record_lines(y, u, data.dt)
+    r = getattr(data, "r", None)
+    own = excitation_lines(None if r is None else np.asarray(r)[:k], data.dt, found)
+    return y.shape[0], tuple(f for f in found if f not in own)
 
 
 def _moesp(source: ChunkSource, **options: Any) -> IdentificationResult:
