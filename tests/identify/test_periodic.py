@@ -455,3 +455,22 @@ def test_pbsid_takes_a_drifting_line_out_with_an_envelope(monkeypatch):
     z, _ = _z(res, np.asarray(d.metadata["operating_point_true"]["v"]))
     assert np.max(np.abs(z)) < 4.0
     assert any("change over the record" in n and "envelope" in n for n in res.notes)
+
+
+def test_lines_and_bad_input_the_fit_names_the_bad_sample():
+    """A NaN is refused by the fit's own check, naming its sample: the lines' least-squares
+    fit must not run first (it smeared one NaN over the whole channel: '5000 non-finite
+    values'). A 1-D record takes its lines out too."""
+    from maglevid.identify.pbsid import fit_pbsid
+
+    rng = np.random.default_rng(0)
+    y, u = rng.standard_normal((5000, 3)), rng.standard_normal((5000, 2))
+    y[100, 1] = np.nan
+    for periodic in ("auto", [50.0]):
+        with pytest.raises(
+            DataError, match=r"1 non-finite value\(s\) \(NaN first at index \(100, 1\)"
+        ):
+            fit_pbsid(y, u, dt=1e-3, periodic=periodic)
+    t = 1e-3 * np.arange(5000)
+    res = fit_pbsid(u[:, 0] + np.sin(2 * np.pi * 50 * t), u[:, 1], dt=1e-3, periodic="auto")
+    assert res.extras["periodic_hz"][0] == pytest.approx(50.0, abs=0.01)

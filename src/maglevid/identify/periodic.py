@@ -145,7 +145,7 @@ def check_lines(value: Any, dt: float) -> tuple[float, ...] | None:
     if bad:
         raise DataError(
             f"`periodic`: each frequency must lie in (0, {nyq:g}) Hz, the Nyquist "
-            f"frequency of dt = {dt:g} s; got {bad[0]!r}"
+            f"frequency of dt = {dt:g} s; got {float(bad[0])!r}"
         )
     if vals.size > MAX_LINES:
         raise DataError(f"`periodic`: at most {MAX_LINES} frequencies; got {vals.size}")
@@ -484,6 +484,9 @@ def fit_without_lines(
         return fit(y, u)
     y = np.asarray(y, dtype=float)
     u = np.asarray(u, dtype=float)
+    if not (np.all(np.isfinite(y)) and np.all(np.isfinite(u))) or y.ndim > 2 or u.ndim > 2:
+        return fit(y, u)  # its own error names the bad sample (a line fit would smear it)
+    y, u = (x.reshape(x.shape[0], -1) if x.ndim == 1 else x for x in (y, u))
     auto = lines is None
     degrees: tuple[int, ...] = ()
     kept: tuple[float, ...] = ()
