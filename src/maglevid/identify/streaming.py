@@ -619,7 +619,7 @@ def fit_predictor_streamed(
 
 
 #: Samples of the first chunk a streamed predictor fit searches for strong periodic lines
-#: (``periodic.record_lines``: ~0.1 s here; 13 s of record at 10 kHz, bins of 0.08 Hz).
+#: (``periodic.record_lines``: 0.1-0.2 s; 13 s of record at 10 kHz, bins of 0.08 Hz).
 _LINE_CHECK_SAMPLES = 1 << 17
 
 
