@@ -475,7 +475,9 @@ def fit_without_lines(
     where ``r`` itself has a line (:func:`_excitation_lines`) is the experiment's own
     excitation -- in the record by design, in the residuals a model error at its
     frequency, not a disturbance -- and is left in (taking it out would take the
-    information out): noted. ``probe``: a sturdier fit whose residuals are searched
+    information out): noted. A periodic excitation not logged as ``r`` cannot be told
+    from a disturbance and would be taken out (use ``"none"`` for a sine test).
+    ``probe``: a sturdier fit whose residuals are searched
     when ``fit`` fails (IdentificationError) on the record the first search leaves --
     a line can be what breaks it; with no line found there, that failure is raised.
     """
