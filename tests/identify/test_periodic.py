@@ -408,10 +408,10 @@ def test_a_diagnosis_off_an_unsettled_line_is_inconclusive():
     assert _unsettled_lines(steady, "Fault", "fault", []) == ("Fault", "fault")
 
 
-def test_a_drifting_line_gets_an_envelope(monkeypatch):
-    """A 1 N line whose frequency rises 50 -> 50.25 Hz over the 3 s record (a running speed
-    drifting 0.5 %): a fixed sinusoid left v1..v3 ~17 standard errors off; the line, found
-    unsettled, is taken out with a Legendre envelope and the fit holds the settled point."""
+@pytest.fixture
+def drifting(monkeypatch):
+    """The realistic bearing with a 1 N line whose frequency rises 50 -> 50.25 Hz over the
+    3 s record (a running speed drifting 0.5 %)."""
     import maglevid.simulate.amb as sim
 
     draw = sim._draw
@@ -423,36 +423,30 @@ def test_a_drifting_line_gets_an_envelope(monkeypatch):
         return r, v, force + np.sin(2 * np.pi * (50.0 * t + 0.5 * rate * t**2)), meta
 
     monkeypatch.setattr(sim, "_draw", chirped)
-    d = simulate_amb_loop(NOMINAL, n_samples=30_000, rng=38001)
-    res = fit_ml(d)
+    return simulate_amb_loop(NOMINAL, n_samples=30_000, rng=38001)
+
+
+def test_a_drifting_line_gets_an_envelope(drifting):
+    """ml: a fixed sinusoid left v1..v3 ~17 standard errors off; the line, found unsettled,
+    is taken out with a Legendre envelope and the fit holds the settled point."""
+    res = fit_ml(drifting)
     assert res.extras["periodic_envelope_degree"][0] > 0
     assert res.extras["periodic_unsettled_hz"].size == 0
-    z, _ = _z(res, np.asarray(d.metadata["operating_point_true"]["v"]))
+    z, _ = _z(res, np.asarray(drifting.metadata["operating_point_true"]["v"]))
     assert np.max(np.abs(z)) < 4.0
     assert any("change over the record" in n and "envelope" in n for n in res.notes)
 
 
-def test_pbsid_takes_a_drifting_line_out_with_an_envelope(monkeypatch):
-    """The same 0.5 % speed drift (50 -> 50.25 Hz over 3 s) through PBSID-opt: the line is
-    found unsettled after a fixed sinusoid and taken out with the Legendre envelope;
-    v1..v9 hold the settled point (3 records: RMS z 0.96, max |z| 2.2)."""
-    import maglevid.simulate.amb as sim
+def test_pbsid_takes_a_drifting_line_out_with_an_envelope(drifting):
+    """PBSID-opt: the line is found unsettled after a fixed sinusoid and taken out with
+    the Legendre envelope; v1..v9 hold the settled point (3 records: RMS z 0.96, max
+    |z| 2.2)."""
     from maglevid.identify.registry import get_method
 
-    draw = sim._draw
-
-    def chirped(s, rng):
-        r, v, force, meta = draw(s, rng)
-        t = np.arange(r.shape[0]) * s.bearing.dt
-        rate = 0.25 / (r.shape[0] * s.bearing.dt)
-        return r, v, force + np.sin(2 * np.pi * (50.0 * t + 0.5 * rate * t**2)), meta
-
-    monkeypatch.setattr(sim, "_draw", chirped)
-    d = simulate_amb_loop(NOMINAL, n_samples=30_000, rng=38001)
-    res = get_method("pbsid")(d, coordinates="physical")
-    assert res.extras["envelope_degree"][0] > 0
+    res = get_method("pbsid")(drifting, coordinates="physical")
+    assert res.extras["periodic_envelope_degree"][0] > 0
     assert res.extras["periodic_hz"][0] == pytest.approx(50.125, abs=0.01)
-    z, _ = _z(res, np.asarray(d.metadata["operating_point_true"]["v"]))
+    z, _ = _z(res, np.asarray(drifting.metadata["operating_point_true"]["v"]))
     assert np.max(np.abs(z)) < 4.0
     assert any("change over the record" in n and "envelope" in n for n in res.notes)
 

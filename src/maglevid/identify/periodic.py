@@ -469,7 +469,7 @@ def fit_without_lines(
     ``fit(y, u)`` returns a result with ``residuals`` (control rate), ``extras`` and
     ``notes`` (a dataclass); except with ``"none"`` the result's ``extras`` gain
     ``periodic_hz`` (the lines taken out; empty when none was found),
-    ``periodic_amplitude`` (``(H, ny)``, in ``y``) and ``envelope_degree``.
+    ``periodic_amplitude`` (``(H, ny)``, in ``y``) and ``periodic_envelope_degree``.
 
     ``excitation``: the recorded excitation ``r`` (time first), if any. A line found
     where ``r`` itself has a line (:func:`_excitation_lines`) is the experiment's own
@@ -518,7 +518,7 @@ def fit_without_lines(
         res = fit(*_without(y, u, dt, lines))
     amp = line_amplitudes(y, dt, lines) if lines else np.zeros((0, y.shape[1]))
     extras = {**res.extras, "periodic_hz": tuple(lines), "periodic_amplitude": amp,
-              "envelope_degree": degrees or (0,) * len(lines)}  # fmt: skip
+              "periodic_envelope_degree": degrees or (0,) * len(lines)}  # fmt: skip
     notes = tuple(res.notes)
     if lines:
         notes += (_removed_note(method, lines, amp, degrees, auto),)
