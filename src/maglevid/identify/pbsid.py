@@ -1595,14 +1595,13 @@ def _method(algorithm: str, summary: str):  # type: ignore[no-untyped-def]
         periodic = options.pop("periodic", "none")
         # a line can break the structured fit itself: the transform's residuals are then
         # searched (found from outside: a 1 um sensor line at 50 Hz on the position)
-        probe = {**options, "physical_fit": "transform"}
+        structured = options.get("coordinates") == "physical" and not options.get("physical_fit")
+        transform = {**options, "physical_fit": "transform"}
         res = fit_without_lines(
             lambda y_, u_: fit(y_, u_, **options), data.y_control, data.u, options["dt"],
             periodic, method="PBSID-opt" if algorithm == "pbsid" else "SSARX",
             excitation=getattr(data, "r", None),
-            probe=(lambda y_, u_: fit(y_, u_, **probe))
-            if options.get("coordinates") == "physical" and not options.get("physical_fit")
-            else None,
+            probe=(lambda y_, u_: fit(y_, u_, **transform)) if structured else None,
         )  # fmt: skip
         return with_physical_parameters(res, *operating_point(getattr(data, "loop", {}) or {}))
 
