@@ -103,3 +103,21 @@ def test_a_bearing_without_its_loop_streams_by_pbsid_in_physical_coordinates(
         assert out["std_errors"][name] == pytest.approx(whole["std_errors"][name], rel=1e-4)
     assert main(["identify", str(path), "--stream", "--method", "physical"]) != 0
     assert "loop['controller']" in capsys.readouterr().err
+
+
+def test_pbsid_on_a_bearing_gives_the_physical_parameters(parquet, capsys):
+    # `identify --method pbsid` on a bearing's record printed the black box's a1..a4 (no
+    # standard errors: "nan"), where `diagnose` and the streamed default ask for the physical
+    # parameters (found from outside, issue 16, twenty-third session). Now in memory and
+    # streamed alike, with a note; coordinates=identified still gives the black box.
+    for stream in ("--no-stream", "--stream"):
+        out = _run(capsys, str(parquet), "--method", "pbsid", stream, "--chunk-size", "5000")
+        assert out["options"]["coordinates"] == "physical", stream
+        assert any("coordinates='physical'" in n for n in out["notes"]), stream
+        assert out["parameters"]["R1"] == pytest.approx(1.2 * 17.5, rel=0.02), stream
+        assert out["std_errors"]["R1"] > 0, stream
+    assert main(["identify", str(parquet), "--method", "ssarx", "--option",
+                 "coordinates=identified", "-q"]) == 0  # fmt: skip
+    text = capsys.readouterr().out
+    rows = {ln.split()[0] for ln in text.splitlines() if ln.startswith(" ")}
+    assert "a1" in rows and "v1" not in rows and "coordinates='physical'" not in text

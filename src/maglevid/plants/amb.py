@@ -72,6 +72,7 @@ __all__ = [
     "estimate_model_error",
     "implausible_parameters",
     "measured_operating_point",
+    "physical_options",
 ]
 
 #: The default identification method of a two-coil AMB recording (``maglevid
@@ -447,12 +448,19 @@ def _percentage_index(ident: StateSpace | None, base: StateSpace | None) -> dict
     }
 
 
-def _physical_options(
-    method: str, options: Mapping[str, Any] | None, notes: list[str]
+def physical_options(
+    method: str,
+    options: Mapping[str, Any] | None,
+    notes: list[str],
+    why: str = "the diagnosis compares the bearing's physical parameters, which the "
+    "identified coordinates do not give",
 ) -> dict[str, Any]:
-    """The method's options for a diagnosis: a method that can report the bearing's
-    physical parameters or a black-box model (``coordinates``, PBSID-opt and SSARX) is
-    asked for the parameters unless the user chose, and the note says so."""
+    """The method's options on a bearing's record: a method that can report the
+    bearing's physical parameters or a black-box model (``coordinates``, PBSID-opt and
+    SSARX) is asked for the parameters unless the user chose, and a note says so and
+    ``why`` (a diagnosis; ``maglevid identify``, whose ``--method pbsid`` printed the
+    black box's ``a1..a4`` without standard errors on a bearing's record: found from
+    outside, issue 16, twenty-third session)."""
     from maglevid.identify.registry import method_options
 
     out = dict(options or {})
@@ -460,10 +468,7 @@ def _physical_options(
     coords = declared.get("coordinates")
     if coords is not None and "coordinates" not in out and "physical" in (coords.choices or ()):
         out["coordinates"] = "physical"
-        notes.append(
-            f"{method}: coordinates='physical' (the diagnosis compares the bearing's "
-            "physical parameters, which the identified coordinates do not give)"
-        )
+        notes.append(f"{method}: coordinates='physical' ({why})")
     return out
 
 
@@ -804,7 +809,7 @@ class AMBStages:
     drift_parameters: tuple[str, ...] = DIAGNOSED_PARAMETERS
 
     def quality(self, run: DiagnosisRun) -> tuple[QualityCheck, ...]:
-        run.identify_options = _physical_options(run.method, run.method_options, run.notes)
+        run.identify_options = physical_options(run.method, run.method_options, run.notes)
         return run_checks(run.data)
 
     def baseline(self, run: DiagnosisRun) -> None:
