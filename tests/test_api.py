@@ -58,6 +58,19 @@ def test_identify_chooses_the_plant_kinds_method_and_takes_options(faulty):
         maglevid.identify(faulty, "no-such-method")
 
 
+def test_identify_by_pbsid_gives_a_bearings_physical_parameters(faulty):
+    # As `maglevid identify --method pbsid` (twenty-third session): on a bearing's record
+    # PBSID-opt reports v1..v9 and R, L, ki, kw, not the black box's a1..a4; a note says
+    # so, and coordinates="identified" still gives the black box.
+    r = maglevid.identify(faulty, "pbsid")
+    assert r.options["coordinates"] == "physical"
+    assert any("coordinates='physical'" in n for n in r.notes)
+    assert abs(r.parameters["R1"] - 1.2 * NOMINAL.R1) < 4 * r.std_errors()["R1"]
+    box = maglevid.identify(faulty, "pbsid", coordinates="identified")
+    assert "v1" not in box.parameters and "a1" in box.parameters
+    assert not any("coordinates='physical'" in n for n in box.notes)
+
+
 def test_identify_reads_a_file(tmp_path, faulty):
     from maglevid.io import write_recording
 

@@ -16,13 +16,15 @@ The subpackages of the same names stay importable as before
 from __future__ import annotations
 
 import os
+from dataclasses import replace
 from typing import Any
 
 from maglevid.data import ClosedLoopData
 from maglevid.diagnose.pipeline import diagnose
 from maglevid.identify.registry import get_method
 from maglevid.identify.result import IdentificationResult
-from maglevid.plants import choose_method
+from maglevid.plants import choose_method, infer_kind
+from maglevid.plants.amb import identify_options
 
 __all__ = ["diagnose", "identify"]
 
@@ -53,7 +55,10 @@ def identify(
     mapping : dict, str or path-like, optional
         Column mapping for a rig's own log (only with a path).
     **options
-        Options of the method (see its docstring), e.g. ``n_lags=30``.
+        Options of the method (see its docstring), e.g. ``n_lags=30``. On a two-coil
+        bearing's record ``"pbsid"`` and ``"ssarx"`` take ``coordinates="physical"``
+        unless given (v1..v9 and R, L, ki, kw with covariance, as in a diagnosis; a
+        note says so); ``coordinates="identified"`` gives their black-box model.
 
     Returns
     -------
@@ -84,4 +89,8 @@ def identify(
         raise DataError("`mapping` applies to a file path, not to a ClosedLoopData")
     if method is None:
         method = choose_method(data)[0]
-    return get_method(method)(data, **options)
+    # a bearing's physical parameters from pbsid/ssarx, as `maglevid identify` gives them
+    notes: list[str] = []
+    options = identify_options(infer_kind(data)[0], method, options, notes)
+    result = get_method(method)(data, **options)
+    return replace(result, notes=(*notes, *result.notes)) if notes else result

@@ -184,9 +184,10 @@ def _run_streamed(args: argparse.Namespace) -> dict[str, Any]:
             f"{', '.join(sorted(STREAMED_METHODS))}); use --no-stream to read the whole file"
         )
     from maglevid.plants import infer_kind
+    from maglevid.plants.amb import identify_options
 
     notes: list[str] = []
-    options = _bearing_options(
+    options = identify_options(
         infer_kind(first)[0], method, {**defaults, **_typed_options(method, args.option)}, notes
     )
     warnings = quality_gate(first, force=args.force)
@@ -213,22 +214,6 @@ def _run_streamed(args: argparse.Namespace) -> dict[str, Any]:
     # in mA from its middle on printed R1 = -2.1e-5 ohm without a word; found from
     # outside, seventeenth session)
     return _with_warnings(out, warnings + _result_warnings(result, infer_kind(first)[0]))
-
-
-def _bearing_options(
-    kind: str, method: str, options: dict[str, Any], notes: list[str]
-) -> dict[str, Any]:
-    """On a two-coil bearing's record, a method that gives either the physical
-    parameters or a black-box model (PBSID-opt, SSARX) gives the parameters unless
-    ``--option coordinates=...`` says otherwise, as in ``maglevid diagnose``: on such a
-    record ``--method pbsid`` printed the black box's ``a1..a4`` with no standard errors
-    (found from outside, issue 16, twenty-third session)."""
-    from maglevid.plants.amb import KIND, physical_options
-
-    if kind != KIND.name:
-        return options
-    why = "the bearing's physical parameters; --option coordinates=identified for the black box"
-    return physical_options(method, options, notes, why)
 
 
 def _streamed_default(first: Any) -> tuple[str, str, dict[str, Any]]:
@@ -285,6 +270,7 @@ def _run_one(path: str, args: argparse.Namespace) -> dict[str, Any]:
     from maglevid.cli._progress import stages
     from maglevid.io import read_recording
     from maglevid.plants import choose_method, infer_kind
+    from maglevid.plants.amb import identify_options
 
     steps = stages(("reading", "identifying"), desc="identify", args=args)
     next(steps)
@@ -295,7 +281,7 @@ def _run_one(path: str, args: argparse.Namespace) -> dict[str, Any]:
         method, reason = args.method, "chosen by the user"
     options = _typed_options(method, args.option)  # an unknown method is refused here
     notes: list[str] = []
-    options = _bearing_options(kind, method, options, notes)
+    options = identify_options(kind, method, options, notes)
     if data.r is None and (args.recover_excitation or method in NEEDS_EXCITATION):
         data, notes = _recover(data, method, options)
     if kind == "levitator" and "segments" not in options and method != "levitator":

@@ -70,6 +70,7 @@ __all__ = [
     "AMBStages",
     "AMBTwoCoil",
     "estimate_model_error",
+    "identify_options",
     "implausible_parameters",
     "measured_operating_point",
     "physical_options",
@@ -470,6 +471,19 @@ def physical_options(
         out["coordinates"] = "physical"
         notes.append(f"{method}: coordinates='physical' ({why})")
     return out
+
+
+def identify_options(
+    kind: str, method: str, options: Mapping[str, Any] | None, notes: list[str]
+) -> dict[str, Any]:
+    """``method``'s options for identifying a record of plant ``kind`` (``maglevid
+    identify``, :func:`maglevid.identify`): on a two-coil bearing's record, PBSID-opt
+    and SSARX report the physical parameters unless the user chose the coordinates,
+    as in a diagnosis (:func:`physical_options`); other kinds and methods as given."""
+    if kind != KIND.name:
+        return dict(options or {})
+    why = "the bearing's physical parameters; coordinates='identified' for the black box"
+    return physical_options(method, options, notes, why)
 
 
 def _physical_estimates(
