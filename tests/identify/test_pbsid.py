@@ -373,11 +373,20 @@ def test_structured_window_is_chosen_from_the_data(bearing):
     assert _structure_window(1000, 10_000, 0.9826) == 263
     assert _structure_window(300, 1_000_000, 0.9826) == 300  # capped by the lags kept
     assert _structure_window(300, 1_000_000, 1.01) == 300  # unstable predictor: the cap
+    # (P23): where the start state stays at 0 (rho^P snr <= 1), at least
+    # ln(snr / 0.05) / (-ln rho): ln(18.36 / 0.05) / 0.03190 = 185.1 -> 186 at N = 1e4
+    # (P16 alone: 144.3 -> 145), up to the lags kept in memory there (305)
+    assert _structure_window(1000, 10_000, 0.9686, 18.36) == 186
+    assert _structure_window(1000, 10_000, 0.98, 20.0) == 297  # 296.6; P16: 228
+    assert _structure_window(1000, 10_000, 0.9686, 1e4) == 145  # rebuilt (P17): P16's
+    assert _structure_window(1000, 1_000_000, 0.9826, 20.0) == 394  # P16 longer (341.3)
+    assert _structure_window(1000, 10_000, 0.984, 20.0) == 305  # 371: the lags kept
     kw = dict(order=4, dt=bearing.dt, coordinates="physical", physical_fit="structured")
     res = fit_pbsid(bearing.y, bearing.u, **kw)
     rho, P = res.extras["structure_predictor_radius"], res.extras["structure_lags"]
     assert res.options["structure_past_rule"] == "auto"
-    assert res.options["structure_past"] == P == _structure_window(10**9, bearing.n_samples, rho)
+    assert res.options["structure_past"] == P >= _structure_window(10**9, bearing.n_samples, rho)
+    assert res.extras["structure_dropped"] <= 0.05  # (P23) lengthened P16's window
     # (P17): this record's noise (1e-7 m, 1e-4 A) leaves the truncated start state below
     # the innovations, so it is left at 0; a high-SNR record rebuilds it (P14)
     assert res.extras["structure_start_samples"] == 0

@@ -123,6 +123,14 @@ _STRUCTURE_RHO = 0.985
 _STRUCTURE_LEFT = 1.0
 #: Shortest automatic window of the structured fit.
 _STRUCTURE_MIN = 40
+#: (P23) Where the window-start state is left at 0 (P17), the automatic window is made
+#: long enough that the term it drops, ``C Abar^P x(t-P)`` (RMS ~ ``rho^P`` times the
+#: outputs'), is at most this fraction of the innovations' RMS (it then adds at most
+#: 0.25 % to the residual variance), up to the lags of the design radius: (P16)'s
+#: ``rho^P = N^{-1/2}`` left it at 6-28 % below N = 1e5 (SNR ~ 20), where 30 records of
+#: the realistic bearing at N = 4000 read v1..v9 up to 2.9x ML's errors, 2.0x with it
+#: (docs/subspace.md, "The window's dropped term (P23)").
+_STRUCTURE_DROPPED = 0.05
 #: Relative singular-value floor of the order choice (Gram route, as MOESP's).
 _DEFAULT_RANK_TOL = 1e-6
 #: A gap ``s_n / s_{n+1}`` at least this large decides the automatic order; below it
@@ -574,15 +582,25 @@ def _start_samples(opt: _Options, rho: float, P: int, y_rms: np.ndarray, Re: np.
     """
     if not opt.structure_auto:
         return START_SAMPLES
-    snr = float(np.max(y_rms / np.sqrt(np.maximum(np.diag(Re), 1e-300))))
-    return START_SAMPLES if rho**P * snr > 1.0 else 0
+    return START_SAMPLES if rho**P * _snr(y_rms, Re) > 1.0 else 0
 
 
-def _structure_window(cap: int, N: int, rho: float) -> int:
-    """(P16): ``P = ln N / (-2 ln rho)``, between ``_STRUCTURE_MIN`` and ``cap``."""
+def _snr(y_rms: np.ndarray, Re: np.ndarray) -> float:
+    """``max_i y_rms_i / sqrt(Re_ii)``: the outputs' RMS over the innovations'."""
+    return float(np.max(y_rms / np.sqrt(np.maximum(np.diag(Re), 1e-300))))
+
+
+def _structure_window(cap: int, N: int, rho: float, snr: float | None = None) -> int:
+    """(P16): ``P = ln N / (-2 ln rho)``, between ``_STRUCTURE_MIN`` and ``cap``; with the
+    outputs' ``snr`` (:func:`_snr`) and the start state left at 0 there (P17), (P23):
+    at least ``ln(snr / _STRUCTURE_DROPPED) / (-ln rho)``, up to ``_structure_cap(N)``
+    (the lags kept in memory: a stream, which keeps more, chooses the same window)."""
     if not 0.0 < rho < 1.0:
         return cap
     P = math.ceil(math.log(max(N, 2)) / (-2.0 * math.log(rho)))
+    if snr is not None and rho**P * snr <= 1.0:
+        dropped = math.ceil(math.log(snr / _STRUCTURE_DROPPED) / (-math.log(rho)))
+        P = max(P, min(dropped, _structure_cap(N)))
     return max(min(P, cap), min(_STRUCTURE_MIN, cap))
 
 
@@ -859,8 +877,9 @@ def _structured(
     """
     P = _structure_lags(opt)
     rho = float(np.max(np.abs(np.linalg.eigvals(model.A - K @ model.C))))
+    snr = _snr(gram.scale[2:], Re)
     if opt.structure_auto:
-        P = _structure_window(P, gram.n_samples, rho)
+        P = _structure_window(P, gram.n_samples, rho, snr)
         if P == _structure_lags(opt) and rho >= _STRUCTURE_RHO:
             notes.append(
                 f"the transform's predictor has spectral radius {rho:.4f}: the structured "
@@ -894,6 +913,9 @@ def _structured(
         structure_start_samples=sf.start_samples,
         structure_covariance=sf.covariance,
         structure_predictor_radius=rho,
+        # the RMS of the term the window drops, C Abar^P x(t-P), over the innovations'
+        # (P17, P23; when the start state is rebuilt, what the rebuild takes out)
+        structure_dropped=rho**P * snr,
     )
     disc = StateSpace(sf.Ad, sf.Bd, C_AMB.copy(), np.zeros((3, 2)), opt.dt)
     Ac, Bc = amb_matrices(sf.v)
