@@ -902,7 +902,7 @@ def _structured(
     _check_structure(sf, rho, notes)
     notes.append(
         f"v1..v9 by the structured weighted least-squares fit over a window of {P} lags "
-        f"({'chosen from the data, (P16)' if opt.structure_auto else 'given'}; "
+        f"({'chosen from the data, (P16) and (P23)' if opt.structure_auto else 'given'}; "
         f"docs/subspace.md (P11)-(P16); {sf.iterations} Gauss-Newton steps, window-start "
         f"state from {sf.start_samples} samples), started from the transform to "
         "physical coordinates"
@@ -1196,7 +1196,7 @@ class PredictorAccumulator:
         given, as in :func:`fit_pbsid`.
     structure_lags : int, optional
         Without ``structure_past``: lags kept for the structured fit's window
-        chosen from the data, (P16), up to them and the record (default: none
+        chosen from the data, (P16) and (P23), up to them and the record (default: none
         beyond the VARX's; :func:`~maglevid.identify.streaming.identify_streamed`
         keeps ``DEFAULT_STRUCTURE_PAST``).
 
@@ -1435,7 +1435,8 @@ def fit_pbsid(
     structure_past : int, optional
         Lags of the structured fit's window (default: chosen from the data,
         ``ceil(ln N / (-2 ln rho))`` with ``rho`` the transform's predictor
-        spectral radius, docs/subspace.md (P16); within what the record supports).
+        spectral radius, docs/subspace.md (P16), and long enough that the term it
+        drops is at most 5 % of the innovations, (P23); within what the record supports).
     periodic : "none", "auto" or float or sequence of float
         Periodic lines (unbalance, mains hum) whose least-squares sinusoids are taken out
         of every channel before the fit (1 N at 50 Hz put the bearing's v1..v3 93 % off;
@@ -1675,7 +1676,7 @@ def _declaration(algorithm: str) -> tuple[Option, ...]:
         Option(
             "structure_past",
             "int",
-            "window of physical_fit='structured' (default: from the data, (P16))",
+            "window of physical_fit='structured' (default: from the data, (P16), (P23))",
             low=1,
         ),
         Option("periodic", "object", "periodic disturbances (unbalance, mains hum) taken "
