@@ -143,3 +143,35 @@ def test_refused_records_count_against_the_v_target():
     res = {"load": (1.0, 1.0, 1.0), "bearing": [], "generic": [], "suspension": []}
     text = "\n".join(markdown_section({**res, "monte_carlo": mc}))
     assert "| refused |" in text and "| 0.100 | 1 |" in text
+
+
+def test_realistic_bearing_is_judged_on_its_own_monte_carlo():
+    # The hard case (issue 16, twenty-third session): the realistic bearing's short
+    # records have no timed row; their Monte Carlo points get a target of their own,
+    # the largest per-parameter RMS ratio to ML at every N, and count in the intervals'.
+    ml_rel = [1e-3] * 9
+    mc = [
+        _mc_point("realistic", 4_000, 30, [1.9e-3] + [1e-3] * 8, ml_rel, 0.98),
+        _mc_point("realistic", 10_000, 30, [1.2e-3] * 9, ml_rel, 0.96),
+    ]
+
+    def verdict(what):
+        judge = Judge()
+        targets({"bearing": [], "monte_carlo": mc}, judge)
+        return next(
+            v for v in judge.verdicts if v.target.startswith("pbsid, s") and what in v.target
+        )
+
+    v = verdict("realistic bearing")
+    assert v.status == MET and "4e+03: 1.9x (v1; RMS over 30 records)" in v.measured
+    assert "1e+04: 1.2x" in v.measured
+    assert "realistic 4e+03, 30 records x 9: 0.980" in verdict("intervals").measured
+    mc[0]["methods"]["pbsid"]["rms_rel"][4] = 2.94e-3  # v5 2.94x ML's, as before (P23)
+    v = verdict("realistic bearing")
+    assert v.status == NOT_MET and "2.9x (v5" in v.measured
+    mc[0]["methods"]["pbsid"]["rms_rel"][4] = 1e-3
+    mc[1]["methods"]["pbsid"]["refused"] = 2
+    v = verdict("realistic bearing")
+    assert v.status == NOT_MET and "2 refused" in v.measured
+    mc.clear()
+    assert verdict("realistic bearing").status == NOT_MEASURED
