@@ -283,7 +283,8 @@ def _run_one(path: str, args: argparse.Namespace) -> dict[str, Any]:
     notes: list[str] = []
     options = identify_options(kind, method, options, notes)
     if data.r is None and (args.recover_excitation or method in NEEDS_EXCITATION):
-        data, notes = _recover(data, method, options)
+        data, recovered = _recover(data, method, options)
+        notes += recovered
     if kind == "levitator" and "segments" not in options and method != "levitator":
         data, note = _levitating(data, method, options)
         notes += [note] if note else []

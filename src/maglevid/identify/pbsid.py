@@ -127,9 +127,9 @@ _STRUCTURE_MIN = 40
 #: long enough that the term it drops, ``C Abar^P x(t-P)`` (RMS ~ ``rho^P`` times the
 #: outputs'), is at most this fraction of the innovations' RMS (it then adds at most
 #: 0.25 % to the residual variance), up to the lags of the design radius: (P16)'s
-#: ``rho^P = N^{-1/2}`` left it at 6-28 % below N = 1e5 (SNR ~ 20), where 30 records of
-#: the realistic bearing at N = 4000 read v1..v9 up to 2.9x ML's errors, 2.0x with it
-#: (docs/subspace.md, "The window's dropped term (P23)").
+#: ``rho^P = N^{-1/2}`` left it at 6-28 % below N = 1e5 (SNR ~ 20), where the realistic
+#: bearing's records at N = 4000 read v1..v9 up to 2.9x ML's errors (30 records), 1.9x
+#: with it (100 records; docs/subspace.md, "The window's dropped term (P23)").
 _STRUCTURE_DROPPED = 0.05
 #: Relative singular-value floor of the order choice (Gram route, as MOESP's).
 _DEFAULT_RANK_TOL = 1e-6
