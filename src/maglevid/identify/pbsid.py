@@ -1665,7 +1665,9 @@ def _declaration(algorithm: str) -> tuple[Option, ...]:
         Option("rank_tol", "float", "relative singular-value tolerance of the rank",
                low=0, low_open=True, high=1),
         Option("remove_mean", "bool", "identify on deviations from the means"),
-        Option("coordinates", "str", "state coordinates of the model", choices=_COORDINATES),
+        Option("coordinates", "str", "state coordinates of the model ('physical' when not "
+               "given on a two-coil bearing's record: v1..v9, R, L, ki, kw)",
+               choices=_COORDINATES),
         Option("max_past", "int", f"largest automatic past window (default "
                f"{DEFAULT_MAX_PAST})", low=1),
         Option("rng", "object", "random generator of the randomised checks"),
