@@ -1433,10 +1433,9 @@ def fit_pbsid(
         model transformed to physical coordinates (0.03-0.5 s, no covariance,
         4-50x ML's v error on the closed-loop bearing).
     structure_past : int, optional
-        Lags of the structured fit's window (default: chosen from the data,
-        ``ceil(ln N / (-2 ln rho))`` with ``rho`` the transform's predictor
-        spectral radius, docs/subspace.md (P16), and long enough that the term it
-        drops is at most 5 % of the innovations, (P23); within what the record supports).
+        Lags of the structured fit's window (default: from the data, ``ln N / (-2 ln
+        rho)``, ``rho`` the transform's predictor radius, (P16), or longer, so that the
+        term it drops is <= 5 % of the innovations, (P23); docs/subspace.md).
     periodic : "none", "auto" or float or sequence of float
         Periodic lines (unbalance, mains hum) whose least-squares sinusoids are taken out
         of every channel before the fit (1 N at 50 Hz put the bearing's v1..v3 93 % off;
