@@ -126,6 +126,56 @@ def test_a_pair_with_one_cause_beyond_is_a_fault_and_names_the_undecided_one():
     )
 
 
+def _with_rival(best: FaultHypothesis, rival: FaultHypothesis) -> tuple[str, str, list]:
+    none = FaultHypothesis((), (), (), 60.0, 9, 1e-9)
+    iso = IsolationResult(best=best, candidates=(best, rival), no_change=none, alpha=0.01,
+                          explained=True, single_cause_p_value=1e-6)  # fmt: skip
+    return _verdict([], iso, TOL, unresolved_parameters(iso, TOL, duration_s=0.25))
+
+
+def _single(name: str, factor: float, se: float, chi2: float) -> FaultHypothesis:
+    from scipy import special
+
+    return FaultHypothesis((name,), (factor,), (se,), chi2, 8, float(special.chdtrc(8, chi2)),
+                           (se,), (0.0,))  # fmt: skip
+
+
+# chi2_1(0.95) = 3.841459: the likelihood-ratio bound of a 95 % interval
+KW1 = _single("kw1", 0.982, 0.0036, 5.02)  # the best: -1.8 % +- 0.7 % (95 %), inside
+
+
+@pytest.mark.parametrize(
+    ("rival", "code"),
+    [(_single("Ls1", 1.06, 0.013, 7.98), "inconclusive"),  # 2.96 from the best, straddles
+     (_single("Ls1", 1.06, 0.013, 5.02 + 3.85), "within_tolerance"),  # beyond the bound
+     (_single("Ls1", 1.12, 0.013, 7.98), "inconclusive"),  # beyond its tolerance
+     (_single("K1", 1.02, 0.005, 5.5), "within_tolerance"),  # inside, as the best
+     (FaultHypothesis(("Ls1",), (1.06,), (0.013,), 7.98, 8, 0.001), "within_tolerance")],
+)  # fmt: skip
+def test_a_cause_the_data_do_not_exclude_keeps_the_verdict_off_its_side(rival, code):
+    # PBSID-opt on 2 500 samples of a bearing with Ls1 +6 % read "Change within
+    # tolerance (fit with only kw1 changed)" while "only Ls1 changed" fitted nearly as
+    # well (found from outside, twenty-fourth session); a rival the data reject on its
+    # own (p = 0.001 < alpha) or beyond the bound does not count.
+    verdict, got, reasons = _with_rival(KW1, rival)
+    assert got == code
+    if code == "inconclusive":
+        assert verdict.startswith("Inconclusive: the data point to amplifier 1 gain kw1 -1.8 %")
+        assert "within its tolerance, but do not exclude coil 1 leakage inductance Ls1" in verdict
+        assert any(r.startswith("not excluded by the data: coil 1 leakage") for r in reasons)
+        assert ("straddles its tolerance ±5 %" in verdict) == (rival.factors[0] < 1.1)
+        assert rival.factors[0] < 1.1 or "longer or more strongly excited record" in verdict
+
+
+def test_a_fault_the_data_cannot_tell_from_a_change_within_tolerance_is_inconclusive():
+    ls1 = _single("Ls1", 1.09, 0.01, 4.0)  # +9 % +- 2 %: beyond
+    verdict, code, _ = _with_rival(ls1, KW1)  # kw1 -1.8 %, 1.02 from it
+    assert code == "inconclusive"
+    assert "beyond its tolerance, but do not exclude amplifier 1 gain kw1 -1.8 %" in verdict
+    # a rival beyond its tolerance too: a fault either way
+    assert _with_rival(ls1, _single("kw1", 0.9, 0.01, 5.0))[1] == "fault"
+
+
 def test_no_cause_singled_out_is_not_called_no_change_when_an_interval_excludes_0():
     # m +9.2 % with a 95 % interval of +3.5 ... +15 % read "Inconclusive: no change
     # detected, but ..." (found from outside, seventeenth session; the mass had changed by
@@ -375,3 +425,17 @@ def test_a_drift_is_not_hidden_by_an_inconclusive_verdict(straddling_record, mon
     out = pipeline._with_drifts(None, d, TOL, 0.01, ("R1",))
     assert out.verdict_code == "drift" and out.verdict.startswith("No fault yet, but drifting")
     assert "straddles the tolerance" in out.verdict and out.resolution == d.resolution
+
+
+def test_cli_pbsid_on_a_short_record_does_not_call_a_rival_fault_within_tolerance(tmp_path):
+    """The record found from outside (twenty-fourth session), from the command line:
+    Ls1 +6 %, 2 500 samples, CLI defaults; PBSID-opt's best single cause is kw1 -1.6 %
+    (within tolerance), "only Ls1 changed" +5.7 % fits 0.8 chi-square units behind it
+    (measured). It read "Change within tolerance"; the data cannot tell."""
+    rec = tmp_path / "ls1.npz"
+    assert main(["simulate", "amb", "--plant", "nonlinear", "--out", str(rec), "--n-samples",
+                 "2500", "--seed", "70010", "--fault", "Ls1=1.06", "-q"]) == 0  # fmt: skip
+    out = _cli_json(["diagnose", str(rec), "--method", "pbsid"])
+    assert out["verdict_code"] == "inconclusive", out["verdict"]
+    assert out["isolation"]["best"]["parameters"] == ["kw1"]
+    assert "but do not exclude coil 1 leakage inductance Ls1" in out["verdict"]
