@@ -424,11 +424,11 @@ def _verdict(
     named = [
         u for u in unresolved if u.hypothesis == best.parameters and u.parameter in straddling
     ]
-    split = _rivals_across(iso, sides, tolerances, z, level)
-    if split and "straddles" not in sides:
+    side = "straddles" if "straddles" in sides else "beyond" if "beyond" in sides else "inside"
+    split = _rivals_across(iso, side, tolerances, z, level) if side != "straddles" else None
+    if split:
         reasons.extend(split[1])
-        best_side = "beyond" if "beyond" in sides else "inside"
-        return (*_inconclusive_cause(best, best_side, split[0], unresolved), reasons)
+        return (*_inconclusive_cause(best, side, split[0], unresolved), reasons)
     if "beyond" in sides:  # a pair with one cause decided beyond: a fault either way
         reasons.extend(f"not decided: {u.advice()}" for u in named)
         return f"Fault {label}: {best.describe()}", "fault", reasons
@@ -446,14 +446,14 @@ def _verdict(
 
 def _rivals_across(
     iso: IsolationResult,
-    sides: list[str],
+    side: str,
     tolerances: Mapping[str, float] | float,
     z: float,
     level: float,
 ) -> tuple[list[tuple[FaultHypothesis, str]], list[str]] | None:
     """The single causes the data do not exclude against the best whose interval lies
-    on another side of their tolerance than the best's, with a reason for each; None
-    when there are none.
+    on another side of their tolerance than the best's (``side``: "inside" or
+    "beyond"), with a reason for each; None when there are none.
 
     Not excluded: the cause's own fit passes (p >= alpha) and its chi-square is within
     ``chi2_1(level)`` of the best's (3.84 at 95 %: the likelihood-ratio bound of the
@@ -463,9 +463,6 @@ def _rivals_across(
     only kw1 changed): kw1 -1.8 %" while "only Ls1 changed", +6.0 %, fitted with chi2
     7.98 against 5.02 (and, on another seed, 0.83 apart: "cannot be told apart")."""
     best = iso.best
-    if not best.parameters:
-        return None
-    side = "beyond" if "beyond" in sides else "inside"
     bound = float(special.chdtri(1, 1 - level))
     out = []
     for h in iso.singles:
