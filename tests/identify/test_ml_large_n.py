@@ -119,6 +119,27 @@ def test_lag_path_finishes_on_the_dft_when_the_lags_were_too_few(record, monkeyp
         assert abs(res.parameters[k] - dft.parameters[k]) < 2e-3 * se[k], k
 
 
+def test_a_predictor_slower_than_the_lags_gets_wider_entries(record, monkeypatch):
+    """Entries built for a fast predictor (rho 0.9: 152 lags on a 512 grid) evaluate
+    the truth's slower one (0.9956: 0.9956^152 = 0.5) on wider entries: eq. (1) as on
+    the DFT bins. The 512 grid's own sums are far off there (the hazard: a scoring
+    on them took slow predictors for better ones)."""
+    y, u = np.asarray(record.y, float), np.asarray(record.u, float)
+    lay = ml._Layout(NoiseModel((1e-7, 1e-4, 1e-4)), False, False)
+    model = lay.model(lay.theta(np.asarray(record.metadata["truth_v"], float)), record.dt,
+                      record.loop["operating_point"]["m"])  # fmt: skip
+    dft = ml._Spectra(y, u)
+    exact = ml._evaluate(model, dft, derivatives=False)["nll"]
+    with monkeypatch.context() as mp:
+        mp.setattr(ml, "_LAG_MIN_RATIO", 0.0)
+        fast = ml._spectra(y, u, 0.9)
+    assert fast.lags == 255
+    assert abs(ml._evaluate(model, fast, derivatives=False)["nll"] - exact) < 1e-2
+    with monkeypatch.context() as mp:
+        mp.setattr(ml, "_LAG_VALID", np.inf)  # the 512 grid's own sums
+        assert abs(ml._evaluate(model, fast, derivatives=False)["nll"] - exact) > 10.0
+
+
 def test_lag_path_is_chosen_by_size():
     """The switch: the DFT's bins against the lag path's entries (6 per grid
     frequency) times _LAG_MIN_RATIO; below it (or without a stable predictor)

@@ -205,3 +205,27 @@ def test_a_short_record_without_its_loop_starts_from_the_subspace_fit_when_iv_fa
     assert any("started from the PBSID-opt structured fit" in n for n in res.notes)
     ref = fit_ml(user, start=_settled(d))
     assert np.max(np.abs((_v(res) - _v(ref)) / _se(res))) < 1e-4
+
+
+def test_ten_times_the_sensor_noise_on_the_lag_path():
+    """10x the command line's sensor noise, kw1 +20 %, 20 000 samples: the record is
+    long enough for the lag path, whose lags come from the IV start's predictor
+    (radius 0.976, 1023 lags), while the nominal start that is tried first has
+    0.996 (0.996^1023 = 0.015). Before the lag path widened its entries for a slow
+    predictor, the truncated sums made slower predictors look better: the scoring
+    walked to a point the DFT bins put 4.6e4 above (worse than) the start and then
+    to eq. (1) = -4e10, where the information overflowed ("the record is degenerate";
+    `maglevid diagnose`'s default method; found from outside, twenty-fifth
+    session). Reference: the settled point's eq. (4); v within 4 standard errors."""
+    d = simulate_amb_loop(
+        NOM.with_fault(kw1=1.2),
+        nominal=NOM,
+        n_samples=20_000,
+        noise_std=(1e-6, 1e-3, 1e-3),
+        rng=80004,
+    )
+    res = fit_ml(d)
+    assert any("lagged products" in n for n in res.notes)
+    assert res.extras["converged"]
+    z = (_v(res) - _settled(d)) / _se(res)
+    assert np.max(np.abs(z)) < 4.0, z

@@ -47,7 +47,7 @@ from __future__ import annotations
 import logging
 import warnings
 import weakref
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
@@ -541,7 +541,7 @@ def _exact_finish(
     exact = sp.dft
     model = lay.model(theta, dt, m)
     F = model.A - final["K"] @ model.C
-    if float(np.max(np.abs(np.linalg.eigvals(F)))) ** sp.lags > 100.0 * _LAG_TOL:
+    if float(np.max(np.abs(np.linalg.eigvals(F)))) ** sp.lags > _LAG_VALID:
         runs = [_optimise(exact, y, theta[:9], lay, dt=dt, m=m, max_iter=max_iter,
                           theta0=theta)]  # fmt: skip
         restart = lay.theta(theta[:9])
@@ -789,6 +789,14 @@ class _Spectra:
         self.lags = 0  # 0: the exact DFT path
         self.dft = self
 
+    #: More lags for a slower predictor (set by :func:`_spectra`); else the DFT bins.
+    _wider: Callable[[float], _Spectra] | None = None
+
+    def widen(self, rho: float) -> _Spectra:
+        """Entries that hold eq. (1) for a predictor of spectral radius ``rho`` (the
+        lag path's, when :func:`_evaluate` finds it slower than its lags hold)."""
+        return self.dft if self._wider is None else self._wider(rho)
+
 
 #: The lag path (:func:`_lag_spectra`) is used when the DFT has this many times
 #: more entries (measured at N = 1e5, 24.6k lag entries against 50k bins: one
@@ -802,6 +810,10 @@ _LAG_MIN_RATIO = 1.5
 #: 3e-5 standard errors, the information by 2e-12 relative; the error grows
 #: as rho^L sqrt(N).
 _LAG_TOL = 1e-7
+
+#: The lag path is trusted while ``rho^L`` of the predictor evaluated stays below this
+#: (:func:`_evaluate` widens the entries beyond it; :func:`_exact_finish`).
+_LAG_VALID = 100.0 * _LAG_TOL
 
 
 #: The lag path's entries of recent records (ClosedLoopData is immutable), so a
@@ -837,14 +849,25 @@ def _spectra(
         u = u - seq @ line_coefficients(u, seq)
     if rho is None or not 0.0 < rho < 1.0:
         return _Spectra(y, u, seq)
-    lags = int(np.ceil(np.log(_LAG_TOL) / np.log(rho)))
-    grid = 1 << int(np.ceil(np.log2(2 * lags + 2)))
-    if (6 + 2 * len(lines)) * (grid // 2 + 1) * _LAG_MIN_RATIO > y.shape[0] // 2 + 1:
-        return _Spectra(y, u, seq)
     cache = _LAG_CACHE.setdefault(key, {}) if key is not None else {}
-    if (grid, lines, degrees) not in cache:
-        cache[grid, lines, degrees] = _lag_spectra(_Spectra(y, u, seq), y, u, grid)
-    return cache[grid, lines, degrees]
+
+    def entries(dft: _Spectra, rho: float) -> _Spectra:
+        """The lag path's entries for a predictor decaying as ``rho``, or ``dft``."""
+        if not rho < 1.0:
+            return dft
+        lags = int(np.ceil(np.log(_LAG_TOL) / np.log(rho)))
+        grid = 1 << int(np.ceil(np.log2(2 * lags + 2)))
+        if (6 + 2 * len(lines)) * (grid // 2 + 1) * _LAG_MIN_RATIO > y.shape[0] // 2 + 1:
+            return dft
+        if (grid, lines, degrees) not in cache:
+            out = _lag_spectra(dft, y, u, grid)
+            # a predictor slower than these lags hold (:func:`_evaluate`): entries with
+            # room for it, halfway from its radius to 1 (or the DFT bins)
+            out._wider = lambda rho_seen: entries(dft, 0.5 * (1.0 + rho_seen))
+            cache[grid, lines, degrees] = out
+        return cache[grid, lines, degrees]
+
+    return entries(_Spectra(y, u, seq), rho)
 
 
 def _lag_spectra(sp: _Spectra, y: np.ndarray, u: np.ndarray, grid: int) -> _Spectra:
@@ -1063,6 +1086,15 @@ def _evaluate(model: Any, sp: _Spectra, *, derivatives: bool, stride: int = 1) -
     n = A.shape[0]
     K, P, S = steady_state_predictor(A, C, model.Q, model.R)
     F = A - K @ C
+    if sp.lags:
+        # The lag path holds eq. (1) to rho^L: a slower predictor gets wider entries
+        # (its truncated sums otherwise made a slow, wrong predictor look better: at
+        # 10x the default sensor noise the scoring walked from eq. (1) = -5.2e5 to a
+        # lag-path -8.5e5 that is -4.7e5 on the DFT bins, uphill, then to -4e10; found
+        # from outside, twenty-fifth session)
+        rho = float(np.max(np.abs(np.linalg.eigvals(F))))
+        if rho**sp.lags > _LAG_VALID:
+            return _evaluate(model, sp.widen(rho), derivatives=derivatives, stride=stride)
     N, z, sw, sg = sp.N, sp.z, np.sqrt(sp.w), sp.sign
     zk = z * sp.kappa  # the transient's source z tau (kappa = 1 on the DFT path)
     res = _Resolvent(F, z)
