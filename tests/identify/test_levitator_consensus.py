@@ -13,8 +13,10 @@ import pytest
 from maglevid.data import ClosedLoopData
 from maglevid.exceptions import DataError
 from maglevid.experiments.rigs import simulate_pd_dither_levitator
-from maglevid.identify.greybox import fit_greybox_levitator
+from maglevid.identify.greybox import VOLTAGE_NOISE_CEILING, fit_greybox_levitator
 from maglevid.identify.levitator import (
+    COIL_CONSTANTS,
+    _coil_circuit,
     _constants_hull,
     _widened,
     find_levitator_segments,
@@ -245,3 +247,38 @@ def test_the_refit_in_waves_fits_what_one_by_one_fits(monkeypatch):
     assert refit([-10.0, -11.9, -12.1, np.nan], [ok, bad, ok, ok]) == [True, True, False, False]
     # no finite score: every candidate
     assert refit([np.nan, np.nan], [bad, ok]) == [True, True]
+
+
+class _Fit:
+    """A fit as :func:`_coil_circuit` reads it: constants, covariance, an identified
+    pole and the coil equation's voltage-noise share."""
+
+    def __init__(self, r_value: float, share: float) -> None:
+        names = [*COIL_CONSTANTS, "pole_rad_s"]
+        self.parameters = dict(zip(names, [r_value, 0.8, 0.14, 0.005, 0.033, 53.0], strict=True))
+        self.covariance = np.diag(np.full(len(names), 1e-4))
+        self.extras = {"pole_identified": True, "voltage_noise_share": share}
+
+    def confidence_intervals(self, level: float) -> dict[str, tuple[float, float]]:
+        return {"pole_rad_s": (50.0, 56.0)}
+
+
+def _rows(n: int) -> list[dict]:
+    return [{"candidate": {"model": "electromechanical", "flux_lag": False,
+                           "command_delay": k > 0}, "validation": 90.0 - k}
+            for k in range(n)]  # fmt: skip
+
+
+def test_the_coil_circuit_falls_back_to_a_sound_candidate():
+    """The chosen fit leaves its coil equation to noise (share above the ceiling: the
+    UAQ twin's 73-1e6 against 1e-67-2.0 for sound fits): the constants come from the
+    next-ranked sound fit, with a note; with no sound fit, no coil circuit and why."""
+    bad, good = _Fit(9.9, 10.0 * VOLTAGE_NOISE_CEILING), _Fit(9.3, 0.5)
+    out = _coil_circuit(None, [], _rows(2), [bad, good], [0, 1], {})
+    assert out["chosen"] is False and out["values"][0] == 9.3
+    assert out["model"] == "electromechanical u -> [gap, i] (inverse-square + command delay)"
+    assert out["notes"] and "left to noise" in out["notes"][0]
+    out = _coil_circuit(None, [], _rows(2), [good, bad], [0, 1], {})
+    assert out["chosen"] is True and out["values"][0] == 9.3 and not out["notes"]
+    out = _coil_circuit(None, [], _rows(2), [bad, bad], [0, 1], {})
+    assert out["model"] is None and "not determined by this record" in out["why"]
