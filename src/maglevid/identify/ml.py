@@ -851,23 +851,22 @@ def _spectra(
         return _Spectra(y, u, seq)
     cache = _LAG_CACHE.setdefault(key, {}) if key is not None else {}
 
-    def entries(dft: _Spectra, rho: float) -> _Spectra:
-        """The lag path's entries for a predictor decaying as ``rho``, or ``dft``."""
-        if not rho < 1.0:
-            return dft
-        lags = int(np.ceil(np.log(_LAG_TOL) / np.log(rho)))
+    def entries(rho: float, dft: _Spectra | None = None) -> _Spectra:
+        """The lag path's entries for a predictor decaying as ``rho``, or the DFT bins
+        (``dft``, computed here where not given)."""
+        lags = int(np.ceil(np.log(_LAG_TOL) / np.log(rho))) if rho < 1.0 else y.shape[0]
         grid = 1 << int(np.ceil(np.log2(2 * lags + 2)))
         if (6 + 2 * len(lines)) * (grid // 2 + 1) * _LAG_MIN_RATIO > y.shape[0] // 2 + 1:
-            return dft
+            return _Spectra(y, u, seq) if dft is None else dft
         if (grid, lines, degrees) not in cache:
-            out = _lag_spectra(dft, y, u, grid)
+            out = _lag_spectra(_Spectra(y, u, seq) if dft is None else dft, y, u, grid)
             # a predictor slower than these lags hold (:func:`_evaluate`): entries with
             # room for it, halfway from its radius to 1 (or the DFT bins)
-            out._wider = lambda rho_seen: entries(dft, 0.5 * (1.0 + rho_seen))
+            out._wider = lambda rho_seen, d=out.dft: entries(0.5 * (1.0 + rho_seen), d)
             cache[grid, lines, degrees] = out
         return cache[grid, lines, degrees]
 
-    return entries(_Spectra(y, u, seq), rho)
+    return entries(rho)
 
 
 def _lag_spectra(sp: _Spectra, y: np.ndarray, u: np.ndarray, grid: int) -> _Spectra:
