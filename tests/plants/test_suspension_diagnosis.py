@@ -11,10 +11,12 @@ from __future__ import annotations
 
 import pytest
 
+from maglevid.diagnose.compare import ParameterChange
 from maglevid.diagnose.history import open_history
 from maglevid.diagnose.pipeline import diagnose
 from maglevid.exceptions import DataError
 from maglevid.physics.suspension import SuspensionParameters
+from maglevid.plants.suspension import _mass_reading
 from maglevid.simulate.suspension import faulty_parameters, simulate_suspension
 
 NOMINAL = SuspensionParameters.nominal()
@@ -56,6 +58,28 @@ def test_shorted_turns_on_a_long_record_are_named():
     assert d.verdict_code == "unexplained_change", d.verdict
     q = next(c for c in d.changes if c.name == "Q")
     assert q.status == "changed" and abs(q.change_percent + 15.0) < 3.0
+    # the other cause of the same record: a body 1/0.85 = +17.6 % heavier than stated
+    assert "heavier than stated" in d.verdict
+    assert any(r.startswith("Q is read at the stated mass") for r in d.reasons)
+
+
+def test_a_changed_q_is_also_read_as_a_heavier_body():
+    """Q x f at the stated mass is the design's Q with a body 1/f as heavy (only Q/M
+    enters the loop's data): Q -17.3 % reads "+20.9 % heavier" (the measured M x1.2
+    record, 180 s, linear plant, seed 89002 of the CLI); nothing where Q did not change."""
+
+    def change(name, pct, significant):
+        return ParameterChange(
+            name=name, estimate=1 + pct / 100, std_error=0.01, baseline=1.0,
+            baseline_std_error=0.0, change=pct / 100, change_percent=pct,
+            change_ci=(pct / 100 - 0.03, pct / 100 + 0.03), tolerance=0.05,
+            statistically_significant=significant, exceeds_tolerance=significant,
+        )  # fmt: skip
+
+    short, reason = _mass_reading([change("eta", -9.0, True), change("Q", -17.3, True)])
+    assert short == "a body +20.9 % heavier than stated"
+    assert "Q -17.3 % is also the design's Q with a body +20.9 % heavier" in reason
+    assert _mass_reading([change("eta", -9.0, True), change("Q", -1.0, False)]) is None
 
 
 def test_a_machines_history_is_its_baseline(tmp_path):

@@ -213,6 +213,10 @@ class SuspensionStages:
             f"{ch.change_percent:+.1f} % ({ch.status})"
             for ch in changes
         ]
+        heavier = _mass_reading(changes)
+        if heavier is not None:
+            verdict += f" (or {heavier[0]})"
+            reasons.append(heavier[1])
         return Diagnosis(
             verdict=verdict,
             verdict_code=code,
@@ -228,6 +232,25 @@ class SuspensionStages:
             notes=(*run.notes, "maglevid has no fault model of the suspension: no isolation"),
             **run.common,
         )
+
+
+def _mass_reading(changes: list[Any]) -> tuple[str, str] | None:
+    """A changed ``Q`` read as the other cause it can be: the method holds the stated
+    mass ``M`` and the loop's data give ``Q/M`` only (``Q = 2 M g eta^2 / alpha^2``), so
+    shorted turns (``Q`` x f) and a body ``1/f`` times as heavy as stated give the same
+    record. Measured (linear plant, 180 s): ``M`` x1.2 read "eta -9.0 %, Q -17.3 %", as
+    ``Q`` x0.83 would (found from outside, twenty-fifth session). ``None`` where ``Q``
+    did not change."""
+    q = next((ch for ch in changes if ch.name == "Q" and ch.status == "changed"), None)
+    if q is None or not q.change_percent > -100.0:
+        return None
+    heavier = 100.0 / (1.0 + q.change_percent / 100.0) - 100.0
+    short = f"a body {heavier:+.1f} % heavier than stated"
+    return short, (
+        f"Q is read at the stated mass M (the loop's data give Q/M only): Q "
+        f"{q.change_percent:+.1f} % is also the design's Q with {short}; shorted turns "
+        "and a heavier body give the same record (weigh the body to tell them apart)"
+    )
 
 
 def _inconclusive(open_: list[Any], duration: float) -> str:
