@@ -359,17 +359,18 @@ def predictor_derivatives(
 ) -> tuple[np.ndarray, np.ndarray]:
     """``dK, dS`` of eq. (4) for every parameter.
 
-    The Lyapunov equations are solved in the DARE's scaled coordinates
-    (:func:`steady_state_predictor`), an exact similarity: in SI units ``F`` mixes
-    entries ~1e-4 and ~1e4, and at 1e-3 of the default sensor noise the direct
-    solver's ``I - F (x) F`` had rcond 3e-17, so that ML's trial points there were
-    rejected as ill-conditioned and the scoring crawled for 50 iterations without
-    converging (healthy nonlinear bearing, 2e4 samples; found from outside,
-    twenty-fifth session)."""
+    The Lyapunov equations are solved with ``F`` balanced (LAPACK's ``gebal``: a
+    diagonal similarity by powers of 2, exact): in SI units ``F`` mixes entries
+    ~1e-4 and ~1e4, and at 1e-3 of the default sensor noise the direct solver's
+    ``I - F (x) F`` had rcond 3e-17, so that ML's trial points there were rejected as
+    ill-conditioned and the scoring crawled for 50 iterations without converging
+    (healthy nonlinear bearing, 2e4 samples; found from outside, twenty-fifth
+    session). The DARE's noise scales (:func:`steady_state_predictor`) were tried
+    first: they assume the bearing's 0.1 ms period for the velocity and made a record
+    timed in ms (dt 1000x) ill-conditioned instead."""
     A, C = model.A, model.C
     F = A - K @ C
-    _, dsc = _noise_scales(C, model.R)
-    Fs = F * (1.0 / dsc)[:, None] * dsc[None, :]
+    Fs, (dsc, _) = sla.matrix_balance(F, permute=False, separate=True)
     dd = np.outer(dsc, dsc)
     p = model.n_params
     dK = np.empty((p, *K.shape))
