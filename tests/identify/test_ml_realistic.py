@@ -238,7 +238,7 @@ def test_a_thousandth_of_the_sensor_noise_converges():
     rcond 3e-17: trial points were rejected as ill-conditioned, the scoring crawled
     ~0.02 of eq. (1) an iteration and stopped unconverged ("Cannot diagnose"; the same
     at 3e-10 m, seed 84003 of the CLI). Solved with ``F`` balanced it converges
-    (measured: 37 iterations, x's noise 1.01e-10 m, v within 0.19 % of the settled
+    (measured: 38 iterations, x's noise 1.01e-10 m, v within 0.19 % of the settled
     point's eq. (4), z up to 13: the linearisation's error, which diagnose's +-0.1 %
     model-error floor is for). Bounds: x's noise within 50 %, v within 0.5 %."""
     sensor = (1e-10, 1e-7, 1e-7)
