@@ -300,22 +300,6 @@ def amb_linear_gaussian_model(
 # ---------------------------------------------------------------------------
 # The steady-state Kalman predictor and its derivatives (eq. (4))
 # ---------------------------------------------------------------------------
-def _noise_scales(C: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The outputs' noise levels ``w`` and a scale ``d`` per state: each state scaled
-    like the output that sees it most (else 1), the bearing's velocity like the
-    position noise per 0.1 ms."""
-    n = C.shape[1]
-    w = np.sqrt(np.diag(R))
-    d = np.ones(n)
-    for j in range(n):
-        col = np.abs(C[:, j])
-        if col.max() > 0:
-            d[j] = w[np.argmax(col)] / col.max()
-    if n == 4 and np.allclose(C, C_AMB):
-        d[1] = d[0] / 1e-4  # velocity: about position noise per 0.1 ms
-    return w, d
-
-
 def steady_state_predictor(
     A: np.ndarray, C: np.ndarray, Q: np.ndarray, R: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -330,7 +314,16 @@ def steady_state_predictor(
     IdentificationError
         No stabilising solution (a mode that is neither observed nor stable).
     """
-    w, d = _noise_scales(C, R)
+    n, _ny = A.shape[0], C.shape[0]
+    w = np.sqrt(np.diag(R))
+    # State scale: each state scaled like the output that sees it most, else 1.
+    d = np.ones(n)
+    for j in range(n):
+        col = np.abs(C[:, j])
+        if col.max() > 0:
+            d[j] = w[np.argmax(col)] / col.max()
+    if n == 4 and np.allclose(C, C_AMB):
+        d[1] = d[0] / 1e-4  # velocity: about position noise per 0.1 ms
     As = A * (1.0 / d)[:, None] * d[None, :]
     Cs = C * (1.0 / w)[:, None] * d[None, :]
     Qs = Q / np.outer(d, d)

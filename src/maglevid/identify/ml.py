@@ -540,8 +540,7 @@ def _exact_finish(
     (rho^L above 100 :data:`_LAG_TOL`) the fit is finished on the DFT path."""
     exact = sp.dft
     model = lay.model(theta, dt, m)
-    F = model.A - final["K"] @ model.C
-    if float(np.max(np.abs(np.linalg.eigvals(F)))) ** sp.lags > _LAG_VALID:
+    if not _lags_hold(model.A - final["K"] @ model.C, sp.lags):
         runs = [_optimise(exact, y, theta[:9], lay, dt=dt, m=m, max_iter=max_iter,
                           theta0=theta)]  # fmt: skip
         restart = lay.theta(theta[:9])
@@ -816,6 +815,12 @@ _LAG_TOL = 1e-7
 _LAG_VALID = 100.0 * _LAG_TOL
 
 
+def _lags_hold(F: np.ndarray, lags: int) -> bool:
+    """Whether ``lags`` lags hold eq. (1) for the predictor ``F`` (``rho^L`` within
+    :data:`_LAG_VALID`)."""
+    return float(np.max(np.abs(np.linalg.eigvals(F)))) ** lags <= _LAG_VALID
+
+
 #: The lag path's entries of recent records (ClosedLoopData is immutable), so a
 #: second fit of the same record (another start) does not recompute them.
 _LAG_CACHE: weakref.WeakKeyDictionary[Any, dict[Any, _Spectra]] = weakref.WeakKeyDictionary()
@@ -854,7 +859,7 @@ def _spectra(
     def entries(rho: float, dft: _Spectra | None = None) -> _Spectra:
         """The lag path's entries for a predictor decaying as ``rho``, or the DFT bins
         (``dft``, computed here where not given)."""
-        lags = int(np.ceil(np.log(_LAG_TOL) / np.log(rho))) if rho < 1.0 else y.shape[0]
+        lags = int(np.ceil(np.log(_LAG_TOL) / np.log(rho)))  # a stable predictor: rho < 1
         grid = 1 << int(np.ceil(np.log2(2 * lags + 2)))
         if (6 + 2 * len(lines)) * (grid // 2 + 1) * _LAG_MIN_RATIO > y.shape[0] // 2 + 1:
             return _Spectra(y, u, seq) if dft is None else dft
@@ -1091,8 +1096,8 @@ def _evaluate(model: Any, sp: _Spectra, *, derivatives: bool, stride: int = 1) -
         # 10x the default sensor noise the scoring walked from eq. (1) = -5.2e5 to a
         # lag-path -8.5e5 that is -4.7e5 on the DFT bins, uphill, then to -4e10; found
         # from outside, twenty-fifth session)
-        rho = float(np.max(np.abs(np.linalg.eigvals(F))))
-        if rho**sp.lags > _LAG_VALID:
+        if not _lags_hold(F, sp.lags):
+            rho = float(np.max(np.abs(np.linalg.eigvals(F))))
             return _evaluate(model, sp.widen(rho), derivatives=derivatives, stride=stride)
     N, z, sw, sg = sp.N, sp.z, np.sqrt(sp.w), sp.sign
     zk = z * sp.kappa  # the transient's source z tau (kappa = 1 on the DFT path)
