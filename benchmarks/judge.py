@@ -85,6 +85,8 @@ class Verdict:
     measured: str
     status: str
     plan: str = ""
+    #: The mark of the run it was made from (``Judge.stamp`` when it was made).
+    stamp: str = ""
 
 
 @dataclass(frozen=True)
@@ -174,13 +176,15 @@ class Judge:
 
     def __init__(self, stamp: str = "") -> None:
         self.verdicts: list[Verdict] = []
+        #: The mark of every verdict made from now on (a modified tree, a section measured
+        #: at another commit than the report's: ``benchmarks/store.py``).
         self.stamp = stamp
 
     # ---------------------------------------------------------------- verdicts
     def add(self, target: str, measured_text: str, met: bool | None, plan: str = "") -> str:
         """Record a verdict: ``met`` True/False from a measurement, None when not measured."""
         status = NOT_MEASURED if met is None else (MET if met else NOT_MET)
-        self.verdicts.append(Verdict(target, measured_text, status, plan))
+        self.verdicts.append(Verdict(target, measured_text, status, plan, self.stamp))
         return status
 
     def not_measured(self, target: str, why: str) -> str:
@@ -239,7 +243,7 @@ class Judge:
         """Markdown rows (with header) of every verdict, in the order made."""
         out = ["| target | measured | verdict |", "|---|---|---|"]
         for v in self.verdicts:
-            out.append(f"| {v.target} | {v.measured} | {_MARK[v.status]}{self.stamp} |")
+            out.append(f"| {v.target} | {v.measured} | {_MARK[v.status]}{v.stamp} |")
         return out
 
     def shortfalls(self) -> list[str]:

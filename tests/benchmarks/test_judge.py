@@ -23,6 +23,7 @@ from benchmarks.judge import (
     measured,
 )
 from benchmarks.sections import Section, load_plugin
+from benchmarks.store import SectionRun
 
 from benchmarks import run_all
 
@@ -34,6 +35,7 @@ _META = {
     "quick": True,
     "machine": {"platform": "p", "python": "3"},
     "versions": {},
+    "started": "s",
     "load_start": (0.0, 0.0, 0.0),
     "load_end": (0.0, 0.0, 0.0),
     "blas_threads": 1,
@@ -277,17 +279,18 @@ def test_a_script_with_main_becomes_a_section(tmp_path, monkeypatch):
     assert sec.report(res)[-1] == "| a | b |"
 
 
+def _runs(results, **meta):
+    """One run's sections as write_report takes them (``_META`` plus ``meta``)."""
+    return {k: SectionRun(k, r, {**_META, **meta}) for k, r in results.items()}
+
+
 def test_report_counts_not_measured_in_headline(tmp_path):
     results = {"subspace": {"rows": [_sub(10**4, "maglevid MOESP", 0.01)], "load": [0.0]}}
-    meta = {
-        **_META,
-        "git": "abc",
-        "dirty": ["src/x.py"],
-        "stamp": run_all.dirty_stamp("abc", ["src/x.py"]),
-        "absent": ["benchmarks.bench_pbsid"],
-    }
+    stamp = run_all.dirty_stamp("abc", ["src/x.py"])
+    runs = _runs(results, git="abc", dirty=["src/x.py"], stamp=stamp)
     out = tmp_path / "B.md"
-    judge = run_all.write_report(results, meta, out, run_all.SECTIONS)
+    meta = {"command": "x", "date": "d", "git": "abc", "absent": ["benchmarks.bench_pbsid"]}
+    judge = run_all.write_report(runs, meta, out, run_all.SECTIONS)
     text = out.read_text()
     assert judge.count(MET) == 0
     assert f"**{judge.headline()}.**" in text
@@ -302,10 +305,10 @@ def test_make_bench_refuses_a_modified_tree(monkeypatch, capsys):
 
 
 def test_a_failed_section_is_not_measured_and_reported(tmp_path):
-    meta = dict(_META)
     out = tmp_path / "B.md"
-    results = {"bearing": {"error": "RuntimeError: worker crashed"}}
-    judge = run_all.write_report(results, meta, out, run_all.SECTIONS)
+    runs = _runs({"bearing": {"error": "RuntimeError: worker crashed"}}, git="abc", stamp="")
+    meta = {"command": "x", "date": "d", "git": "abc"}
+    judge = run_all.write_report(runs, meta, out, run_all.SECTIONS)
     assert [v.status for v in judge.verdicts] == [NOT_MEASURED]
     assert "worker crashed" in out.read_text()
 
