@@ -197,7 +197,8 @@ def provenance_table(runs: Mapping[str, SectionRun], head: str, root: Path = ROO
         el = run.meta.get("elapsed_s")
         minutes = "?" if el is None else f"{float(el) / 60:.1f}"
         L.append(
-            f"| {name} | {git}{' (modified tree)' if run.meta.get('stamp') else ''} | "
+            f"| {name} | {git}{' (modified tree)' if run.meta.get('stamp') else ''}"
+            f"{' (--quick)' if run.meta.get('quick') else ''} | "
             f"{run.meta.get('date', '?')} | {minutes}"
             f" | {_load_text(run.meta)} | {cpu} | {_changed_text(cache[git], git, head)} |"
         )
