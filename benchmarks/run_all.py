@@ -1982,6 +1982,7 @@ def _run_summary(runs: list[SectionRun]) -> dict[str, Any]:
     first, last = runs[0].meta, runs[-1].meta
     return {
         **first,
+        "date": last.get("date", first.get("date")),
         "load_start": first["load_start"],
         "load_end": last["load_end"],
         "elapsed_s": first.get("run_elapsed_s")
