@@ -2024,7 +2024,8 @@ def _header(runs: dict[str, SectionRun], meta: dict[str, Any]) -> list[str]:
             f"Assembled by `{meta['command']}` on {meta['date']} at git {head} from the "
             f"latest stored run of each section (`{_shown(meta.get('store'))}`, "
             "`benchmarks/store.py`), measured in "
-            f"{len(by_run)} runs: each section's numbers, and the verdicts made from them, "
+            f"{'one run' if len(by_run) == 1 else f'{len(by_run)} runs'}: each section's "
+            "numbers, and the verdicts made from them, "
             "come from one run, named below with the measured code changed since its "
             "commit. Compare ratios within a section, not absolute times across sections: "
             "this is a shared virtual machine whose speed drifts.",
