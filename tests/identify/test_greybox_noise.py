@@ -137,42 +137,56 @@ def test_noise_only_record_whose_coloured_model_identifies_nothing_is_inconclusi
     assert _consensus(monkeypatch, rows, fits, False).parameters["pole_rad_s"] == 59.0
 
 
-def test_collapsed_noise_model_claims_no_pole():
-    # A healthy UAQ twin record (benchmarks' faulty_twin, seed 12) whose flux-lag + command-
-    # delay fit takes the likelihood's degenerate branch: current measurement noise -> 0,
-    # coil-equation disturbance -> inf. It claimed pole 43.3330 +- 0.0001 rad/s (truth
-    # 44.2 at 4.74 mm), R 12.67 +- 3e-5 ohm (truth 5.05); 17 % of such fits over seeds 1-73
-    # (found from outside, issue 16, fifteenth session). Reference for the floor: sound fits
-    # have sigma_i/sigma_y at 0.12-0.19 of the record's std(di)/std(dy), collapsed ones
-    # 1e-16 - 2e-4.
+def _twin_fit(seed, **kw):
     from benchmarks.bench_levitator_isolation import faulty_twin
 
     from maglevid.experiments.rigs import UAQ_TWIN
     from maglevid.identify.levitator import find_levitator_segments
 
-    def fit(seed):
-        d = faulty_twin(UAQ_TWIN, 0.0, seed=seed)
-        _, segs, _ = find_levitator_segments(d)
-        return fit_greybox_levitator(
-            d, model="electromechanical", flux_lag=True, command_delay=True, segments=segs
-        )
+    d = faulty_twin(UAQ_TWIN, 0.0, seed=seed)
+    _, segs, _ = find_levitator_segments(d)
+    return fit_greybox_levitator(d, model="electromechanical", segments=segs, **kw)
 
-    res = fit(12)
+
+def test_collapsed_noise_model_claims_no_pole(monkeypatch):
+    # A healthy UAQ twin record (benchmarks' faulty_twin, seed 12) whose flux-lag + command-
+    # delay fit, with the noise ratios unbounded, takes the likelihood's degenerate branch:
+    # current measurement noise -> 0, coil-equation disturbance -> inf. It claimed pole
+    # 43.3330 +- 0.0001 rad/s (truth 44.2 at 4.74 mm), R 12.67 +- 3e-5 ohm (truth 5.05); 17 %
+    # of such fits over seeds 1-73 (found from outside, issue 16, fifteenth session).
+    # Reference for the floor: sound fits have sigma_i/sigma_y at 0.12-0.19 of the record's
+    # std(di)/std(dy), collapsed ones 1e-16 - 2e-4. Since the twenty-seventh session the
+    # ratios are bounded to e^+-6.9 of their starts (greybox.NOISE_RATIO_RANGE, docs/real-
+    # rigs.md item 16), which stops this fit short of the branch; the flag stays the guard
+    # (the bounds still reach 2e-4 - 1e-3 of these records' ratio), tested with them lifted.
+    import maglevid.identify.greybox as gb
+
+    kw = {"flux_lag": True, "command_delay": True}
+    monkeypatch.setattr(gb, "NOISE_RATIO_RANGE", np.inf)
+    res = _twin_fit(12, **kw)
     assert res.extras["pole_identified"] is False and np.isnan(res.parameters["pole_rad_s"])
     assert any("noise model collapsed" in n for n in res.notes)
-    sound = fit(7)  # the same model on another seed: sigma_i/sigma_y at 0.14 of the record's
+    monkeypatch.undo()
+    bounded = _twin_fit(12, **kw)  # no collapse, and no pole claimed on a tight interval
+    assert not any("collapsed" in n for n in bounded.notes)
+    assert bounded.extras["pole_identified"] is False, bounded.notes
+    sound = _twin_fit(7, **kw)  # another seed: sigma_i/sigma_y at 0.14 of the record's
     assert sound.extras["pole_identified"], sound.notes
     assert not any("collapsed" in n for n in sound.notes)
 
 
-def test_a_coil_equation_left_to_noise_is_measured_and_said():
-    # UAQ twin, driver gain -15 %, seed 518 (found from outside, eighteenth session): the
-    # command-delay + AR(1) fit blows its voltage disturbance up (2.5e5 x what the record's
-    # changes of command and gap allow): the pole stands, but R/L reads 82 against 57.7
-    # and the diagnosis named "R +40 %". A sound fit of the same record stays below 2.1
-    # (76 fits of twin and UAQ records: sound 1e-67 - 2.0, degenerate 73 - 1e6).
+def test_a_coil_equation_left_to_noise_is_measured_and_said(monkeypatch):
+    # UAQ twin, driver gain -15 %, seed 518 (found from outside, eighteenth session): with
+    # the noise ratios unbounded the command-delay + AR(1) fit blows its voltage disturbance
+    # up (2.5e5 x what the record's changes of command and gap allow): the pole stands, but
+    # R/L reads 82 against 57.7 and the diagnosis named "R +40 %". A sound fit of the same
+    # record stays below 2.1 (76 fits of twin and UAQ records: sound 1e-67 - 2.0, degenerate
+    # 73 - 1e6). Bounded (greybox.NOISE_RATIO_RANGE, twenty-seventh session) the same fit
+    # converges to a sound point; the flag stays the guard (the bound still reaches
+    # ~900 x on this record), tested with the bounds lifted.
     from dataclasses import replace
 
+    import maglevid.identify.greybox as gb
     from maglevid.identify.greybox import VOLTAGE_NOISE_CEILING, voltage_noise_share
     from maglevid.identify.levitator import find_levitator_segments
     from maglevid.simulate.levitator import UAQ_TWIN, simulate_levitator
@@ -189,10 +203,15 @@ def test_a_coil_equation_left_to_noise_is_measured_and_said():
         L_true = truth.inductance(r.options["y_ref"])
         return r, p["R"] / L / (truth.R / L_true) - 1, p["ku"] / L / (truth.ku / L_true) - 1
 
+    monkeypatch.setattr(gb, "NOISE_RATIO_RANGE", np.inf)
     bad, r_err, _ = fit(True, "ar1")
     assert voltage_noise_share(bad) > 1e3 * VOLTAGE_NOISE_CEILING
     assert bad.extras["pole_identified"] and r_err > 0.3  # what the flag is for
     assert any(n.startswith("coil equation left to noise") for n in bad.notes)
+    monkeypatch.undo()
+    bounded, r_err, ku_err = fit(True, "ar1")  # the same model, the ratios bounded
+    assert voltage_noise_share(bounded) < 2.1 and abs(r_err) < 0.05 and abs(ku_err) < 0.05
+    assert not any(n.startswith("coil equation left to noise") for n in bounded.notes)
     good, r_err, ku_err = fit(False, "white")
     assert voltage_noise_share(good) < 2.1 and abs(r_err) < 0.05 and abs(ku_err) < 0.05
     assert not any(n.startswith("coil equation left to noise") for n in good.notes)
