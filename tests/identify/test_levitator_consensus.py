@@ -132,6 +132,38 @@ def test_a_lost_body_resting_or_falling_leaves_the_learned_range_alike():
     assert hi_r - lo_r >= hi - lo  # the lost windows count as not quiet: never narrower
 
 
+def test_a_body_lost_for_three_quarters_of_the_record_gets_a_finite_range():
+    # Found from outside (twenty-seventh session): the twin with the driver's gain -20 %
+    # (benchmarks.bench_levitator_isolation, seed 104) lost its ball after 5 s; 5 of the 20
+    # windows stayed in the first range, exactly the quartile's share, so the quartile fell
+    # between the noisiest kept window and an infinite one: NaN, a range of (nan, nan), and
+    # `diagnose` stopped with "position_range must be (low, high) ...". Reference: with k
+    # windows kept the 25 % quantile of 20 values lies between the 5th and 6th smallest
+    # (numpy's linear rule: index 4.75), so with 5 kept it is bounded by the 5th.
+    from dataclasses import replace
+
+    from maglevid.diagnose.pipeline import diagnose
+    from maglevid.identify.levitator import QUIET_QUANTILE, _window_scale
+    from maglevid.simulate.levitator import UAQ_TWIN
+
+    x = np.random.default_rng(0).standard_normal(2000)
+    x[:500] *= 1e-3 * np.linspace(1.0, 2.0, 500)  # 5 quiet windows of rising spread
+    keep = np.arange(20) < 5
+    assert np.count_nonzero(keep) == QUIET_QUANTILE * 20
+    sd5 = np.std(x[400:500])
+    assert _window_scale(x, 100, keep) == pytest.approx(sd5, rel=1e-12)
+    sd6 = np.std(x[500:600])  # one more kept: numpy's interpolation, as before the fix
+    assert _window_scale(x, 100, np.arange(20) < 6) == pytest.approx(sd5 + 0.75 * (sd6 - sd5))
+
+    d = simulate_levitator(replace(UAQ_TWIN, ku=0.8 * UAQ_TWIN.ku), rng=np.random.default_rng(104))
+    (lo, hi), how = levitation_range(d)
+    assert np.isfinite([lo, hi]).all() and lo < 4.5e-3 and hi > 5e-3
+    assert "15 of 20 1 s windows outside the range left out" in how
+    res = diagnose(d, method="greybox-levitator", method_options={"model": "electromechanical"})
+    assert res.verdict_code == "cannot_diagnose"
+    assert "too little usable levitation" in res.verdict
+
+
 def test_twin_ball_stops_at_the_rigs_travel():
     # Driver gain -30 %: the ball is lost; it rests on the bottom stop (~19.9 mm, as the
     # UAQ logs' ball does) instead of its gap running on to metres.
