@@ -26,26 +26,35 @@ from maglevid.experiments.rigs import UAQ_TWIN
 from maglevid.physics.levitator import LevitatorParameters
 
 P = LevitatorParameters.uaq()
+#: The UAQ rig with its driver as the twin states it (ku, and the offset v0 = 1.36 V).
+PD = P.with_changes(R=5.05, ku=0.515, v0=1.36)
 FAULTS = {
     "gap_offset": -2.9e-3, "gap_gain": 1.1, "a": 0.6, "k": 0.85, "m": 1.2,
-    "current_gain": 1.05, "R": 1.3, "ku": 0.8,
+    "current_gain": 1.05, "R": 1.3, "ku": 0.8, "v0": 1.2,
 }  # fmt: skip
 
 
-def _observed(changes, gaps=(0.004, 0.005, 0.006), electrical=True):
+def _observed(changes, gaps=(0.004, 0.005, 0.006), electrical=True, command=False, base=P):
     """Exact observations of the UAQ rig with ``changes`` (0.3 % noise assumed)."""
-    o = observations_of(P, y_ref=0.005, gaps=gaps, electrical=electrical, rel_se=3e-3)
-    z = predict_observations(P, o, changes)
-    n = len(gaps)
+    o = observations_of(
+        base, y_ref=0.005, gaps=gaps, electrical=electrical, command=command, rel_se=3e-3
+    )
+    z = predict_observations(base, o, changes)
+    n, n_el = len(gaps), 2 if electrical else 0
     return replace(
         o, pole=float(np.exp(z[0])), currents=tuple(np.exp(z[1 : 1 + n])),
-        electrical=tuple(np.exp(z[1 + n :])) if electrical else None,
+        electrical=tuple(np.exp(z[1 + n : 1 + n + n_el])) if electrical else None,
+        commands=tuple(np.exp(z[1 + n + n_el :])) if command else (),
     )  # fmt: skip
 
 
-@pytest.mark.parametrize("name", list(FAULTS))
-def test_each_hypothesis_is_recovered_from_its_exact_signature(name):
-    iso = isolate_levitator_fault(_observed({name: FAULTS[name]}), P)
+@pytest.mark.parametrize(
+    ("name", "command"),
+    # v0 moves only the command's level (without it: test_the_drivers_offset_is_judged...)
+    [(n, c) for n in FAULTS for c in (False, True) if c or n != "v0"],
+)
+def test_each_hypothesis_is_recovered_from_its_exact_signature(name, command):
+    iso = isolate_levitator_fault(_observed({name: FAULTS[name]}, command=command, base=PD), PD)
     assert iso.explained and iso.best.parameters
     named = [iso.best, *iso.indistinguishable]
     hit = next(h for h in named if h.parameters == (name,))
@@ -78,8 +87,27 @@ def test_sensor_zero_and_gain_cannot_be_told_apart_at_one_gap():
 
 def test_without_the_driver_R_and_ku_are_not_judged():
     iso = isolate_levitator_fault(_observed({"R": 1.3}, electrical=False), P)
-    assert {n for n, _ in iso.not_tested} == {"R", "ku"}
+    assert {n for n, _ in iso.not_tested} == {"R", "ku", "v0"}
     assert iso.best.parameters == ()  # the pole and currents see no change
+
+
+def test_the_drivers_offset_is_judged_by_the_commands_level():
+    # eq. (E1) at rest: ku u = R i + v0. v0 moves the command's level alone; the coil
+    # circuit's R/L, ku/L and the currents do not see it (a twin with v0 x1.5 read "No
+    # significant change": found from outside, twenty-seventh session).
+    iso = isolate_levitator_fault(_observed({"v0": 1.2}, command=True, base=PD), PD)
+    assert iso.best.parameters == ("v0",)
+    assert iso.best.values[0] == pytest.approx(1.2, rel=1e-6)
+    assert not iso.indistinguishable
+    assert iso.observations.names[-3:] == ("u_eq@4mm", "u_eq@5mm", "u_eq@6mm")
+    # the same change unseen without the command's level, and said why
+    blind = isolate_levitator_fault(_observed({"v0": 1.2}, base=PD), PD)
+    assert blind.best.parameters == ()
+    why = dict(blind.not_tested)["v0"]
+    assert "command's level" in why and "states no driver offset" in why
+    # an ideal driver (v0 = 0) has nothing for a factor to move: not judged either
+    ideal = isolate_levitator_fault(_observed({}, command=True), P)
+    assert "v0" in dict(ideal.not_tested)
 
 
 def test_unknown_hypothesis_is_refused():
@@ -106,6 +134,7 @@ def _diagnose(data):
         ("ku", replace(UAQ_TWIN, ku=0.8 * UAQ_TWIN.ku), 0.0, 0.8),
         ("k", replace(UAQ_TWIN, k=0.85 * UAQ_TWIN.k), 0.0, 0.85),
         ("gap_offset", UAQ_TWIN, 0.5e-3, 0.5e-3),
+        ("v0", replace(UAQ_TWIN, v0=1.2 * UAQ_TWIN.v0), 0.0, 1.2),
     ],
 )
 def test_simulated_fault_is_isolated(name, params, offset, value):
@@ -123,8 +152,15 @@ def test_simulated_healthy_rig_is_not_flagged():
     d = _diagnose(_twin(UAQ_TWIN))
     assert d.verdict_code in ("no_change", "within_tolerance"), d.verdict
     assert d.isolation.best.parameters == ()
+    # the twin states its driver's offset: the command's level is compared
+    assert len(d.isolation.observations.commands) == 2
+    assert not any("v0: not judged" in r for r in d.reasons)
     # what the observations cannot see is said (v0 x1.3 read a bare "No significant
-    # change"; found from outside, seventeenth session)
+    # change"; found from outside, seventeenth session): a baseline without v0
+    data = _twin(UAQ_TWIN)
+    plant = {k: v for k, v in data.metadata["plant"].items() if k != "v0_V"}
+    d = _diagnose(replace(data, metadata={**data.metadata, "plant": plant}))
+    assert d.verdict_code in ("no_change", "within_tolerance"), d.verdict
     assert any(r.startswith("the driver's voltage offset v0: not judged") for r in d.reasons)
 
 
@@ -151,8 +187,8 @@ def test_real_session_names_a_shifted_gap_zero_and_says_what_cannot_be_told_apar
     assert iso.best.parameters[0] == "gap_offset"
     # the zero moved by the equilibrium line's a - 5.2 mm (+-0.4 mm, its standard error)
     assert 1e3 * iso.best.values[0] == pytest.approx(offset_mm, abs=0.6)
-    # the published physics state no driver: R and the driver gain are not judged
-    assert {n for n, _ in iso.not_tested} == {"R", "ku"}
+    # the published physics state no driver: R, the driver gain and its offset not judged
+    assert {n for n, _ in iso.not_tested} == {"R", "ku", "v0"}
     assert "R and the driver gain: not judged" in d.verdict
     assert any("known gap reference" in r for r in d.reasons)
 
@@ -184,7 +220,8 @@ def test_history_baseline_compares_the_coil_circuit_and_names_a_driver_fault(tmp
     )  # fmt: skip
     assert d.baseline["source"].startswith("earlier identification")
     iso = d.isolation
-    assert iso.observations.electrical is not None and not iso.not_tested
+    # an earlier identification does not estimate the driver's offset: v0 alone is unjudged
+    assert iso.observations.electrical is not None and set(dict(iso.not_tested)) == {"v0"}
     assert iso.best.parameters == ("ku",), d.verdict
     assert d.verdict_code == "fault" and "driver" in d.verdict
     assert iso.best.values[0] == pytest.approx(0.8, abs=max(4 * iso.best.std_errors[0], 0.03))

@@ -77,6 +77,7 @@ def levitator_baseline(data: ClosedLoopData) -> Any:
         k=float(plant["k_H"]),
         a=float(plant["a_m"]),
         ku=float(plant.get("ku", 1.0)),
+        v0=float(plant.get("v0_V", 0.0)),
     )
 
 
@@ -351,6 +352,15 @@ LEVITATOR_HYPOTHESES: dict[str, tuple[str, str, str, str]] = {
         "a smaller length scale (pole face, core)",
         "factor",
     ),
+    # v0 before R and ku: in a tie (the twin's v0 x1.2, seed 9606: ku -6.7 % at chi2 2.1,
+    # v0 +19.9 % at 1.1) the dynamic ratio R/L or ku/L that R or ku would also move did
+    # not confirm it, and the cause that needs no such move is said first
+    "v0": (
+        "driver's voltage offset v0",
+        "a larger drop in the driver (its output stage or supply)",
+        "a smaller drop in the driver",
+        "factor",
+    ),
     "R": (
         "coil circuit resistance R",
         "heating or a bad connection in the coil circuit",
@@ -372,6 +382,12 @@ POLE_FLOOR = 0.02
 #: Relative model error of an equilibrium current: the steel-ball law over a few mm (the
 #: four gaps of multiescalon lie on eq. (Q1)'s straight line to within 1 %).
 CURRENT_FLOOR = 0.01
+#: Relative model error of the command's level at equilibrium, ``u = (R i + v0) / ku``
+#: (eq. (E1) at rest): the driver taken as linear with an offset. On the twin (an ideal
+#: driver) 20 healthy records read within 0.1 % of it at both gaps; a real PWM driver's
+#: dead time and supply are not measured here, so the floor is the currents' 1 %
+#: (twenty-seventh session).
+COMMAND_FLOOR = 0.01
 #: Relative model error of R/L and of ku/L (docs/diagnosis.md, "Levitator"; nineteenth
 #: session). Measured on the UAQ twin (38 healthy 20 s records): both ratios' noise-only
 #: intervals hold (RMS z 1.08 and 0.92) around a bias of +1.2 % and +0.7 %. On the real
@@ -410,6 +426,10 @@ _COIL_BENCH = (
     "an ohmmeter reading of the coil circuit (R), or the driver's gain measured on the bench (ku)"
 )
 _FORCE_PER_AMPERE = ("k", "m", "current_gain")
+_DRIVER_BENCH = (
+    "the driver's output voltage measured at two commands (its gain ku and offset v0), or "
+    "an ohmmeter reading of the coil circuit (R)"
+)
 
 #: What would separate two hypotheses that these records cannot tell apart: every pair
 #: a record can tie (found from outside, issue 16, sixteenth session: a k x0.85 twin tied
@@ -424,6 +444,10 @@ RESOLVE_HINTS: dict[frozenset[str], str] = {
         for x in ("R", "ku")
         for y in ("gap_offset", "gap_gain", *_FORCE_PER_AMPERE, "a", "R", "ku")
         if y != x
+    },
+    **{
+        frozenset({"v0", y}): _DRIVER_BENCH
+        for y in ("gap_offset", "gap_gain", *_FORCE_PER_AMPERE, "a", "R", "ku")
     },
     frozenset({"gap_offset", "a"}): f"{_GAP_ZERO}; {_SLOPE}",
     frozenset({"gap_offset", "gap_gain"}): _GAP_CALIBRATION,
@@ -463,23 +487,38 @@ class LevitatorObservations:
     pole_se_includes_model_error: bool = False
     #: Why ``electrical`` is ``None``: said where the verdict leaves ``R`` and ``ku`` unjudged.
     electrical_missing: str = NO_DRIVER
+    #: The mean command [V] of each segment (``u = (R i + v0) / ku`` at rest) and its
+    #: standard error; empty: not compared (the baseline states no driver offset).
+    commands: tuple[float, ...] = ()
+    command_se: tuple[float, ...] = ()
 
     @property
     def names(self) -> tuple[str, ...]:
         cur = tuple(f"i_eq@{1e3 * y:.3g}mm" for y in self.gaps)
-        return ("pole", *cur, *(("R/L", "ku/L") if self.electrical is not None else ()))
+        el = ("R/L", "ku/L") if self.electrical is not None else ()
+        cmd = tuple(f"u_eq@{1e3 * y:.3g}mm" for y in self.gaps) if self.commands else ()
+        return ("pole", *cur, *el, *cmd)
+
+    @property
+    def electrical_index(self) -> slice:
+        """Where ``R/L``, ``ku/L`` sit in :meth:`vector` (empty without them)."""
+        n = 1 + len(self.currents)
+        return slice(n, n + (2 if self.electrical is not None else 0))
 
     def vector(self) -> np.ndarray:
         """The observations in log units (relative changes compare across kinds)."""
         el = np.log(self.electrical) if self.electrical is not None else np.zeros(0)
-        return np.r_[np.log(self.pole), np.log(self.currents), el]
+        return np.r_[np.log(self.pole), np.log(self.currents), el, np.log(self.commands)]
 
     def floors(self) -> np.ndarray:
         """The model-error floor of each of :meth:`vector` (relative, log units): what no
         record length removes (``POLE_FLOOR``, ``CURRENT_FLOOR``, ``ELECTRICAL_FLOORS``)."""
         n_el = 2 if self.electrical is not None else 0
         return np.r_[
-            POLE_FLOOR, np.full(len(self.currents), CURRENT_FLOOR), ELECTRICAL_FLOORS[:n_el]
+            POLE_FLOOR,
+            np.full(len(self.currents), CURRENT_FLOOR),
+            ELECTRICAL_FLOORS[:n_el],
+            np.full(len(self.commands), COMMAND_FLOOR),
         ]
 
     def covariance(self) -> np.ndarray:
@@ -499,6 +538,10 @@ class LevitatorObservations:
             out = np.zeros((S.shape[0] + 2, S.shape[0] + 2))
             out[:-2, :-2], out[-2:, -2:] = S, np.asarray(self.electrical_cov) / np.outer(e, e)
             S = out
+        if self.commands:
+            v_u = (np.asarray(self.command_se) / np.asarray(self.commands)) ** 2
+            S = np.block([[S, np.zeros((S.shape[0], v_u.size))],
+                          [np.zeros((v_u.size, S.shape[0])), np.diag(v_u)]])  # fmt: skip
         S = S + np.diag(self.floors() ** 2)
         if self.pole_se_includes_model_error:
             S[0, 0] = max(v_p, POLE_FLOOR**2)
@@ -512,6 +555,8 @@ class LevitatorObservations:
             "currents": list(self.currents),
             "current_se": list(self.current_se),
             "electrical": None if self.electrical is None else list(self.electrical),
+            "commands": list(self.commands),
+            "command_se": list(self.command_se),
             "pole_se_includes_model_error": self.pole_se_includes_model_error,
         }
 
@@ -545,6 +590,11 @@ def predict_observations(
     if obs.electrical is not None:
         L = p.k0 + p.k * p.a / s_ref  # eq. (L1)
         out.append(np.log([p.R / L, gi * p.ku / L]))  # eq. (LIN2)
+    if obs.commands:  # eq. (E1) at rest: the true current, not the sensor's reading
+        u = (p.R * cur / gi + p.v0) / p.ku
+        if np.any(u <= 0):
+            raise ValueError("the predicted command level is not positive")
+        out.append(np.log(u))
     return np.concatenate(out)
 
 
@@ -817,6 +867,12 @@ def _why_blind(name: str, obs: LevitatorObservations) -> str:
             "the pole and the equilibrium currents do not depend on it, and the coil "
             f"circuit (R/L, ku/L) was not compared: {obs.electrical_missing}"
         )
+    if name == "v0":
+        return (
+            "only the command's level at equilibrium depends on it, and it was not compared: "
+            "the baseline states no driver offset (published physics without v0, or an "
+            "earlier identification, which does not estimate it)"
+        )
     return "no compared quantity depends on it"
 
 
@@ -826,14 +882,17 @@ def observations_of(
     y_ref: float,
     gaps: Sequence[float],
     electrical: bool = True,
+    command: bool = False,
     rel_se: float = 1e-4,
 ) -> LevitatorObservations:
     """The exact observations of the rig ``params`` (sensors ideal) at the given gaps,
-    with relative standard errors ``rel_se`` (for tests and planning)."""
+    with relative standard errors ``rel_se`` (for tests and planning); with ``command``
+    also the command's level at each gap."""
     from maglevid.physics.levitator import equilibrium, unstable_pole
 
     pole = unstable_pole(params, y_ref)
     cur = [equilibrium(params, y)[0] for y in gaps]
+    cmd = tuple(equilibrium(params, y)[1] for y in gaps) if command else ()
     el = None
     cov = None
     if electrical:
@@ -844,6 +903,7 @@ def observations_of(
         y_ref=float(y_ref), pole=pole, pole_se=rel_se * pole,
         gaps=tuple(float(y) for y in gaps), currents=tuple(cur),
         current_se=tuple(rel_se * c for c in cur), electrical=el, electrical_cov=cov,
+        commands=cmd, command_se=tuple(rel_se * u for u in cmd),
     )  # fmt: skip
 
 
@@ -912,12 +972,15 @@ def _electrical(result: Any, y_ref: float) -> tuple[tuple[float, float], Any] | 
 
 
 def levitator_observations(
-    result: Any, data: ClosedLoopData, *, electrical: bool = True
+    result: Any, data: ClosedLoopData, *, electrical: bool = True, command: bool = False
 ) -> LevitatorObservations:
     """The observations of a levitator identification: its pole (the consensus interval
     when there is one) at ``y_ref``, each segment's mean gap and current measured from
-    ``data`` (standard error from block means), and with ``electrical`` the command
-    frame's ``R/L`` and ``ku/L`` at ``y_ref``."""
+    ``data`` (standard error from block means), with ``electrical`` the command
+    frame's ``R/L`` and ``ku/L`` at ``y_ref``, and with ``command`` each segment's mean
+    command (the driver's level: ``u = (R i + v0) / ku`` at rest, eq. (E1); found from
+    outside, twenty-seventh session: a twin with ``v0`` x1.5 read "No significant change",
+    its command 18.5 % above the stated physics')."""
     from maglevid.identify.closedloop import resolve_channel
 
     est, y_ref = levitator_estimates(result)
@@ -928,6 +991,12 @@ def levitator_observations(
     n_block = max(2, round(BLOCK_SECONDS / data.dt))
     gaps = [float(y[a:b].mean()) for a, b in segs]
     cur = [_mean_and_se(i[a:b], n_block) for a, b in segs]
+    cmd: list[tuple[float, float]] = []
+    if command and data.u is not None:
+        u = resolve_channel(data, result.options.get("command", "u:0")).values
+        cmd = [_mean_and_se(u[a:b], n_block) for a, b in segs]
+        if not all(c > 0 for c, _ in cmd):  # a command that is not the driver's level
+            cmd = []
     el = _electrical(result, y_ref) if electrical else None
     missing = el if isinstance(el, str) else None
     if electrical and el is None:  # the driver is stated, the model has no coil circuit
@@ -941,6 +1010,7 @@ def levitator_observations(
         currents=tuple(c for c, _ in cur), current_se=tuple(s for _, s in cur),
         electrical=None if el is None else el[0], electrical_cov=None if el is None else el[1],
         pole_se_includes_model_error="consensus" in result.extras,
+        commands=tuple(c for c, _ in cmd), command_se=tuple(s for _, s in cmd),
         **({"electrical_missing": missing} if missing else {}),
     )  # fmt: skip
 
@@ -960,6 +1030,13 @@ def levitator_parameters_of(values: Mapping[str, Any], m: float) -> Any:
     if any(v is None or not np.isfinite(v) or v <= 0 for v in got.values()):
         return None
     return LevitatorParameters(m=m, **got)  # type: ignore[arg-type]
+
+
+def baseline_states_offset(data: ClosedLoopData) -> bool:
+    """Whether the recording's published physics state the driver with its offset (``ku``
+    and ``v0_V``; then the command's level at equilibrium is compared too)."""
+    plant = data.metadata.get("plant") if hasattr(data.metadata, "get") else None
+    return isinstance(plant, Mapping) and "ku" in plant and "v0_V" in plant
 
 
 def baseline_states_driver(data: ClosedLoopData) -> bool:

@@ -93,6 +93,8 @@ class _Compared:
     #: it states the driver (then the coil circuit R/L, ku/L is compared too).
     params: Any = None
     driver: bool = False
+    #: Whether it states the driver's offset v0 (then the command's level is compared).
+    offset: bool = False
 
 
 class LevitatorStages:
@@ -166,7 +168,8 @@ class LevitatorStages:
         changes = compare_parameters(
             estimates, values, tolerances=run.tolerances, level=run.level, joint=True
         )
-        run.compared = _Compared(changes, values, source, y_ref, params, driver)
+        offset = params is published and lev.baseline_states_offset(data)
+        run.compared = _Compared(changes, values, source, y_ref, params, driver, offset)
         return None
 
     def _isolation(self, run: DiagnosisRun) -> lev.LevitatorIsolation | None:
@@ -175,7 +178,9 @@ class LevitatorStages:
             run.notes.append("the baseline is not a full parameter set: no fault isolation")
             return None
         try:
-            obs = lev.levitator_observations(run.result, run.data, electrical=c.driver)
+            obs = lev.levitator_observations(
+                run.result, run.data, electrical=c.driver, command=c.offset
+            )
             return lev.isolate_levitator_fault(obs, c.params, alpha=run.alpha)
         except (MaglevidError, ArithmeticError, np.linalg.LinAlgError) as exc:
             run.notes.append(f"fault isolation not possible: {exc or type(exc).__name__}")
@@ -445,18 +450,21 @@ def _verdict_of_moves(
 
 def _coil_words(iso: lev.LevitatorIsolation, params: Any) -> str:
     """What the verdict says about the coil circuit (R, driver gain)."""
-    if iso.not_tested:
-        names = " and ".join("the driver gain" if n == "ku" else n for n, _ in iso.not_tested)
+    # (v0 unjudged is said in the reasons: the verdict's words are about the coil circuit)
+    coil = [n for n, _ in iso.not_tested if n in ("R", "ku")]
+    if coil:
+        names = " and ".join("the driver gain" if n == "ku" else n for n in coil)
         why = iso.observations.electrical_missing
         return f". {names[0].upper()}{names[1:]}: not judged ({why})"
     named = {n for h in (iso.best, *iso.indistinguishable) for n in h.parameters}
     obs = iso.observations
     if obs.electrical is None or named & {"R", "ku"}:
         return ""
-    z = obs.vector()[-2:]
+    el = obs.electrical_index
+    z = obs.vector()[el]
     z_b = lev.predict_observations(params, obs, dict(zip(iso.best.parameters, iso.best.values)))
-    sd = np.sqrt(np.diag(obs.covariance())[-2:])
-    if np.all(np.abs(z - z_b[-2:]) < 2 * sd):
+    sd = np.sqrt(np.diag(obs.covariance())[el])
+    if np.all(np.abs(z - z_b[el]) < 2 * sd):
         return ". No change in R or the driver gain (the coil circuit as predicted)"
     return ""
 
@@ -509,17 +517,25 @@ def isolation_reasons(iso: lev.LevitatorIsolation, params: Any) -> list[str]:
     )
     out = [f"equilibrium currents {cur}"]
     if obs.electrical is not None:
+        rl, kl = z0[obs.electrical_index]
         out.append(
-            f"coil circuit R/L = {obs.electrical[0]:.4g} 1/s (baseline {z0[-2]:.4g}), "
-            f"ku/L = {obs.electrical[1]:.4g} A/(V s) (baseline {z0[-1]:.4g})"
+            f"coil circuit R/L = {obs.electrical[0]:.4g} 1/s (baseline {rl:.4g}), "
+            f"ku/L = {obs.electrical[1]:.4g} A/(V s) (baseline {kl:.4g})"
         )
+    if obs.commands:
+        cmd = ", ".join(
+            f"{u:.4g} V at {1e3 * y:.3g} mm (baseline {b:.4g})"
+            for u, y, b in zip(obs.commands, obs.gaps, z0[-len(obs.commands) :])
+        )
+        out.append(f"command's level {cmd}")
     none, best = iso.no_change, iso.best
     el_rl, el_ku = lev.ELECTRICAL_FLOORS
+    cmd_floor = f", ±{100 * lev.COMMAND_FLOOR:.0f} % command" if obs.commands else ""
     out.append(
         f"no change: chi2 = {none.chi2:.3g} with {none.dof} dof (p = {none.p_value:.2g}); "
         f"single-cause likelihood ratio p = {iso.single_cause_p_value:.2g} (model error "
         f"±{100 * lev.POLE_FLOOR:.0f} % pole, ±{100 * lev.CURRENT_FLOOR:.0f} % currents, "
-        f"±{100 * el_rl:.0f} % R/L, ±{100 * el_ku:.0f} % ku/L included)"
+        f"±{100 * el_rl:.0f} % R/L, ±{100 * el_ku:.0f} % ku/L{cmd_floor} included)"
     )
     if best.parameters:
         out.append(
@@ -555,15 +571,12 @@ def isolation_reasons(iso: lev.LevitatorIsolation, params: Any) -> list[str]:
                 f"{iso.alpha:g}): "
                 + ", ".join(f"{' + '.join(h.parameters)} (p = {h.p_value:.2g})" for h in rejected)
             )
-    out += [f"{n_}: not judged - {why}" for n_, why in iso.not_tested]
-    # the driver's offset moves the command, not the pole, the currents or the coil
-    # circuit's R/L, ku/L: a twin with v0 x1.3 read "No significant change" without a
-    # word that v0 was not looked at (found from outside, seventeenth session)
-    out.append(
-        "the driver's voltage offset v0: not judged - none of the compared observations "
-        "depends on it (it moves only the command's level, and with it the headroom to "
-        "the driver's limit)"
-    )
+    # a hypothesis no compared observation depends on is said (a twin with v0 x1.3 read
+    # "No significant change" without a word that v0 was not looked at: found from
+    # outside, seventeenth session; v0 is judged from the command's level since the
+    # twenty-seventh, where the baseline states it)
+    label = {"v0": "the driver's voltage offset v0"}
+    out += [f"{label.get(n_, n_)}: not judged - {why}" for n_, why in iso.not_tested]
     return out
 
 

@@ -371,6 +371,7 @@ def _isolation_table(d: Diagnosis) -> str:
         if obs is None
         else "the pole and the equilibrium currents"
         + (" and the coil circuit" if obs.electrical is not None else "")
+        + (" and the command's level" if getattr(obs, "commands", ()) else "")
     )
     seen: set[tuple[str, ...]] = set()
     body = []

@@ -180,8 +180,8 @@ def simulate_levitator(
     zero is shifted by ``gap_offset`` (true gap = reading + offset): the true loop
     runs at ``reference + offset`` and the reading is logged. The recording states
     ``baseline``'s physics with its driver (``metadata["plant"]``: ``m``, ``R``,
-    ``k0``, ``k``, ``a``, ``ku`` and the law), so a diagnosis compares the coil
-    circuit too; ``metadata["truth"]`` holds ``params`` and the offset.
+    ``k0``, ``k``, ``a``, ``ku``, ``v0`` and the law), so a diagnosis compares the coil
+    circuit and the command's level too; ``metadata["truth"]`` holds ``params`` and the offset.
 
     Parameters
     ----------
@@ -219,7 +219,7 @@ def simulate_levitator(
     y[:, 0] -= gap_offset
     b = baseline
     plant = {"m_kg": b.m, "R_ohm": b.R, "k0_H": b.k0, "k_H": b.k, "a_m": b.a, "ku": b.ku,
-             "inductance_model": _LAW}  # fmt: skip
+             "v0_V": b.v0, "inductance_model": _LAW}  # fmt: skip
     truth = {**params.to_dict(), "gap_offset_m": float(gap_offset)}
     return ClosedLoopData(
         y=y, u=d.u, r=yd, dt=d.dt, names={"y": ("y", "i"), "u": ("u",), "r": ("yd",)},
