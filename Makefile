@@ -38,10 +38,12 @@ format: $(STAMP)
 # The peers (SLICOT through ctrlsys, SIPPY, nfoursid) come with the `bench` extra; GNU
 # Octave's control package is used when the system has it, and skipped with a message
 # otherwise. run_all refuses to write BENCHMARKS.md from a modified tree (commit first).
+# The slow tests' PostgreSQL cases need a server: the same throwaway one as CI's
+# (.ci/postgres.sh; without one they skip, and the report names them).
 bench: $(STAMP)
 	$(PY) -m pip install -q -e '.[bench]'
-	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 $(PY) -m benchmarks.run_all --huge \
-		--plot docs/images/speed_accuracy.png
+	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 bash -c 'source .ci/postgres.sh || true; \
+		$(PY) -m benchmarks.run_all --huge --plot docs/images/speed_accuracy.png'
 
 clean:
 	rm -rf $(VENV) demo-out .pytest_cache .ruff_cache
