@@ -54,3 +54,18 @@ def test_noise_driven_exact_feedback_is_flagged_and_a_dither_is_not(rng):
     # a dither of 10 % of the command's rms makes R^2 ~ 0.99 < 0.9999: not flagged
     u = -2 * y[:, 0] + 0.5 * y[:, 1] + 0.2 * rng.standard_normal(400)
     assert unidentifiable_reason(ClosedLoopData(y=y, u=u[:, None], dt=0.01)) is None
+
+
+def test_a_generic_mimo_record_is_refused_a_nominal_diagnosis_in_its_own_words():
+    # Found from outside (twenty-seventh session): Maggy's log (9 fields, 2 inputs) given to
+    # `diagnose` was told "baseline='nominal' needs the design parameters in the recording
+    # (loop['nominal'])", the bearing's wording, with no such physics to give.
+    from maglevid.diagnose.pipeline import diagnose
+
+    rng = np.random.default_rng(0)
+    d = ClosedLoopData(y=rng.standard_normal((400, 9)), u=rng.standard_normal((400, 2)), dt=0.01)
+    assert infer_kind(d)[0] == "mimo"
+    with pytest.raises(DataError, match="no nominal baseline") as err:
+        diagnose(d)
+    assert "no physical model of a generic multi-input multi-output plant" in str(err.value)
+    assert "maglevid identify" in str(err.value) and "loop['nominal']" not in str(err.value)

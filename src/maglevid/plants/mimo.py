@@ -13,10 +13,37 @@ from collections.abc import Mapping
 from types import MappingProxyType
 
 from maglevid.data import ClosedLoopData
-from maglevid.plants.amb import STAGES, AMBStages
-from maglevid.plants.base import BaseKind, shape_of
+from maglevid.exceptions import DataError
+from maglevid.plants.amb import AMBStages
+from maglevid.plants.base import BaseKind, DiagnosisRun, shape_of
 
 __all__ = ["KIND", "GenericMIMO"]
+
+
+class _MimoStages(AMBStages):
+    """The shared stages, with a baseline error that speaks of this kind: a Maggy log
+    (9 field channels, 2 inputs) given to ``diagnose`` was told that "baseline='nominal'
+    needs the design parameters in the recording (loop['nominal'])", the bearing's
+    wording, where there is no nominal physics to give (found from outside,
+    twenty-seventh session)."""
+
+    #: A generic record has none of the bearing's parameters to drift-test.
+    drift_parameters: tuple[str, ...] = ()
+
+    def baseline(self, run: DiagnosisRun) -> None:
+        loop = run.data.loop if isinstance(run.data.loop, Mapping) else {}
+        if run.baseline == "nominal" and loop.get("nominal") is None:
+            raise DataError(
+                f"no nominal baseline for this recording ({shape_of(run.data)}): maglevid "
+                "has no physical model of a generic multi-input multi-output plant, so "
+                "there is nothing to diagnose it against; `maglevid identify` (identify() "
+                "in Python) gives its black-box model (N4SID) and says whether this "
+                "record can give the plant at all"
+            )
+        super().baseline(run)
+
+
+_STAGES = _MimoStages()
 
 
 class GenericMIMO(BaseKind):
@@ -37,7 +64,7 @@ class GenericMIMO(BaseKind):
         return f"no physical model matches {shape_of(data)}"
 
     def stages(self, method: str) -> AMBStages:
-        return STAGES
+        return _STAGES
 
 
 KIND = GenericMIMO()
