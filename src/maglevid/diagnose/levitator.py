@@ -26,6 +26,7 @@ from typing import Any
 
 import numpy as np
 from scipy import optimize, special
+from scipy.linalg import block_diag
 
 from maglevid.data import ClosedLoopData
 from maglevid.diagnose.diagnosis import QualityCheck
@@ -440,14 +441,10 @@ RESOLVE_HINTS: dict[frozenset[str], str] = {
     **{frozenset({"gap_gain", y}): _GAP_CALIBRATION for y in _FORCE_PER_AMPERE},
     **{frozenset({"a", y}): _SLOPE for y in _FORCE_PER_AMPERE},
     **{
-        frozenset({x, y}): _COIL_BENCH
-        for x in ("R", "ku")
+        frozenset({x, y}): _DRIVER_BENCH if "v0" in (x, y) else _COIL_BENCH
+        for x in ("R", "ku", "v0")
         for y in ("gap_offset", "gap_gain", *_FORCE_PER_AMPERE, "a", "R", "ku")
         if y != x
-    },
-    **{
-        frozenset({"v0", y}): _DRIVER_BENCH
-        for y in ("gap_offset", "gap_gain", *_FORCE_PER_AMPERE, "a", "R", "ku")
     },
     frozenset({"gap_offset", "a"}): f"{_GAP_ZERO}; {_SLOPE}",
     frozenset({"gap_offset", "gap_gain"}): _GAP_CALIBRATION,
@@ -532,16 +529,12 @@ class LevitatorObservations:
         found from outside, issue 16, sixteenth session)."""
         v_p = (self.pole_se / self.pole) ** 2
         v_i = (np.asarray(self.current_se) / np.asarray(self.currents)) ** 2
-        S = np.diag(np.r_[v_p, v_i])
+        v_u = (np.asarray(self.command_se) / np.asarray(self.commands, dtype=float)) ** 2
+        el = np.zeros((0, 0))
         if self.electrical is not None:
             e = np.asarray(self.electrical)
-            out = np.zeros((S.shape[0] + 2, S.shape[0] + 2))
-            out[:-2, :-2], out[-2:, -2:] = S, np.asarray(self.electrical_cov) / np.outer(e, e)
-            S = out
-        if self.commands:
-            v_u = (np.asarray(self.command_se) / np.asarray(self.commands)) ** 2
-            S = np.block([[S, np.zeros((S.shape[0], v_u.size))],
-                          [np.zeros((v_u.size, S.shape[0])), np.diag(v_u)]])  # fmt: skip
+            el = np.asarray(self.electrical_cov) / np.outer(e, e)
+        S = block_diag(np.diag(np.r_[v_p, v_i]), el, np.diag(v_u))
         S = S + np.diag(self.floors() ** 2)
         if self.pole_se_includes_model_error:
             S[0, 0] = max(v_p, POLE_FLOOR**2)
@@ -891,8 +884,9 @@ def observations_of(
     from maglevid.physics.levitator import equilibrium, unstable_pole
 
     pole = unstable_pole(params, y_ref)
-    cur = [equilibrium(params, y)[0] for y in gaps]
-    cmd = tuple(equilibrium(params, y)[1] for y in gaps) if command else ()
+    eq = [equilibrium(params, y) for y in gaps]  # (current, command) at each gap
+    cur = [i for i, _ in eq]
+    cmd = tuple(u for _, u in eq) if command else ()
     el = None
     cov = None
     if electrical:
@@ -1035,8 +1029,7 @@ def levitator_parameters_of(values: Mapping[str, Any], m: float) -> Any:
 def baseline_states_offset(data: ClosedLoopData) -> bool:
     """Whether the recording's published physics state the driver with its offset (``ku``
     and ``v0_V``; then the command's level at equilibrium is compared too)."""
-    plant = data.metadata.get("plant") if hasattr(data.metadata, "get") else None
-    return isinstance(plant, Mapping) and "ku" in plant and "v0_V" in plant
+    return baseline_states_driver(data) and "v0_V" in data.metadata["plant"]
 
 
 def baseline_states_driver(data: ClosedLoopData) -> bool:
