@@ -43,7 +43,10 @@ goes to stderr, the Markdown to stdout (``--out`` writes it to a file too).
    PBSID-opt, SSARX and ML on the same records; the v_i
    target's errors as RMS over the records (one record's ratio of two errors is
    a coin toss), the structured fit's intervals (P15): RMS of the normalised
-   errors and the 95 % intervals' coverage (about 2.5 min on one idle core).
+   errors and the 95 % intervals' coverage, and each fit's time over MOESP's on
+   the same record (the time target's verdict: the median over the records, as
+   the Gauss-Newton path's length varies from record to record) (about 2.5 min
+   on one idle core).
 
 ``SECTION`` (where ``benchmarks/sections.py`` exists) plugs this into
 ``make bench``: :func:`run` measures, :func:`markdown_section` reports,
@@ -326,9 +329,12 @@ def bench_monte_carlo(n: int = 10_000, records: int = 100, case: str = "issue") 
     z: dict[str, list[list[float]]] = {k: [] for k in MC_METHODS}
     seconds = dict.fromkeys(MC_METHODS, 0.0)
     refused = dict.fromkeys(MC_METHODS, 0)
+    moesp = _bearing_tools()[MOESP_TOOL] if case != "realistic" else None
+    ratios: dict[str, list[float]] = {k: [] for k in MC_METHODS}  # time / MOESP's, per record
     t0 = time.perf_counter()
     for seed in range(1000, 1000 + records):
         d, truth = _monte_carlo_record(n, seed, case)
+        t_moesp = _timed(moesp, d) if moesp is not None else None
         for name, fit in fits.items():
             if fit is None:
                 continue
@@ -340,6 +346,8 @@ def bench_monte_carlo(n: int = 10_000, records: int = 100, case: str = "issue") 
                 continue
             finally:
                 seconds[name] += time.perf_counter() - t1
+                if t_moesp:  # a refusal's time is time spent too
+                    ratios[name].append((time.perf_counter() - t1) / t_moesp)
             v = np.array([res.parameters[f"v{i}"] for i in range(1, 10)])
             rel[name].append((v / truth["v"] - 1.0).tolist())
             se = res.std_errors()
@@ -359,10 +367,27 @@ def bench_monte_carlo(n: int = 10_000, records: int = 100, case: str = "issue") 
             "cover95_all": None if Z is None else float(np.mean(np.abs(Z) <= 1.96)),
             "time_s": seconds[name] / records,
             "refused": refused[name],
+            "moesp_ratio": _spread(ratios[name]),
         }
     out["time_s"] = time.perf_counter() - t0
     print(f"monte carlo {case} {n:.0e}: {records} records, {out['time_s']:.0f} s", file=sys.stderr)
     return out
+
+
+def _timed(fn: Callable[[Any], Any], d: Any) -> float:
+    """Seconds one call of ``fn(d)`` took."""
+    t0 = time.perf_counter()
+    fn(d)
+    return time.perf_counter() - t0
+
+
+def _spread(ratios: list[float]) -> dict[str, float] | None:
+    """Median, 90th percentile and largest of per-record time ratios (None without any)."""
+    if not ratios:
+        return None
+    r = np.asarray(ratios)
+    med, p90 = float(np.median(r)), float(np.quantile(r, 0.9))
+    return {"median": med, "p90": p90, "max": float(r.max())}
 
 
 def _monte_carlo_record(n: int, seed: int, case: str) -> tuple[Any, dict[str, Any]]:
@@ -568,12 +593,14 @@ def _monte_carlo_lines(points: list[dict[str, Any]]) -> list[str]:
         "records): per parameter the RMS of the relative error over that of ML (the "
         "largest of v1..v9, and which), the RMS of (v - truth) / se (1 when the "
         "covariance (P15) is right) and the 95 % intervals' coverage, pooled over "
-        "v1..v9; mean time a fit; the records the method refused (an IdentificationError: "
+        "v1..v9; mean time a fit; its time over MOESP's (+ physical coordinates) on the "
+        "same record, median and 90th percentile over the records (what the time target "
+        "judges where it ran); the records the method refused (an IdentificationError: "
         "no estimate, left out of the RMS).",
         "",
         "| record | N | records | method | RMS error / ML's (largest) | RMS z | coverage "
-        "| s a fit | refused |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| s a fit | time / MOESP's (median, p90) | refused |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for p in points:
         for name in MC_METHODS:
@@ -588,9 +615,11 @@ def _monte_carlo_lines(points: list[dict[str, Any]]) -> list[str]:
             )
             rz = "-" if m["rms_z_all"] is None else f"{m['rms_z_all']:.2f}"
             cv = "-" if m["cover95_all"] is None else f"{m['cover95_all']:.3f}"
+            sp = m.get("moesp_ratio")
+            tr = "-" if sp is None else f"{sp['median']:.2f}, {sp['p90']:.2f}"
             out.append(
                 f"| {p['case']} | {p['N']:.0e} | {p['records']} | {name} | {worst} | {rz} | "
-                f"{cv} | {m['time_s']:.3f} | {m.get('refused', 0)} |"
+                f"{cv} | {m['time_s']:.3f} | {tr} | {m.get('refused', 0)} |"
             )
     return out
 
@@ -635,31 +664,60 @@ def targets(results: dict[str, Any], judge: Any) -> None:
             (STRUCTURED[method], f"{method}, structured fit (default)"),
             (TRANSFORM[method], f"{method}, transform path"),
         ):
-            _time_checks(rows, get, tool, label, judge)
+            _time_checks(rows, get, tool, label, judge, mc, method)
 
 
-def _time_checks(rows: list[dict[str, Any]], get: Any, tool: str, label: str, judge: Any) -> None:
+def _time_checks(
+    rows: list[dict[str, Any]],
+    get: Any,
+    tool: str,
+    label: str,
+    judge: Any,
+    mc: list[dict[str, Any]] | None = None,
+    method: str | None = None,
+) -> None:
     """>= 50x faster than PARSIM-K and within 2x MOESP's time, for one row kind.
 
     Every maglevid row carries the interleaved ratio to MOESP (``moesp_ratio``); a
     row without one (its interleaved rounds did not run) is divided by MOESP's
-    median time of the same record.
+    median time of the same record. Where the Monte Carlo timed ``method`` against
+    MOESP record by record (``mc``), the MOESP target is judged on the median of those
+    ratios: a structured fit's time follows its Gauss-Newton path, which varies from
+    record to record (issue 16, twenty-eighth session: 6-15 points at 1e4), so one
+    record judges its own luck, as its errors did (the v_i target's Monte Carlo). The
+    PARSIM-K target then divides PARSIM-K's time over MOESP's on the timed record (a
+    one-pass method: its time does not depend on the record's noise) by that median.
     """
     checks: dict[str, list[tuple[str, bool]]] = {"peer": [], "moesp": []}
     unmeasured: list[str] = []  # PARSIM-K not run (its footprint: parsim_k_verdict)
     for r in (r for r in rows if r["tool"] == tool):
         where = f"{r['case']} {r['N']:.0e}"
-        pk = get(r["case"], r["N"], "SIPPY PARSIM-K")
-        if pk is not None:
-            speed = pk["time_s"] / r["time_s"]
-            checks["peer"].append((f"{where}: {speed:.0f}x", speed >= 50.0))
-        elif r["N"] > PEER_MAX_N:
-            unmeasured.append(where)
+        pk, mo = get(r["case"], r["N"], "SIPPY PARSIM-K"), get(r["case"], r["N"], MOESP_TOOL)
         ratio = r.get("moesp_ratio")
         if ratio is None:
-            mo = get(r["case"], r["N"], MOESP_TOOL)
             ratio = r["time_s"] / mo["time_s"] if mo is not None else None
-        if ratio is not None:
+        spread = _mc_time_spread(mc, r["case"], r["N"], method)
+        if pk is not None:
+            speed = pk["time_s"] / r["time_s"]
+            text = f"{where}: {speed:.0f}x"
+            if spread is not None and mo is not None:  # PARSIM-K / MOESP over the median
+                one, speed = speed, pk["time_s"] / mo["time_s"] / spread[1]["median"]
+                text = (
+                    f"{where}: {speed:.0f}x (PARSIM-K {pk['time_s'] / mo['time_s']:.0f}x "
+                    f"MOESP's time over the Monte Carlo's median; the timed record {one:.0f}x)"
+                )
+            checks["peer"].append((text, speed >= 50.0))
+        elif r["N"] > PEER_MAX_N:
+            unmeasured.append(where)
+        if spread is not None:
+            records, sp = spread
+            also = "" if ratio is None else f"; the timed record {ratio:.2g}x"
+            text = (
+                f"{where}: median {sp['median']:.2g}x, 90th percentile {sp['p90']:.2g}x "
+                f"over {records} records{also}"
+            )
+            checks["moesp"].append((text, sp["median"] <= 2.0))
+        elif ratio is not None:
             checks["moesp"].append((f"{where}: {ratio:.2g}x", ratio <= 2.0))
     names = {"peer": ">= 50x faster than PARSIM-K", "moesp": "within 2x MOESP's time"}
     for key, what in names.items():
@@ -675,6 +733,18 @@ def _time_checks(rows: list[dict[str, Any]], get: Any, tool: str, label: str, ju
                 f"projected, over the {PEER_MEMORY_GB:.0f} GB limit)"
             )
         judge.add(target, text, all(ok for _, ok in checks[key]))
+
+
+def _mc_time_spread(
+    mc: list[dict[str, Any]] | None, case: str, n: int, method: str | None
+) -> tuple[int, dict[str, float]] | None:
+    """``(records, spread)`` of ``method``'s per-record time over MOESP's in the Monte
+    Carlo point ``(case, n)``, None where it did not time them."""
+    point = next((p for p in mc or [] if (p["case"], p["N"]) == (case, n)), None)
+    if point is None or method is None:
+        return None
+    sp = (point["methods"].get(method) or {}).get("moesp_ratio")
+    return None if sp is None else (point["records"], sp)
 
 
 def _v_checks(
