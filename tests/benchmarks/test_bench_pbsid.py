@@ -184,12 +184,14 @@ def test_time_target_is_judged_on_the_monte_carlo_where_it_timed_moesp():
     # each fit against MOESP on the same record, the median of those ratios judges;
     # the timed record's own ratio is shown beside it; elsewhere (1e6) it decides.
     tool = STRUCTURED["pbsid"]
+    err = {"v_error": 1e-3, "pole_error": 1e-3}
     rows = [
         {"case": "issue", "N": 10_000, "tool": tool, "time_s": 0.06, "moesp_ratio": 2.4},
         {"case": "issue", "N": 10_000, "tool": MOESP_TOOL, "time_s": 0.025},
         {"case": "issue", "N": 10_000, "tool": "SIPPY PARSIM-K", "time_s": 2.5},
         {"case": "issue", "N": 10**6, "tool": tool, "time_s": 1.0, "moesp_ratio": 1.3},
     ]
+    rows = [{**err, **r} for r in rows]
 
     def get(case, n, tool):
         return next((r for r in rows if (r["case"], r["N"], r["tool"]) == (case, n, tool)), None)
@@ -221,6 +223,17 @@ def test_time_target_is_judged_on_the_monte_carlo_where_it_timed_moesp():
     assert verdict([]).status == NOT_MET
     del mc[0]["methods"]["pbsid"]["moesp_ratio"]
     assert verdict(mc).status == NOT_MET
+    # the Monte Carlo times the structured fit: the transform path keeps its own record
+    rows.append({**rows[0], "tool": TRANSFORM["pbsid"], "time_s": 0.02, "moesp_ratio": 0.8})
+    judge = Judge()
+    targets({"bearing": rows, "monte_carlo": mc}, judge)
+    v = next(
+        v
+        for v in judge.verdicts
+        if v.target.startswith("pbsid, transform") and "MOESP" in v.target
+    )
+    assert v.status == MET and v.measured.startswith("issue 1e+04: 0.8x")
+    assert "median" not in v.measured
     # the table shows the spread where the Monte Carlo timed it
     mc[0]["methods"]["pbsid"]["moesp_ratio"] = {"median": 1.7, "p90": 2.3, "max": 2.9}
     res = {"load": (1.0, 1.0, 1.0), "bearing": [], "generic": [], "suspension": []}
