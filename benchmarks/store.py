@@ -48,8 +48,14 @@ ROOT = Path(__file__).resolve().parents[1]
 #: Where the repository's stored section runs live (committed with BENCHMARKS.md).
 RESULTS = ROOT / "benchmarks" / "results"
 #: The paths whose change can move a measurement (``git diff`` pathspecs): the library,
-#: the benchmarks (their stored results excepted) and the dependencies.
-MEASURED_CODE = ("src", "benchmarks", "pyproject.toml", ":(exclude)benchmarks/results")
+#: the benchmarks (their stored results and their prose excepted) and the dependencies.
+MEASURED_CODE = (
+    "src",
+    "benchmarks",
+    "pyproject.toml",
+    ":(exclude)benchmarks/results",
+    ":(exclude,glob)benchmarks/**/*.md",
+)
 
 
 @dataclass(frozen=True)

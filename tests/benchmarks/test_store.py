@@ -112,6 +112,7 @@ def test_changed_since_lists_the_measured_code_only(tmp_path):
     (repo / "src" / "m.py").write_text("a = 2\n")
     (repo / "benchmarks" / "results" / "x.json").write_text("{}\n")  # an output, not code
     (repo / "README.md").write_text("docs\n")  # not measured code
+    (repo / "benchmarks" / "README.md").write_text("how to run\n")  # prose, not code
     _git(repo, "add", ".")
     head = _git(repo, "-c", "user.email=t@t", "-c", "user.name=t", "commit", "-q", "-m", "b")
     assert changed_since(first, repo) == ["src/m.py"]
