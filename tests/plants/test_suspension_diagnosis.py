@@ -16,7 +16,7 @@ from maglevid.diagnose.history import open_history
 from maglevid.diagnose.pipeline import diagnose
 from maglevid.exceptions import DataError
 from maglevid.physics.suspension import SuspensionParameters
-from maglevid.plants.suspension import _mass_reading
+from maglevid.plants.suspension import _inconclusive, _mass_reading
 from maglevid.simulate.suspension import faulty_parameters, simulate_suspension
 
 NOMINAL = SuspensionParameters.nominal()
@@ -32,7 +32,9 @@ def _record(seed, faults=(), duration=18.0):
 def test_a_healthy_record_is_inconclusive_at_five_percent_and_says_how_long_to_record():
     d = diagnose(_record(91))
     assert d.verdict_code == "inconclusive", d.verdict
-    assert "would bring the intervals to ±5 %" in d.verdict
+    # an 18 s record: intervals of ±8-19 %, an estimate near ±5 % by chance; both lengths
+    assert "which decides a parameter that has not moved" in d.verdict
+    assert "the estimates as they stand would need about" in d.verdict
     assert all(q.passed for q in d.quality)  # no excitation r asked of this loop
     assert "estimates against the baseline" in d.summary()
     # a coarser question one record can answer
@@ -105,3 +107,47 @@ def test_bad_baselines_are_the_callers_errors():
     bare = type(bare)(y=bare.y, u=bare.u, dt=bare.dt, p=bare.p, loop={"physical": {"M": 0.54}})
     with pytest.raises(DataError, match="loop\\['design'\\]"):
         diagnose(bare)
+
+
+def _change(name, pct, se, tolerance=0.05, baseline_se=0.0):
+    """A change of ``pct`` percent whose 95 % interval is ``± 1.96 hypot(se, baseline_se)``
+    (relative to a baseline of 1)."""
+    half = 1.96 * (se**2 + baseline_se**2) ** 0.5
+    return ParameterChange(
+        name=name, estimate=1 + pct / 100, std_error=se, baseline=1.0,
+        baseline_std_error=baseline_se, change=pct / 100, change_percent=pct,
+        change_ci=(pct / 100 - half, pct / 100 + half), tolerance=tolerance,
+        statistically_significant=False, exceeds_tolerance=False,
+    )  # fmt: skip
+
+
+def test_the_inconclusive_advice_targets_the_distance_to_the_tolerance():
+    """An interval decides when it lies wholly inside or beyond the tolerance: the
+    half-width to reach is the estimate's distance from it (found from outside: a 240 s
+    healthy record at Q -1.5 % ± 3.9 % was advised 146 s, 0.61x itself). Analytic:
+    half-width 1.96 se must fall to d = | |c| - tol |, the variance as 1/length, so the
+    factor is (1.96 se / d)^2; with a baseline's share se_b (fixed), se^2 / ((d/1.96)^2
+    - se_b^2)."""
+    se = 0.039 / 1.96
+    text = _inconclusive([_change("Q", -1.5, se)], duration=240.0)
+    f = (0.039 / 0.035) ** 2  # 1.24: longer than the record, never shorter
+    assert f"about {f * 240:.3g} s of the same loop ({f:.2g}x this record)" in text
+    assert "Q -1.5 % (±3.9 %)" in text
+    # the nearer the estimate to the tolerance, the longer: +4.5 % ± 2 % needs ±0.5 %
+    text = _inconclusive([_change("eta", 4.5, 0.02 / 1.96)], duration=10.0)
+    assert f"about {(0.02 / 0.005) ** 2 * 10:.3g} s" in text
+    # the longest of several decides; a baseline share above the distance: no length
+    slow = _change("L", 1.0, 0.05 / 1.96, baseline_se=0.03)  # d/z = 0.0204 < se_b
+    text = _inconclusive([_change("Q", -1.5, se), slow], duration=240.0)
+    assert f"({f:.2g}x this record)" in text
+    assert "L: the baseline's own uncertainty exceeds" in text
+    # a short record's estimate near the boundary by chance (+5.3 % ± 12 %): deciding it
+    # where it stands needs (12 / 0.3)^2 = 1600x; every interval at ±2.5 % (which decides
+    # a parameter that has not moved) (12 / 2.5)^2 = 23x, said first
+    text = _inconclusive([_change("L_inf", 5.3, 0.12 / 1.96)], duration=18.0)
+    assert f"about {(12 / 2.5) ** 2 * 18:.3g} s of the same loop (23x this record)" in text
+    assert "to ±2.5 %, which decides a parameter that has not moved" in text
+    assert f"about {(12 / 0.3) ** 2 * 18:.3g} s (1.6e+03x: L_inf +5.3 % is the nearest" in text
+    # an estimate on the tolerance itself: no record decides it there
+    text = _inconclusive([_change("gap", 5.0, 0.01)], duration=240.0)
+    assert "gap: estimated at the tolerance itself" in text and "of the same loop" not in text

@@ -255,39 +255,84 @@ def _mass_reading(changes: list[Any]) -> tuple[str, str] | None:
 
 def _inconclusive(open_: list[Any], duration: float) -> str:
     """The verdict for changes whose interval crosses the tolerance, and the record length
-    that would bring each interval's half-width down to the tolerance (the estimate's
-    variance falls as 1/length; the baseline's does not)."""
-    words, factors, fixed = [], [], []
+    that would decide them.
+
+    An interval decides when it lies wholly inside ``± tol`` or wholly beyond it, so
+    the half-width that decides an estimate where it stands is its distance from the
+    boundary, ``d = | |c| - tol |`` (the bearing's rule, ``diagnose.resolve``), not the
+    tolerance (found from outside, twenty-eighth session: a 240 s healthy record at Q
+    -1.5 % ± 3.9 % was told that 146 s, "0.61x this record", would bring the intervals to
+    ±5 %; it needs ±3.5 %, ~300 s). On a short record an estimate lies near the boundary
+    by chance and that length is huge; the length that brings every interval to
+    ``± tol / 2`` is then said too: it decides a parameter that has not moved (its
+    estimate within its half-width of 0 at the intervals' level). The estimate's
+    variance falls as 1/length, the baseline's does not (no model-error term: the
+    suspension has no fault model)."""
+    words, fixed, at_edge = [], [], []
+    stand: list[tuple[float, Any]] = []  # (length factor, change) deciding c where it is
+    half_tol: list[float] = []  # length factors to ± tol / 2
     for ch in open_:
         b = abs(ch.baseline)
         half = 0.5 * (ch.change_ci[1] - ch.change_ci[0]) / b
         total = float(np.hypot(ch.std_error, ch.baseline_std_error)) / b
         z = half / total if total > 0 else 0.0
         words.append(f"{_word(ch.name)} {ch.change_percent:+.1f} % (±{100 * half:.2g} %)")
-        room = (ch.tolerance / z) ** 2 - (ch.baseline_std_error / b) ** 2 if z > 0 else -1.0
-        if room > 0 and ch.std_error > 0:
-            factors.append((ch.std_error / b) ** 2 / room)
-        else:
+        f_half = _length_factor(ch, 0.5 * ch.tolerance, z)
+        if f_half is not None:
+            half_tol.append(f_half)
+        d = abs(abs(ch.change_percent) / 100.0 - ch.tolerance)
+        if d <= 0.0:
+            at_edge.append(_word(ch.name))
+            continue
+        f = _length_factor(ch, d, z)
+        if f is None:
             fixed.append(_word(ch.name))
+        else:
+            stand.append((f, ch))
     tol = 100 * open_[0].tolerance
     advice = []
-    if factors:
-        f = max(factors)
-        advice.append(
-            f"about {f * duration:.3g} s of the same loop ({f:.2g}x this record) would "
-            f"bring the intervals to ±{tol:.3g} %"
-        )
+    if stand:
+        f, near = max(stand, key=lambda t: t[0])
+        h = max(half_tol) if half_tol else 0.0
+        if 1.0 < h < f:
+            advice.append(
+                f"about {h * duration:.3g} s of the same loop ({h:.2g}x this record) would "
+                f"bring every interval to ±{tol / 2:.3g} %, which decides a parameter that "
+                f"has not moved; the estimates as they stand would need about "
+                f"{f * duration:.3g} s ({f:.2g}x: {_word(near.name)} "
+                f"{near.change_percent:+.1f} % is the nearest to ±{tol:.3g} %)"
+            )
+        else:
+            advice.append(
+                f"about {f * duration:.3g} s of the same loop ({f:.2g}x this record) would "
+                f"decide them, if the estimates stay where they are (each interval wholly "
+                f"inside or beyond ±{tol:.3g} %)"
+            )
     if fixed:
         advice.append(
-            f"{', '.join(fixed)}: the baseline's own uncertainty exceeds the tolerance "
-            "whatever this record's length (a longer baseline record would decide)"
+            f"{', '.join(fixed)}: the baseline's own uncertainty exceeds the estimate's "
+            "distance from the tolerance whatever this record's length (a longer baseline "
+            "record would decide)"
         )
+    if at_edge:
+        advice.append(f"{', '.join(at_edge)}: estimated at the tolerance itself")
     return (
         f"Inconclusive: the record cannot tell whether these moved beyond ±{tol:.3g} %: "
         + ", ".join(words)
         + "; "
         + "; ".join(advice)
     )
+
+
+def _length_factor(ch: Any, target: float, z: float) -> float | None:
+    """Times this record's length that brings ``ch``'s interval half-width (relative) to
+    ``target`` (``z`` its multiple of the standard error); None where the baseline's own
+    share alone is wider."""
+    b = abs(ch.baseline)
+    room = (target / z) ** 2 - (ch.baseline_std_error / b) ** 2 if z > 0 else -1.0
+    if room > 0 and ch.std_error > 0:
+        return float((ch.std_error / b) ** 2 / room)
+    return None
 
 
 def _word(name: str) -> str:
