@@ -227,6 +227,40 @@ def test_history_baseline_compares_the_coil_circuit_and_names_a_driver_fault(tmp
     assert iso.best.values[0] == pytest.approx(0.8, abs=max(4 * iso.best.std_errors[0], 0.03))
 
 
+def test_history_with_the_driver_offset_judges_the_command_level(tmp_path):
+    # The levitator consensus (the default method) stores the driver's offset v0 = ku u
+    # - R i with its command-frame fit, so a later record's command level is compared
+    # with the history's: a v0 x1.2 twin is named against its healthy predecessor (it
+    # read "not judged" against any history until the twenty-eighth session). One
+    # candidate grey box keeps it fast; the consensus' other candidates change nothing
+    # here (the command level is static).
+    from maglevid.diagnose.history import open_history
+
+    store = open_history(tmp_path / "h.sqlite")
+    opts = {"flux_lag": [False], "command_delay": [False], "disturbance": ["white"]}
+    kw = {"method": "levitator", "method_options": opts, "baseline": "history",
+          "machine": "lev1", "history": store}  # fmt: skip
+    first = diagnose(_twin(UAQ_TWIN), recorded_at="2026-01-01T00:00:00+00:00", **kw)
+    v0 = first.identification.parameters["v0"]
+    ku = first.identification.parameters["ku"]
+    # v0 / ku (what the command level compares) within 5 % of the twin's
+    assert v0 / ku == pytest.approx(UAQ_TWIN.v0 / UAQ_TWIN.ku, rel=0.05)
+    # a healthy record against it: the command level agrees
+    d = diagnose(_twin(UAQ_TWIN, seed=5), recorded_at="2026-02-01T00:00:00+00:00", **kw)
+    assert d.verdict_code in ("no_change", "within_tolerance"), d.verdict
+    assert len(d.isolation.observations.commands) == 2
+    # the driver's offset up 20 % against the latest (healthy) record
+    d = diagnose(
+        _twin(replace(UAQ_TWIN, v0=1.2 * UAQ_TWIN.v0), seed=4),
+        recorded_at="2026-03-01T00:00:00+00:00", **kw,
+    )  # fmt: skip
+    iso = d.isolation
+    assert d.baseline["source"].startswith("earlier identification")
+    assert len(iso.observations.commands) == 2 and not dict(iso.not_tested)
+    assert iso.best.parameters == ("v0",), d.verdict
+    assert iso.best.values[0] == pytest.approx(1.2, abs=max(4 * iso.best.std_errors[0], 0.036))
+
+
 def test_every_pair_that_can_tie_has_advice():
     """A tie names what would separate it, whichever two causes tie: a k x0.85 twin tied
     k with "gap_offset +0.82 mm" and the advice covered only k, m and the current sensor

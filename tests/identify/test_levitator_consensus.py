@@ -314,3 +314,37 @@ def test_the_coil_circuit_falls_back_to_a_sound_candidate():
     assert out["chosen"] is True and out["values"][0] == 9.3 and not out["notes"]
     out = _coil_circuit(None, [], _rows(2), [bad, bad], [0, 1], {})
     assert out["model"] is None and "not determined by this record" in out["why"]
+
+
+def test_the_driver_offset_is_the_command_level_less_the_coil_drop():
+    """``v0 = ku u - R i`` at rest (eq. (E1)) from a command-frame fit's ``R`` and ``ku`` and
+    the segments' mean command and current (averaged over the segments), its variance
+    ``g' C g`` with ``g = d v0 / d(R, ku) = (-i, u)`` and its covariances ``C g``; a fit
+    without ``R`` and ``ku`` (the current frame) is returned as it was. Analytic values."""
+    from maglevid.identify.levitator import _with_driver_offset
+
+    n = 400
+    u = np.r_[np.full(200, 6.0), np.full(200, 7.0)]  # two segments: means 6 and 7 V
+    i = np.r_[np.full(200, 0.40), np.full(200, 0.50)]
+    data = ClosedLoopData(y=np.column_stack([np.full(n, 5e-3), i]), u=u, dt=0.01)
+    cov = np.array([[4e-4, 1e-5, 2e-5], [1e-5, 9e-2, 3e-2], [2e-5, 3e-2, 4e-2]])
+    res = IdentificationResult(
+        method="levitator", model=None, parameters={"a": 5e-3, "R": 3.0, "ku": 0.5},
+        covariance=cov, extras={"units": {"R": "Ω"}},
+    )  # fmt: skip
+    out = _with_driver_offset(res, data, [(0, 200), (200, 400)], "u:0", "y:1")
+    assert list(out.parameters) == ["a", "R", "ku", "v0"]
+    assert out.parameters["v0"] == pytest.approx(0.5 * 6.5 - 3.0 * 0.45)  # 1.9 V
+    g = np.array([0.0, -0.45, 6.5])
+    C = out.covariance
+    np.testing.assert_allclose(C[:3, :3], cov)
+    np.testing.assert_allclose(C[3, :3], cov @ g)
+    np.testing.assert_allclose(C[:3, 3], cov @ g)
+    assert C[3, 3] == pytest.approx(g @ cov @ g)
+    assert out.extras["units"] == {"R": "Ω", "v0": "V"}
+    assert any(n.startswith("driver offset v0 = ku u - R i = 1.9 V") for n in out.notes)
+    # the current frame fits no coil circuit: nothing to add
+    bare = IdentificationResult(
+        method="levitator", model=None, parameters={"a": 5e-3}, covariance=cov[:1, :1]
+    )
+    assert _with_driver_offset(bare, data, [(0, 400)], "u:0", "y:1") is bare

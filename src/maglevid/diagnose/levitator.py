@@ -864,7 +864,8 @@ def _why_blind(name: str, obs: LevitatorObservations) -> str:
         return (
             "only the command's level at equilibrium depends on it, and it was not compared: "
             "the baseline states no driver offset (published physics without v0, or an "
-            "earlier identification, which does not estimate it)"
+            "earlier identification stored without it: in the current frame, or before "
+            "maglevid estimated it)"
         )
     return "no compared quantity depends on it"
 
@@ -1011,7 +1012,9 @@ def levitator_observations(
 
 def levitator_parameters_of(values: Mapping[str, Any], m: float) -> Any:
     """A baseline :class:`LevitatorParameters` from stored estimates (``a``, ``k``, ``k0``,
-    ``R``, ``ku``; values or ``(value, se)``), or ``None`` when one is missing."""
+    ``R``, ``ku``, and the driver's offset ``v0`` where stored; values or ``(value,
+    se)``), or ``None`` when one of the five is missing. Whether ``v0`` was stored:
+    :func:`history_states_offset`."""
     from maglevid.physics.levitator import LevitatorParameters
 
     def val(k: str) -> float | None:
@@ -1023,7 +1026,19 @@ def levitator_parameters_of(values: Mapping[str, Any], m: float) -> Any:
     got = {k: val(k) for k in ("a", "k", "k0", "R", "ku")}
     if any(v is None or not np.isfinite(v) or v <= 0 for v in got.values()):
         return None
+    if history_states_offset(values):
+        got["v0"] = val("v0")
     return LevitatorParameters(m=m, **got)  # type: ignore[arg-type]
+
+
+def history_states_offset(values: Mapping[str, Any]) -> bool:
+    """Whether stored estimates hold the driver's offset ``v0`` (a command-frame fit's,
+    ``identify.levitator``; then the command's level is compared with the history's)."""
+    v = values.get("v0")
+    if v is None:
+        return False
+    x = float(getattr(v, "value", v[0] if isinstance(v, (tuple, list)) else v))
+    return bool(np.isfinite(x))
 
 
 def baseline_states_offset(data: ClosedLoopData) -> bool:

@@ -238,6 +238,7 @@ _LAW_PARAMETERS = {
 UNITS = {
     "a": "m", "k": "H", "Km": "mⁿ·A⁻²·s⁻²", "i_m": "A", "tau": "s", "k0": "H", "R": "Ω",
     "ku": "V·V⁻¹", "delay": "s", "pole_rad_s": "s⁻¹", "current_gain": "m·s⁻²·A⁻¹", "i0": "A",
+    "v0": "V",
 }  # fmt: skip
 
 

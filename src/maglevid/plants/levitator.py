@@ -168,7 +168,11 @@ class LevitatorStages:
         changes = compare_parameters(
             estimates, values, tolerances=run.tolerances, level=run.level, joint=True
         )
-        offset = params is published and lev.baseline_states_offset(data)
+        offset = (
+            lev.baseline_states_offset(data)
+            if params is published
+            else params is not None and lev.history_states_offset(run.base)
+        )
         run.compared = _Compared(changes, values, source, y_ref, params, driver, offset)
         return None
 
