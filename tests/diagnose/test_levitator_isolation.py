@@ -245,6 +245,12 @@ def test_history_with_the_driver_offset_judges_the_command_level(tmp_path):
     ku = first.identification.parameters["ku"]
     # v0 / ku (what the command level compares) within 5 % of the twin's
     assert v0 / ku == pytest.approx(UAQ_TWIN.v0 / UAQ_TWIN.ku, rel=0.05)
+    # stored with their units (the history's levitator rows had none but i0's: found
+    # from outside, twenty-eighth session)
+    stored = store.latest_estimates("lev1")
+    assert {k: stored[k].unit for k in ("R", "ku", "k0", "v0", "i0")} == {
+        "R": "Ω", "ku": "V·V⁻¹", "k0": "H", "v0": "V", "i0": "A"
+    }  # fmt: skip
     # a healthy record against it: the command level agrees
     d = diagnose(_twin(UAQ_TWIN, seed=5), recorded_at="2026-02-01T00:00:00+00:00", **kw)
     assert d.verdict_code in ("no_change", "within_tolerance"), d.verdict

@@ -216,7 +216,8 @@ def format_text(result: dict[str, Any]) -> str:
             lines.append(f"  {m['name']:<24} {m['n_diagnoses']:>9}  {first:<19}  {last}")
         return "\n".join(lines)
     lines = [
-        f"machine {result['machine']}  ({result['n_diagnoses']} diagnoses; store "
+        f"machine {result['machine']}  ({result['n_diagnoses']} "
+        f"{'diagnosis' if result['n_diagnoses'] == 1 else 'diagnoses'}; store "
         f"{result['store']})",
         "",
         f"{'parameter':<10} {'unit':<12} {'latest':>22} {'change':>9}  "

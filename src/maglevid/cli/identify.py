@@ -321,21 +321,12 @@ def _run_one(path: str, args: argparse.Namespace) -> dict[str, Any]:
 
 
 def _units(kind: str, result: Any) -> dict[str, str]:
-    """SI unit of each parameter of ``result`` that has one: the plant kind's own table
-    (``PlantKind.parameters``), the method's (``extras["units"]``: the levitator's ``R``,
-    ``ku``, ``k0``, ``tau`` had none), else :func:`maglevid.physics.units.parameter_unit`
-    (the text table had no unit column: found from outside, issue 16, fourteenth session)."""
-    from maglevid.physics.units import parameter_unit
-    from maglevid.plants.base import KINDS
+    """SI unit of each parameter of ``result`` that has one
+    (:func:`maglevid.plants.base.parameter_units`; the text table had no unit column:
+    found from outside, issue 16, fourteenth session)."""
+    from maglevid.plants.base import parameter_units
 
-    stated = getattr(KINDS.get(kind), "parameters", None) or {}
-    own = (result.extras or {}).get("units") or {}
-    out = {}
-    for k in result.parameters:
-        unit = stated.get(k) or own.get(k) or parameter_unit(k)
-        if unit:
-            out[k] = unit
-    return out
+    return parameter_units(kind, result)
 
 
 def _result_warnings(result: Any, kind: str) -> list[str]:

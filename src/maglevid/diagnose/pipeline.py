@@ -37,9 +37,8 @@ from maglevid.diagnose.compare import DEFAULT_TOLERANCE
 from maglevid.diagnose.diagnosis import Diagnosis
 from maglevid.exceptions import DataError, MaglevidError
 from maglevid.jsonable import to_json_nulls
-from maglevid.physics.units import parameter_unit
 from maglevid.plants import DIAGNOSED_PARAMETERS, DiagnosisRun, DiagnosisStages, kind_of
-from maglevid.plants.base import cannot_diagnose
+from maglevid.plants.base import cannot_diagnose, parameter_units
 
 if TYPE_CHECKING:  # the annotation of `baseline` (what a two-coil AMB's stages accept)
     from maglevid.physics.amb import AMBParameters
@@ -327,6 +326,7 @@ def _record(
     base = diag.baseline.get("parameters", {}) if diag.baseline else {}
     if diag.identification is not None:
         cis = diag.identification.confidence_intervals()
+        units = parameter_units(diag.plant_kind, diag.identification)
         for k, (v, se) in diag.estimates().items():
             if not np.isfinite(v):
                 continue
@@ -336,7 +336,7 @@ def _record(
                 se if np.isfinite(se) else None,
                 cis[k][0] if np.isfinite(cis[k][0]) else None,
                 cis[k][1] if np.isfinite(cis[k][1]) else None,
-                parameter_unit(k),
+                units.get(k),
                 None if b is None else float(b[0]),
             )
     summary = diag.to_dict()

@@ -43,6 +43,7 @@ __all__ = [
     "kind_of",
     "kinds_in_order",
     "moved_in_words",
+    "parameter_units",
     "register_kind",
     "shape_of",
     "verdict_without_isolation",
@@ -266,6 +267,25 @@ def moved_in_words(changes: list[Any]) -> str:
         for ch in changes
         if ch.statistically_significant
     )
+
+
+def parameter_units(kind: str | None, result: Any) -> dict[str, str]:
+    """SI unit of each parameter of an identification ``result`` that has one: the plant
+    kind's own table (``PlantKind.parameters``), the method's (``extras["units"]``: the
+    levitator's ``R``, ``ku``, ``k0``, ``v0``), else
+    :func:`maglevid.physics.units.parameter_unit`. What ``maglevid identify`` prints
+    and what a diagnosis stores in the history (whose levitator rows had no unit but
+    ``i0``'s: found from outside, twenty-eighth session)."""
+    from maglevid.physics.units import parameter_unit
+
+    stated = getattr(KINDS.get(kind or ""), "parameters", None) or {}
+    own = (getattr(result, "extras", None) or {}).get("units") or {}
+    out = {}
+    for k in result.parameters:
+        unit = stated.get(k) or own.get(k) or parameter_unit(k)
+        if unit:
+            out[k] = unit
+    return out
 
 
 def register_kind(kind: PlantKind, *, replace: bool = False) -> PlantKind:
