@@ -208,28 +208,45 @@ def test_history_baseline_compares_the_coil_circuit_and_names_a_driver_fault(tmp
     # Against an earlier identification of the same rig (history), the baseline holds R,
     # ku, k0, a, k, so the coil circuit R/L, ku/L is compared: a driver gain down 20 %
     # (nothing else) must be named, R must not.
+    import sqlite3
+
     from maglevid.diagnose.history import open_history
 
     store = open_history(tmp_path / "h.sqlite")
     kw = {"method": "greybox-levitator", "method_options": {"model": "electromechanical"},
-          "baseline": "history", "machine": "lev1", "history": store}  # fmt: skip
-    diagnose(_twin(UAQ_TWIN), recorded_at="2026-01-01T00:00:00+00:00", **kw)
-    d = diagnose(
-        _twin(replace(UAQ_TWIN, ku=0.8 * UAQ_TWIN.ku), seed=4),
-        recorded_at="2026-02-01T00:00:00+00:00", **kw,
-    )  # fmt: skip
-    assert d.baseline["source"].startswith("earlier identification")
-    iso = d.isolation
-    # an earlier identification does not estimate the driver's offset: v0 alone is unjudged
-    assert iso.observations.electrical is not None and set(dict(iso.not_tested)) == {"v0"}
-    assert iso.best.parameters == ("ku",), d.verdict
-    assert d.verdict_code == "fault" and "driver" in d.verdict
-    assert iso.best.values[0] == pytest.approx(0.8, abs=max(4 * iso.best.std_errors[0], 0.03))
+          "baseline": "history", "machine": "lev1"}  # fmt: skip
+    diagnose(_twin(UAQ_TWIN), recorded_at="2026-01-01T00:00:00+00:00", history=store, **kw)
+    # a copy of the history as written before the driver's offset was stored
+    old = tmp_path / "old.sqlite"
+    src, dst = sqlite3.connect(tmp_path / "h.sqlite"), sqlite3.connect(old)
+    try:
+        src.backup(dst)  # (the store's write-ahead log included)
+        dst.execute("DELETE FROM estimates WHERE parameter = 'v0'")
+        dst.commit()
+    finally:
+        src.close()
+        dst.close()
+    faulty = _twin(replace(UAQ_TWIN, ku=0.8 * UAQ_TWIN.ku), seed=4)
+    for path, blind in (("h.sqlite", set()), ("old.sqlite", {"v0"})):
+        d = diagnose(faulty, recorded_at="2026-02-01T00:00:00+00:00",
+                     history=open_history(tmp_path / path), **kw)  # fmt: skip
+        assert d.baseline["source"].startswith("earlier identification")
+        iso = d.isolation
+        # the grey box stores v0 = ku u - R i: the command level is compared; a history
+        # without it leaves v0 alone unjudged, and says so
+        assert iso.observations.electrical is not None and set(dict(iso.not_tested)) == blind
+        assert len(iso.observations.commands) == (0 if blind else 2)
+        assert iso.best.parameters == ("ku",), d.verdict
+        assert d.verdict_code == "fault" and "driver" in d.verdict
+        tol = max(4 * iso.best.std_errors[0], 0.03)
+        assert iso.best.values[0] == pytest.approx(0.8, abs=tol)
+    assert any(r.startswith("the driver's voltage offset v0: not judged") for r in d.reasons)
 
 
 def test_history_with_the_driver_offset_judges_the_command_level(tmp_path):
     # The levitator consensus (the default method) stores the driver's offset v0 = ku u
-    # - R i with its command-frame fit, so a later record's command level is compared
+    # - R i with its command-frame fit (recomputed after the consensus widens R's and
+    # ku's intervals), so a later record's command level is compared
     # with the history's: a v0 x1.2 twin is named against its healthy predecessor (it
     # read "not judged" against any history until the twenty-eighth session). One
     # candidate grey box keeps it fast; the consensus' other candidates change nothing

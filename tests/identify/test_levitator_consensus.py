@@ -321,7 +321,7 @@ def test_the_driver_offset_is_the_command_level_less_the_coil_drop():
     the segments' mean command and current (averaged over the segments), its variance
     ``g' C g`` with ``g = d v0 / d(R, ku) = (-i, u)`` and its covariances ``C g``; a fit
     without ``R`` and ``ku`` (the current frame) is returned as it was. Analytic values."""
-    from maglevid.identify.levitator import _with_driver_offset
+    from maglevid.identify.greybox import with_driver_offset
 
     n = 400
     u = np.r_[np.full(200, 6.0), np.full(200, 7.0)]  # two segments: means 6 and 7 V
@@ -332,7 +332,7 @@ def test_the_driver_offset_is_the_command_level_less_the_coil_drop():
         method="levitator", model=None, parameters={"a": 5e-3, "R": 3.0, "ku": 0.5},
         covariance=cov, extras={"units": {"R": "Ω"}},
     )  # fmt: skip
-    out = _with_driver_offset(res, data, [(0, 200), (200, 400)], "u:0", "y:1")
+    out = with_driver_offset(res, data, [(0, 200), (200, 400)], "u:0", "y:1")
     assert list(out.parameters) == ["a", "R", "ku", "v0"]
     assert out.parameters["v0"] == pytest.approx(0.5 * 6.5 - 3.0 * 0.45)  # 1.9 V
     g = np.array([0.0, -0.45, 6.5])
@@ -343,8 +343,20 @@ def test_the_driver_offset_is_the_command_level_less_the_coil_drop():
     assert C[3, 3] == pytest.approx(g @ cov @ g)
     assert out.extras["units"] == {"R": "Ω", "v0": "V"}
     assert any(n.startswith("driver offset v0 = ku u - R i = 1.9 V") for n in out.notes)
+    # recomputed where present (the consensus widens R's and ku's intervals after the
+    # grey box added v0): one v0, its row from the new covariance, one note
+    wide = out.covariance.copy()
+    wide[:3, :3] = 4.0 * cov
+    again = with_driver_offset(
+        IdentificationResult(method="levitator", model=None, parameters=out.parameters,
+                             covariance=wide, notes=out.notes, extras=out.extras),
+        data, [(0, 200), (200, 400)], "u:0", "y:1",
+    )  # fmt: skip
+    assert list(again.parameters) == ["a", "R", "ku", "v0"]
+    assert again.covariance[3, 3] == pytest.approx(4.0 * (g @ cov @ g))
+    assert sum(n.startswith("driver offset v0") for n in again.notes) == 1
     # the current frame fits no coil circuit: nothing to add
     bare = IdentificationResult(
         method="levitator", model=None, parameters={"a": 5e-3}, covariance=cov[:1, :1]
     )
-    assert _with_driver_offset(bare, data, [(0, 400)], "u:0", "y:1") is bare
+    assert with_driver_offset(bare, data, [(0, 400)], "u:0", "y:1") is bare

@@ -41,6 +41,7 @@ from __future__ import annotations
 import itertools
 import logging
 from collections.abc import Sequence
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -74,6 +75,7 @@ __all__ = [
     "solve_filter_riccati",
     "validate_greybox",
     "voltage_noise_share",
+    "with_driver_offset",
 ]
 
 log = logging.getLogger(__name__)
@@ -672,7 +674,7 @@ def fit_greybox_levitator(
          "initial": p0.to_dict()}
     )  # fmt: skip
     cont, disc = _state_spaces(gm, theta)
-    return IdentificationResult(
+    res = IdentificationResult(
         method="greybox-levitator",
         model=disc,
         parameters=params,
@@ -687,6 +689,61 @@ def fit_greybox_levitator(
         extras={**_fit_extras(gm, theta, verdict),
                 "units": {k: UNITS[k] for k in params if k in UNITS}},
     )  # fmt: skip
+    if opts["model"] == "electromechanical":
+        res = with_driver_offset(res, data, [tuple(s) for s in segs], command, current)
+    return res
+
+
+def with_driver_offset(
+    res: IdentificationResult,
+    data: ClosedLoopData,
+    segs: list[tuple[int, int]],
+    command: str,
+    current: str,
+) -> IdentificationResult:
+    """The driver's offset ``v0 = ku u - R i`` at rest (eq. (E1); the segments' mean
+    command and current, averaged over the segments) added to a command-frame fit's
+    parameters, its variance and covariances from ``R``'s and ``ku``'s (the means' own
+    noise is ~1e-3 of theirs and left out). The grey box linearises (E1) and does not
+    fit ``v0``; stored in a history it lets a later record's command level be judged
+    against this one (docs/diagnosis.md section 5: a driver-offset drift was "not
+    judged" against a history, twenty-eighth session); a ``v0`` already there is
+    recomputed (the consensus widens ``R``'s and ``ku``'s intervals). ``R``, ``ku`` and so ``v0``
+    share the coil inductance's scale, which the record fixes poorly (their intervals
+    are wide); ``v0 / ku = u - (R / ku) i``, what the diagnosis compares, is not."""
+    names = [k for k in res.parameters if k != "v0"]  # recomputed where present
+    if not {"R", "ku"} <= set(names) or res.covariance is None or not segs:
+        return res
+    keep = [j for j, k in enumerate(res.parameters) if k != "v0"]
+    u = resolve_channel(data, command).values
+    i = resolve_channel(data, current).values
+    ubar = float(np.mean([u[a:b].mean() for a, b in segs]))
+    ibar = float(np.mean([i[a:b].mean() for a, b in segs]))
+    R, ku = float(res.parameters["R"]), float(res.parameters["ku"])
+    g = np.zeros(len(names))
+    g[names.index("ku")], g[names.index("R")] = ubar, -ibar
+    cov = np.asarray(res.covariance, dtype=float)[np.ix_(keep, keep)]
+    with np.errstate(invalid="ignore", over="ignore"):  # a fit's non-finite entries: NaN
+        c = cov @ g
+    out = np.zeros((len(names) + 1, len(names) + 1))
+    with np.errstate(invalid="ignore", over="ignore"):
+        out[:-1, :-1], out[:-1, -1], out[-1, :-1], out[-1, -1] = cov, c, c, float(g @ c)
+    v0 = ku * ubar - R * ibar
+    note = (
+        f"driver offset v0 = ku u - R i = {v0:.4g} V at rest (eq. (E1); mean command "
+        f"{ubar:.4g} V, mean current {ibar:.4g} A over the segments; its interval is R's "
+        "and ku's, whose common scale the coil inductance sets)"
+    )
+    units = {**res.extras.get("units", {}), "v0": "V"}
+    params = {k: res.parameters[k] for k in names}
+    notes = tuple(n for n in res.notes if not n.startswith("driver offset v0 = "))
+    return replace(
+        res,
+        parameters={**params, "v0": v0},
+        covariance=out,
+        notes=(*notes, note),
+        extras={**res.extras, "units": units},
+    )
 
 
 def _physical_result(

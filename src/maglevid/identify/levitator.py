@@ -56,6 +56,7 @@ from maglevid.identify.greybox import (
     fit_greybox_levitator,
     validate_greybox,
     voltage_noise_share,
+    with_driver_offset,
 )
 from maglevid.identify.options import Option
 from maglevid.identify.result import IdentificationResult
@@ -613,7 +614,8 @@ def _fit_sessions(
         workers,
     )
     if frame == "command":
-        res = _with_driver_offset(res, pooled, pooled_segs, command, current)
+        # the consensus widened R's and ku's intervals (the hull): v0's again
+        res = with_driver_offset(res, pooled, pooled_segs, command, current)
     notes = [FRAME_NOTES[frame]]
     if quiet:
         notes.append(
@@ -626,54 +628,6 @@ def _fit_sessions(
         )
     return replace(
         res, notes=(*notes, *res.notes), extras={**res.extras, "noise_only_sessions": quiet}
-    )
-
-
-def _with_driver_offset(
-    res: IdentificationResult,
-    data: ClosedLoopData,
-    segs: list[tuple[int, int]],
-    command: str,
-    current: str,
-) -> IdentificationResult:
-    """The driver's offset ``v0 = ku u - R i`` at rest (eq. (E1); the segments' mean
-    command and current, averaged over the segments) added to a command-frame fit's
-    parameters, its variance and covariances from ``R``'s and ``ku``'s (the means' own
-    noise is ~1e-3 of theirs and left out). The grey box linearises (E1) and does not
-    fit ``v0``; stored in a history it lets a later record's command level be judged
-    against this one (docs/diagnosis.md section 5: a driver-offset drift was "not
-    judged" against a history, twenty-eighth session). ``R``, ``ku`` and so ``v0``
-    share the coil inductance's scale, which the record fixes poorly (their intervals
-    are wide); ``v0 / ku = u - (R / ku) i``, what the diagnosis compares, is not."""
-    from maglevid.identify.closedloop import resolve_channel
-
-    names = list(res.parameters)
-    if not {"R", "ku"} <= set(names) or res.covariance is None or not segs:
-        return res
-    u = resolve_channel(data, command).values
-    i = resolve_channel(data, current).values
-    ubar = float(np.mean([u[a:b].mean() for a, b in segs]))
-    ibar = float(np.mean([i[a:b].mean() for a, b in segs]))
-    R, ku = float(res.parameters["R"]), float(res.parameters["ku"])
-    g = np.zeros(len(names))
-    g[names.index("ku")], g[names.index("R")] = ubar, -ibar
-    cov = np.asarray(res.covariance, dtype=float)
-    c = cov @ g
-    out = np.zeros((len(names) + 1, len(names) + 1))
-    out[:-1, :-1], out[:-1, -1], out[-1, :-1], out[-1, -1] = cov, c, c, float(g @ c)
-    v0 = ku * ubar - R * ibar
-    note = (
-        f"driver offset v0 = ku u - R i = {v0:.4g} V at rest (eq. (E1); mean command "
-        f"{ubar:.4g} V, mean current {ibar:.4g} A over the segments; its interval is R's "
-        "and ku's, whose common scale the coil inductance sets)"
-    )
-    units = {**res.extras.get("units", {}), "v0": "V"}
-    return replace(
-        res,
-        parameters={**res.parameters, "v0": v0},
-        covariance=out,
-        notes=(*res.notes, note),
-        extras={**res.extras, "units": units},
     )
 
 
