@@ -73,7 +73,9 @@ def test_a_dither_only_rig_log_is_diagnosed_without_a_baseline():
     truth = log.metadata["truth_pole_rad_s"]  # sqrt(2 g/(a + y0)) at the mean gap
     lo, hi = d.identification.extras["consensus"]["ci95"]
     assert lo < truth < hi
-    assert d.verdict_code == "no_change" and d.baseline["source"] == "none"
+    # compared with nothing: identified, never a green "no change" (twenty-eighth session)
+    assert d.verdict_code == "cannot_diagnose" and d.baseline["source"] == "none"
+    assert d.verdict == "Cannot diagnose: no baseline (identified, not compared)"
     assert "nothing to compare with" in d.reasons[0]
 
 

@@ -87,7 +87,18 @@ def test_a_changed_q_is_also_read_as_a_heavier_body():
 def test_a_machines_history_is_its_baseline(tmp_path):
     store = open_history(tmp_path / "s.db")
     first = diagnose(_record(81), baseline="history", history=store, machine="S1")
-    assert first.verdict.startswith("No baseline")
+    # the machine's first record: compared with the design it states, as the bearing's
+    # (it read "No baseline: identified, not compared", a green "no change" in a fleet)
+    assert first.baseline["source"] == "design (no history yet)"
+    assert any(n.startswith("no earlier diagnosis of 'S1' in the history") for n in first.notes)
+    assert first.verdict_code == "inconclusive", first.verdict
+    # with neither a design nor a history: identified, compared with nothing, never green
+    rec = _record(83)
+    bare = type(rec)(y=rec.y, u=rec.u, dt=rec.dt, p=rec.p, loop={"physical": {"M": 0.54}})
+    d = diagnose(bare, baseline="history", history=store, machine="S2")
+    assert d.verdict_code == "cannot_diagnose"
+    assert d.verdict.startswith("Cannot diagnose: no baseline (identified, not compared)")
+    assert "the history's first entry" in d.verdict
     second = diagnose(_record(82), baseline="history", history=store, machine="S1")
     assert second.baseline["source"] == "earlier identification (history)"
     assert second.verdict_code == "inconclusive"

@@ -183,15 +183,24 @@ KINDS: dict[str, PlantKind] = {}
 
 
 def identified_not_compared(run: DiagnosisRun, reasons: list[str]) -> Diagnosis:
-    """The verdict of a first record with no baseline (no stated design, no history):
+    """The verdict of a record with no baseline (no stated design, no history):
     identified with its intervals (``reasons``), nothing compared; stored, it is the
-    next record's baseline."""
+    next record's baseline. "Cannot diagnose", never a green "no change": as the
+    bearing's (``plants.amb``, fourteenth session of issue 16); found from outside,
+    twenty-eighth session: a fleet listed such a suspension "ok" and ``--fail-on-fault``
+    passed it, having compared nothing."""
     from maglevid.diagnose.diagnosis import Diagnosis
 
     res = run.result
+    stored = (
+        "; stored, it is the history's first entry: later records are compared with it, "
+        "so it should be one of a machine known to be healthy"
+        if run.store is not None
+        else ""
+    )
     return Diagnosis(
-        verdict="No baseline: identified, not compared",
-        verdict_code="no_change",
+        verdict=f"Cannot diagnose: no baseline (identified, not compared){stored}",
+        verdict_code="cannot_diagnose",
         reasons=tuple(reasons),
         identification=res,
         quality=run.quality,

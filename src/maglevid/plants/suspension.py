@@ -157,7 +157,15 @@ class SuspensionStages:
             except MaglevidError:  # a machine not in the store yet: its first record
                 stored = {}
             values = {k: (e.value, e.std_error or 0.0) for k, e in stored.items() if k in COMPARED}
-            run.base = _Base(values, "earlier identification (history)" if values else "")
+            design = as_mapping(run.data.loop).get("design")
+            if not values and design:  # the machine's first record: its design (as the AMB)
+                run.notes.append(
+                    f"no earlier diagnosis of {run.machine!r} in the history: compared with "
+                    "the design (loop['design'] in the recording)"
+                )
+                run.base = _Base(_given(design), "design (no history yet)")
+            else:
+                run.base = _Base(values, "earlier identification (history)" if values else "")
         else:
             raise DataError(
                 "`baseline` must be 'nominal', 'history' or a mapping of the suspension's "
