@@ -736,12 +736,17 @@ def _time_checks(
         judge.add(target, text, all(ok for _, ok in checks[key]))
 
 
+def _mc_point(mc: list[dict[str, Any]] | None, case: str, n: int) -> dict[str, Any] | None:
+    """The Monte Carlo point of ``(case, n)``, None where it did not run."""
+    return next((p for p in mc or [] if (p["case"], p["N"]) == (case, n)), None)
+
+
 def _mc_time_spread(
     mc: list[dict[str, Any]] | None, case: str, n: int, method: str | None
 ) -> tuple[int, dict[str, float]] | None:
     """``(records, spread)`` of ``method``'s per-record time over MOESP's in the Monte
     Carlo point ``(case, n)``, None where it did not time them."""
-    point = next((p for p in mc or [] if (p["case"], p["N"]) == (case, n)), None)
+    point = _mc_point(mc, case, n)
     if point is None or method is None:
         return None
     sp = (point["methods"].get(method) or {}).get("moesp_ratio")
@@ -771,7 +776,7 @@ def _v_checks(
         one = None
         if best is not None and best.get("v_error") is not None:
             one = r["v_error"] / best["v_error"]
-        point = next((p for p in mc or [] if (p["case"], p["N"]) == (r["case"], r["N"])), None)
+        point = _mc_point(mc, r["case"], r["N"])
         ratio = None if point is None or method is None else _ratio_to_ml(point, method)
         if ratio is not None:
             also = "" if one is None else f"; the timed record {one:.2g}x"
