@@ -539,7 +539,7 @@ def test_structured_jacobian_equals_central_differences(monkeypatch):
     seen = {}
 
     def spy(crit, p, W, j, max_iter, tol, final=False):
-        dV = crit.blocks(p.theta)[1].transpose(1, 0, 2, 3).reshape(p.theta.size, -1)
+        dV = crit.blocks(p.theta)[1].transpose(3, 0, 1, 2).reshape(p.theta.size, -1)
         d = np.linalg.norm(dV, axis=1)
         err = np.empty(p.theta.size)
         for i in range(p.theta.size):

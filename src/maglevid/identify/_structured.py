@@ -199,52 +199,56 @@ def _model(theta: np.ndarray, v0: np.ndarray, dt: float, sy: np.ndarray, su: np.
 
 
 def _predictor_blocks(Abar, Btil, dAbar, dBtil, Cs, P, out=None, work=None):  # type: ignore[no-untyped-def]
-    """``V`` (P, ny, m) and ``dV`` (P, n_th, ny, m), block-major, oldest block first.
+    """``V`` (P, ny, m) and ``dV`` (P, ny, m, n_th), block-major, oldest block first.
 
     Block ``c`` is ``Xi_{P-c} = C M_{P-c}``; block-major because the Gram operator
-    transforms along the blocks (``GramOperator.encode_blocks``). ``out``: an array
-    (P, n_th, ny, m) ``dV`` is written into (and returned); ``work``: the buffers
-    :func:`_doubling_buffers` makes, reused from call to call (fresh MB-sized arrays
-    are faulted in again at every call: docs/subspace.md, "eighth session").
+    transforms along the blocks (``GramOperator.encode_blocks``); ``dV``'s parameter
+    index last (below). ``out``: an array (P, ny, m, n_th) ``dV`` is written into (and
+    returned); ``work``: the buffers :func:`_doubling_buffers` makes, reused from call
+    to call (fresh MB-sized arrays are faulted in again at every call: docs/subspace.md,
+    "eighth session").
     ``M_k = Abar^{k-1} Btil`` and ``dM_k`` by doubling: ``[dM; M]_{L+j}`` is
     ``[[Abar^L, d(Abar^L)], [0, Abar^L]] [dM_j; M_j]`` (the derivative of a power as a
     block-triangular power, Van Loan 1978), so ``dM_{L+j} = Abar^L dM_j + d(Abar^L) M_j``
     and ``d(Abar^2L) = Abar^L d(Abar^L) + d(Abar^L) Abar^L``: ``log2 P`` levels for all
-    parameters. State-major (n, P, n_th, m), a level's ``Abar^L dM_j`` for every ``j``
-    and parameter is one GEMM ``(n x n) (n x L n_th m)`` and ``d(Abar^L) M_j`` one
-    ``(n_th n x n) (n x L m)`` (step-major, both were stacks of thousands of 4 x 4
-    products: 1.3-1.5 -> 0.5 ms a point on the bench records, results bitwise equal).
+    parameters. State-major (n, P, m, n_th), a level's ``Abar^L dM_j`` for every ``j``
+    and parameter is one GEMM ``(n x n) (n x L m n_th)`` and ``d(Abar^L) M_j`` one
+    ``(L m x n) (n x n_th)`` GEMM per state row, written in ``dM``'s own order (step-major,
+    both were stacks of thousands of 4 x 4 products: 1.3-1.5 -> 0.5 ms a point on the
+    bench records; with the parameter index between the steps and the inputs, adding
+    ``d(Abar^L) M_j`` took a strided pass: 0.43 -> 0.23 ms on the paper-like record,
+    twenty-ninth session; every result bitwise equal).
     """
     n_th = dAbar.shape[0]
     n, m = Btil.shape
     dM, M, Y = _doubling_buffers(n_th, P, Btil.shape, Cs.shape[0]) if work is None else work
     _markov(Abar, Btil, P, out=M)
-    dM[:, 0] = dBtil.transpose(1, 0, 2)
+    dM[:, 0] = dBtil.transpose(1, 2, 0)
     L, Ap, dAp = 1, Abar, dAbar
     w = n_th * m
     while L < P:
         c = min(L, P - L)
         np.matmul(Ap, dM[:, :c].reshape(n, c * w), out=dM[:, L : L + c].reshape(n, c * w))
-        dAM = dAp.transpose(1, 0, 2).reshape(n * n_th, n) @ M[:, :c].reshape(n, c * m)
-        dM[:, L : L + c] += dAM.reshape(n, n_th, c, m).transpose(0, 2, 1, 3)
+        level = dM[:, L : L + c].reshape(n, c * m, n_th)  # a view: state a, (j, input), i
+        level += np.matmul(M[:, :c].reshape(n, c * m).T, dAp.transpose(1, 2, 0))
         L += c
         if L < P:
             dAp = Ap @ dAp + dAp @ Ap
             Ap = Ap @ Ap
     if out is None:
-        out = np.empty((P, n_th, Cs.shape[0], m))
+        out = np.empty((P, Cs.shape[0], m, n_th))
     np.matmul(Cs, dM.reshape(n, -1), out=Y.reshape(Cs.shape[0], -1))
-    out[...] = Y[:, ::-1].transpose(1, 2, 0, 3)
+    out[...] = Y[:, ::-1].transpose(1, 0, 2, 3)
     return _blocks_of(Cs, M), out
 
 
 def _doubling_buffers(
     n_th: int, P: int, shape: tuple[int, ...], ny: int
 ) -> tuple[np.ndarray, ...]:
-    """``dM`` (n, P, n_th, m), ``M`` (n, P, m) and ``C dM`` (ny, P, n_th, m) for
+    """``dM`` (n, P, m, n_th), ``M`` (n, P, m) and ``C dM`` (ny, P, m, n_th) for
     :func:`_predictor_blocks`."""
     n, m = shape
-    return np.empty((n, P, n_th, m)), np.empty((n, P, m)), np.empty((ny, P, n_th, m))
+    return np.empty((n, P, m, n_th)), np.empty((n, P, m)), np.empty((ny, P, m, n_th))
 
 
 def _state_map(
@@ -400,10 +404,12 @@ class _Criterion:
         # the derivative rows through their sequence basis (_sequence_rows), where the
         # operator takes such rows (the dense Gram of the tests does not)
         self._sequences = hasattr(gram, "encode_sequences")
-        self._dv = np.empty((self.P, _N_THETA, 3, 5))  # dV, contiguous
+        self._dv = np.empty((self.P, 3, 5, _N_THETA))  # dV, contiguous
         self._rows_v = np.zeros((gram.n, 3, 5))  # X = [-V, I] alone
         self._rows_v[self.P, :, 2:] = np.eye(3)
-        self._sketch = np.random.default_rng(0).standard_normal((15 * _N_THETA, _SKETCH))
+        # the sketch's rows drawn in the order (parameter, output, input), read in dV's
+        sk = np.random.default_rng(0).standard_normal((_N_THETA, 3, 5, _SKETCH))
+        self._sketch = sk.transpose(1, 2, 0, 3).reshape(-1, _SKETCH)
         self._unit = self._unit_gram = None
         if self._sequences and self.k0:  # the unit rows of the first k0 blocks, (c, channel)
             self._unit = gram.encode_sequences(np.eye(self.k0))
@@ -411,7 +417,7 @@ class _Criterion:
 
     def _start(self, Abar, Ad, Bs, dAbar=None, dBtil=None):  # type: ignore[no-untyped-def]
         """``C Abar^P x_hat(t-P)`` (P14), (k0, 3, 5) block-major; with ``dAbar``, ``dBtil``
-        also its derivative (k0, n_th, 3, 5): ``Cs d(Abar^P) M + Cs Abar^P dM``, ``M``
+        also its derivative (k0, 3, 5, n_th): ``Cs d(Abar^P) M + Cs Abar^P dM``, ``M``
         depending on v only (``Bs`` the scaled ``B_d``)."""
         k0, Cs = self.k0, self.Cs
         if dAbar is None:
@@ -423,7 +429,7 @@ class _Criterion:
         dS = Cs @ dAP @ M
         dS[:9] += CAP @ dM
         S = (CAP @ M).reshape(3, k0, 5).transpose(1, 0, 2)
-        return S, dS.reshape(-1, 3, k0, 5).transpose(2, 0, 1, 3)
+        return S, dS.reshape(-1, 3, k0, 5).transpose(2, 1, 3, 0)
 
     def markov(self, th: np.ndarray) -> np.ndarray:
         """``V(theta)`` (P, 3, 5), block-major, no derivatives (the trial steps)."""
@@ -437,7 +443,7 @@ class _Criterion:
         return V
 
     def blocks(self, th: np.ndarray, out: np.ndarray | None = None):  # type: ignore[no-untyped-def]
-        """``V`` (P, 3, 5) and ``dV`` (P, n_th, 3, 5) at ``th``, block-major, the start
+        """``V`` (P, 3, 5) and ``dV`` (P, 3, 5, n_th) at ``th``, block-major, the start
         term (P14) included; ``dV`` written into ``out`` when given."""
         Abar, Btil, dAbar, dBtil, Cs, _, Ad, _, _ = _model(th, self.v0, self.dt, self.sy, self.su)
         V, dV = _predictor_blocks(Abar, Btil, dAbar, dBtil, Cs, self.P, out, self._work)
@@ -460,14 +466,10 @@ class _Criterion:
         represented to ``_BASIS_TOL`` by the basis are encoded as they are, all 66.
         """
         P, rows, g = self.P, self._rows, self.gram
-        if not self._sequences:
-            V, _ = self.blocks(th, out=rows[:P, 1:])
-            dv = None
-        else:
-            V, dV = self.blocks(th, out=self._dv)
-            dv = self._sequence_rows(dV)
-            if dv is None:
-                rows[:P, 1:] = dV
+        V, dV = self.blocks(th, out=self._dv)
+        dv = self._sequence_rows(dV) if self._sequences else None
+        if dv is None:  # the rows (block, parameter, output, input)
+            rows[:P, 1:] = dV.transpose(0, 3, 1, 2)
         if dv is None:  # one encoding of the 66 rows [X; dV], X = [-V, I]
             np.negative(V, out=rows[:P, 0])
             enc = g.encode_blocks(rows.reshape(rows.shape[0], -1, 5))
@@ -484,7 +486,7 @@ class _Criterion:
         return _Point(th, V, enc, 0.5 * (M + M.T), dv)
 
     def _sequence_rows(self, dV: np.ndarray) -> _SequenceRows | None:
-        """``dV`` (P, n_th, 3, 5) through an orthonormal basis of its sequences over the
+        """``dV`` (P, 3, 5, n_th) through an orthonormal basis of its sequences over the
         blocks from ``k0`` on (the first ``k0`` carry the start term: unit rows), found
         from a random sketch of the rows scaled to unit norm (pivoted QR, rank at
         ``1e-12`` of the largest pivot); None when a row's projection misses it by more
@@ -505,8 +507,9 @@ class _Criterion:
             return None
         Qb = np.zeros((P, r))
         Qb[k0:] = Q
-        coef = coef.reshape(r, -1, 5).transpose(1, 0, 2).reshape(-1, 5 * r)
-        sd = dV[:k0].transpose(1, 2, 0, 3).reshape(-1, 5 * k0) if k0 else None
+        # the rows (parameter, output), the columns (basis sequence, input)
+        coef = coef.reshape(r, 3, 5, -1).transpose(3, 1, 0, 2).reshape(-1, 5 * r)
+        sd = dV[:k0].transpose(3, 1, 0, 2).reshape(-1, 5 * k0) if k0 else None
         seq = self.gram.encode_sequences(Qb)
         return _SequenceRows(seq, coef, self._unit, self._unit_gram, sd)
 
