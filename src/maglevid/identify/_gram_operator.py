@@ -73,7 +73,7 @@ class Sequences:
     products with the head's and the tail's columns of (P18) and with the window's sums.
     Built by :meth:`GramOperator.encode_sequences` from ``r`` FFTs instead of ``r m``."""
 
-    qf: np.ndarray  # (nf, r): the sequences' spectra
+    qf: np.ndarray  # (r, nf): the sequences' spectra, a sequence's contiguous
     yh: np.ndarray  # (k - 1, r m)
     yt: np.ndarray  # (w - 1, r m)
     sp: np.ndarray | None  # (r m,), None when not centred
@@ -145,6 +145,9 @@ class GramOperator:
         self._w2 = np.repeat(lw.reshape(-1), 2)  # re/im interleaved
         self._lw, self._Uh = lw, U.conj().transpose(0, 2, 1)
         self._Rw = np.matmul(U * lw[:, None, :], self._Uh)  # (c_f / n) D R(f) D
+        # the same, real, frequency-major with re/im interleaved: [Re; -Im] per frequency
+        # (what sequence_gram's real part of a complex product reads)
+        self._Rs = np.stack([self._Rw.real, -self._Rw.imag], axis=1).reshape(2 * nf, m * m)
         # (X D) conj(h) = (X D U) conj(U^T h): the head's, the tail's and the sums' spectra
         # in the same basis
         rot = lambda x: np.einsum("fab,fa->fb", U, x * d).conj()  # noqa: E731
@@ -234,22 +237,27 @@ class GramOperator:
         if Q.shape[0] > k:
             raise ValueError(f"{Q.shape[0]} blocks: need at most k = {k}")
         r = Q.shape[1]
-        qf = np.fft.rfft(Q, n=n, axis=0)  # (nf, r)
-        hq = (qf[:, :, None, None] * self._hg[:, None, :, :]).reshape(-1, r * m, 2)
-        yh = np.fft.irfft(hq[..., 0], n=n, axis=0)[1:k]
-        yt = np.fft.irfft(hq[..., 1].conj(), n=n, axis=0)[: w - 1]
-        sp = None if self._us is None else (qf.T @ self._us).real.reshape(-1)
+        qf = np.ascontiguousarray(np.fft.rfft(Q.T, n=n, axis=-1))  # (r, nf), row-major
+        hq = np.empty((2, r, m, qf.shape[1]), dtype=complex)  # head's; conjugated tail's
+        np.multiply(qf[:, None, :], self._hg[:, :, 0].T[None], out=hq[0])
+        np.multiply(qf.conj()[:, None, :], self._hg[:, :, 1].T.conj()[None], out=hq[1])
+        y = np.fft.irfft(hq, n=n, axis=-1)  # (2, r, m, n)
+        yh = y[0, :, :, 1:k].reshape(r * m, k - 1).T
+        yt = y[1, :, :, : w - 1].reshape(r * m, w - 1).T
+        sp = None if self._us is None else (qf @ self._us).real.reshape(-1)
         return Sequences(qf, yh, yt, sp)
 
     def sequence_gram(self, S: Sequences, T: Sequences | None = None) -> np.ndarray:
         """``Phi G Psi^T`` (r m, r' m) of the rows of two :meth:`encode_sequences` (``Psi``
         = ``Phi`` when ``T`` is None): the Toeplitz part
-        ``sum_f Re(q_j(f) conj(p_j'(f)) (c_f / n) R_cc'(f))`` as one product
-        ``(r r' x nf) (nf x m^2)``, then the corrections of (P18)."""
+        ``sum_f Re(q_j(f) conj(p_j'(f)) (c_f / n) R_cc'(f))`` as one real product
+        ``(r r' x 2 nf) (2 nf x m^2)`` (the real part alone: half a complex product's
+        arithmetic), then the corrections of (P18)."""
         T = S if T is None else T
-        (nf, r), r2, m = S.qf.shape, T.qf.shape[1], self.m
-        A = (S.qf[:, :, None] * T.qf.conj()[:, None, :]).reshape(nf, r * r2)
-        out = (A.T @ self._Rw.reshape(nf, m * m)).real
+        r, r2, m = S.qf.shape[0], T.qf.shape[0], self.m
+        A = np.empty((r, r2, S.qf.shape[1]), dtype=complex)  # row-major, as view() needs
+        np.multiply(S.qf[:, None, :], T.qf.conj()[None, :, :], out=A)
+        out = A.view(float).reshape(r * r2, -1) @ self._Rs  # re/im interleaved per f
         out = np.ascontiguousarray(out.reshape(r, r2, m, m).transpose(0, 2, 1, 3))
         out = out.reshape(r * m, r2 * m)
         return self._corrected(out, S, T)
@@ -260,10 +268,10 @@ class GramOperator:
         channels, ``A(f) (c_f / n) R(f)``, against ``conj(q_j(f))`` (one product
         ``(rA m x nf) (nf x r)``), then the corrections."""
         rA, m = A.flat.shape[0], self.m
-        nf, r = S.qf.shape
+        r, nf = S.qf.shape
         AU = A.flat.view(complex).reshape(rA, nf, m)
         AR = np.matmul((AU * self._lw).transpose(1, 0, 2), self._Uh)  # (nf, rA, m)
-        out = (AR.reshape(nf, rA * m).T @ S.qf.conj()).real  # (rA m, r)
+        out = (AR.reshape(nf, rA * m).T @ S.qf.conj().T).real  # (rA m, r)
         out = np.ascontiguousarray(out.reshape(rA, m, r).transpose(0, 2, 1)).reshape(rA, -1)
         return self._corrected(out, A, S)
 
