@@ -154,8 +154,11 @@ class GramOperator:
         ht = rot(sfft.rfft(head[: k - 1], n=n, axis=0))  # h(s) = z(s), s < k - 1
         gt = rot(sfft.rfft(tail[L - (w - 1) :], n=n, axis=0))  # g(s) = z(j + s), s <= w - 2
         self._hg = U @ np.stack([ht, gt], axis=-1)  # (nf, m, 2): X(f) U(f) [ht, gt]
-        self._ws: dict[int, tuple[np.ndarray, ...]] = {}
+        self._ws: dict[
+            Any, tuple[np.ndarray, ...]
+        ] = {}  # by rows (encode_blocks), ("sequences", r)
         self._weighted: dict[int, np.ndarray] = {}
+        self._products: dict[tuple[int, int], np.ndarray] = {}  # sequence_gram's
         self._st = self._us = None
         if center:  # sum_t x(t) s(t) = sum_f (c_f / n) Re(X(f) conj(S(f)))
             sf = rot(sfft.rfft(_window_sums(acc, w, k).reshape(k, m), n=n, axis=0))
@@ -238,14 +241,26 @@ class GramOperator:
             raise ValueError(f"{Q.shape[0]} blocks: need at most k = {k}")
         r = Q.shape[1]
         qf = np.ascontiguousarray(np.fft.rfft(Q.T, n=n, axis=-1))  # (r, nf), row-major
-        hq = np.empty((2, r, m, qf.shape[1]), dtype=complex)  # head's; conjugated tail's
+        hq, y = self._sequence_workspace(r, qf.shape[1])  # head's; conjugated tail's
         np.multiply(qf[:, None, :], self._hg[:, :, 0].T[None], out=hq[0])
         np.multiply(qf.conj()[:, None, :], self._hg[:, :, 1].T.conj()[None], out=hq[1])
-        y = np.fft.irfft(hq, n=n, axis=-1)  # (2, r, m, n)
-        yh = y[0, :, :, 1:k].reshape(r * m, k - 1).T
-        yt = y[1, :, :, : w - 1].reshape(r * m, w - 1).T
+        _irfft(hq, n, y, axis=-1)  # (2, r, m, n)
+        yh = y[0, :, :, 1:k].reshape(r * m, k - 1).copy().T  # copied: y is reused
+        yt = y[1, :, :, : w - 1].reshape(r * m, w - 1).copy().T
         sp = None if self._us is None else (qf @ self._us).real.reshape(-1)
         return Sequences(qf, yh, yt, sp)
+
+    def _sequence_workspace(self, r: int, nf: int) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`encode_sequences`' spectra and inverse transforms of ``r`` sequences,
+        kept for the next encoding of as many (fresh, they were page-faulted in at every
+        Gauss-Newton point: ~2.8 us a page on the benchmark's KVM guest)."""
+        ws = self._ws.get(("sequences", r))
+        if ws is None:
+            ws = self._ws["sequences", r] = (
+                np.empty((2, r, self.m, nf), dtype=complex),
+                np.empty((2, r, self.m, self.n)),
+            )
+        return ws
 
     def sequence_gram(self, S: Sequences, T: Sequences | None = None) -> np.ndarray:
         """``Phi G Psi^T`` (r m, r' m) of the rows of two :meth:`encode_sequences` (``Psi``
@@ -255,7 +270,9 @@ class GramOperator:
         arithmetic), then the corrections of (P18)."""
         T = S if T is None else T
         r, r2, m = S.qf.shape[0], T.qf.shape[0], self.m
-        A = np.empty((r, r2, S.qf.shape[1]), dtype=complex)  # row-major, as view() needs
+        A = self._products.get((r, r2))  # row-major, as view() needs; kept (page faults)
+        if A is None:
+            A = self._products[r, r2] = np.empty((r, r2, S.qf.shape[1]), dtype=complex)
         np.multiply(S.qf[:, None, :], T.qf.conj()[None, :, :], out=A)
         out = A.view(float).reshape(r * r2, -1) @ self._Rs  # re/im interleaved per f
         out = np.ascontiguousarray(out.reshape(r, r2, m, m).transpose(0, 2, 1, 3))
@@ -284,12 +301,12 @@ def _rfft(x: np.ndarray, n: int, out: np.ndarray) -> None:
         out[...] = np.fft.rfft(x, n=n, axis=0)
 
 
-def _irfft(x: np.ndarray, n: int, out: np.ndarray) -> None:
-    """``out[...] = irfft(x, n, axis=0)``, in place where numpy can."""
+def _irfft(x: np.ndarray, n: int, out: np.ndarray, axis: int = 0) -> None:
+    """``out[...] = irfft(x, n, axis)``, in place where numpy can."""
     if _FFT_OUT:
-        np.fft.irfft(x, n=n, axis=0, out=out)
+        np.fft.irfft(x, n=n, axis=axis, out=out)
     else:
-        out[...] = np.fft.irfft(x, n=n, axis=0)
+        out[...] = np.fft.irfft(x, n=n, axis=axis)
 
 
 def _window_sums(acc: _LagGram, w: int, k: int) -> np.ndarray:

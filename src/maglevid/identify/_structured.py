@@ -221,7 +221,7 @@ def _predictor_blocks(Abar, Btil, dAbar, dBtil, Cs, P, out=None, work=None):  # 
     """
     n_th = dAbar.shape[0]
     n, m = Btil.shape
-    dM, M, Y = _doubling_buffers(n_th, P, Btil.shape, Cs.shape[0]) if work is None else work
+    dM, M, Y, T = _doubling_buffers(n_th, P, Btil.shape, Cs.shape[0]) if work is None else work
     _markov(Abar, Btil, P, out=M)
     dM[:, 0] = dBtil.transpose(1, 2, 0)
     L, Ap, dAp = 1, Abar, dAbar
@@ -230,7 +230,8 @@ def _predictor_blocks(Abar, Btil, dAbar, dBtil, Cs, P, out=None, work=None):  # 
         c = min(L, P - L)
         np.matmul(Ap, dM[:, :c].reshape(n, c * w), out=dM[:, L : L + c].reshape(n, c * w))
         level = dM[:, L : L + c].reshape(n, c * m, n_th)  # a view: state a, (j, input), i
-        level += np.matmul(M[:, :c].reshape(n, c * m).T, dAp.transpose(1, 2, 0))
+        dAM = T[: n * c * m * n_th].reshape(n, c * m, n_th)
+        level += np.matmul(M[:, :c].reshape(n, c * m).T, dAp.transpose(1, 2, 0), out=dAM)
         L += c
         if L < P:
             dAp = Ap @ dAp + dAp @ Ap
@@ -245,10 +246,17 @@ def _predictor_blocks(Abar, Btil, dAbar, dBtil, Cs, P, out=None, work=None):  # 
 def _doubling_buffers(
     n_th: int, P: int, shape: tuple[int, ...], ny: int
 ) -> tuple[np.ndarray, ...]:
-    """``dM`` (n, P, m, n_th), ``M`` (n, P, m) and ``C dM`` (ny, P, m, n_th) for
-    :func:`_predictor_blocks`."""
+    """``dM`` (n, P, m, n_th), ``M`` (n, P, m), ``C dM`` (ny, P, m, n_th) and a level's
+    ``d(Abar^L) M_j`` (flat, up to ``P / 2`` steps) for :func:`_predictor_blocks`:
+    reused from point to point, as a fresh array of this size is page-faulted in again
+    each time (~2.8 us a 4 kB page on the benchmark's KVM guest; twenty-ninth session)."""
     n, m = shape
-    return np.empty((n, P, m, n_th)), np.empty((n, P, m)), np.empty((ny, P, m, n_th))
+    return (
+        np.empty((n, P, m, n_th)),
+        np.empty((n, P, m)),
+        np.empty((ny, P, m, n_th)),
+        np.empty(n * (P // 2 + 1) * m * n_th),
+    )
 
 
 def _state_map(
@@ -396,9 +404,9 @@ class _Criterion:
         self.Cs = C_AMB / sy[:, None]
         self.k0 = min(k0, self.P)
         # the rows' buffers, filled at each point (the encodings keep no reference),
-        # zero-padded to the FFT's length (read in place: GramOperator.encode_blocks)
-        self._rows = np.zeros((gram.n, 1 + _N_THETA, 3, 5))
-        self._rows[self.P, 0, :, 2:] = np.eye(3)  # X's identity on y(t); dV's last block 0
+        # zero-padded to the FFT's length (read in place: GramOperator.encode_blocks);
+        # all 66 rows only where the sequence basis is not taken (made then, _dense_rows)
+        self._rows: np.ndarray | None = None
         self._rows_x = np.zeros((gram.n, 3, 5))
         self._work = _doubling_buffers(_N_THETA, self.P, (4, 5), 3)
         # the derivative rows through their sequence basis (_sequence_rows), where the
@@ -410,6 +418,7 @@ class _Criterion:
         # the sketch's rows drawn in the order (parameter, output, input), read in dV's
         sk = np.random.default_rng(0).standard_normal((_N_THETA, 3, 5, _SKETCH))
         self._sketch = sk.transpose(1, 2, 0, 3).reshape(-1, _SKETCH)
+        self._residual = np.empty((self.P - self.k0, 15 * _N_THETA))  # _sequence_rows' E
         self._unit = self._unit_gram = None
         if self._sequences and self.k0:  # the unit rows of the first k0 blocks, (c, channel)
             self._unit = gram.encode_sequences(np.eye(self.k0))
@@ -465,12 +474,12 @@ class _Criterion:
         rows; the residual rows ``X`` (3) are encoded as they are. Rows not
         represented to ``_BASIS_TOL`` by the basis are encoded as they are, all 66.
         """
-        P, rows, g = self.P, self._rows, self.gram
+        P, g = self.P, self.gram
         V, dV = self.blocks(th, out=self._dv)
         dv = self._sequence_rows(dV) if self._sequences else None
-        if dv is None:  # the rows (block, parameter, output, input)
-            rows[:P, 1:] = dV.transpose(0, 3, 1, 2)
         if dv is None:  # one encoding of the 66 rows [X; dV], X = [-V, I]
+            rows = self._dense_rows()
+            rows[:P, 1:] = dV.transpose(0, 3, 1, 2)  # (block, parameter, output, input)
             np.negative(V, out=rows[:P, 0])
             enc = g.encode_blocks(rows.reshape(rows.shape[0], -1, 5))
             M = g.inner(enc, enc)
@@ -484,6 +493,13 @@ class _Criterion:
         M[:3, 3:], M[3:, :3] = XdV, XdV.T
         M[3:, 3:] = dv.gram(g)
         return _Point(th, V, enc, 0.5 * (M + M.T), dv)
+
+    def _dense_rows(self) -> np.ndarray:
+        """The buffer of all 66 rows ``[X; dV]`` (n, 1 + n_th, 3, 5), made at first use."""
+        if self._rows is None:
+            self._rows = np.zeros((self.gram.n, 1 + _N_THETA, 3, 5))
+            self._rows[self.P, 0, :, 2:] = np.eye(3)  # X's identity on y(t); dV's last 0
+        return self._rows
 
     def _sequence_rows(self, dV: np.ndarray) -> _SequenceRows | None:
         """``dV`` (P, 3, 5, n_th) through an orthonormal basis of its sequences over the
@@ -502,7 +518,8 @@ class _Criterion:
             return None
         Q = Q[:, :r]
         coef = Q.T @ R
-        E = R - Q @ coef
+        E = np.matmul(Q, coef, out=self._residual)
+        np.subtract(R, E, out=E)
         if not np.max(np.sqrt(np.einsum("ij,ij->j", E, E)) / nrm) <= _BASIS_TOL:
             return None
         Qb = np.zeros((P, r))
