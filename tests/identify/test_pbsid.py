@@ -317,8 +317,8 @@ def test_high_sensor_noise_is_refused_with_what_to_do(fit):
 
 
 def test_structured_fit_stopped_far_from_its_optimum_is_refused(bearing, monkeypatch):
-    # One Gauss-Newton step per round (the bench's fits take 5-11): the step limit ends
-    # each round with a gain of hundreds of units of N log det still predicted. Such an
+    # One Gauss-Newton step (the bench's fits take 5-11): the step limit ends the
+    # fit with a gain of hundreds of units of N log det still predicted. Such an
     # estimate's intervals mean nothing: refused, saying why. Below _STRUCTURE_LEFT (1
     # unit, about a standard error; one of 400 Monte Carlo fits at 1e4 stops there with
     # 0.044) it is kept with a note.
@@ -328,12 +328,12 @@ def test_structured_fit_stopped_far_from_its_optimum_is_refused(bearing, monkeyp
     monkeypatch.setattr(P, "fit_bearing_structure", lambda G, **kw: full(G, **kw, max_iter=1))
     kw = dict(order=4, dt=bearing.dt, coordinates="physical")
     with pytest.raises(
-        IdentificationError, match=r"stopped after 2 Gauss-Newton steps with a gain"
+        IdentificationError, match=r"stopped after 1 Gauss-Newton step with a gain"
     ):
         fit_ssarx(bearing.y, bearing.u, **kw)
     monkeypatch.setattr(P, "_STRUCTURE_LEFT", np.inf)
     res = fit_ssarx(bearing.y, bearing.u, **kw)
-    assert any("stopped at its step limit (2 Gauss-Newton steps)" in n for n in res.notes)
+    assert any("stopped at its step limit (1 Gauss-Newton step)" in n for n in res.notes)
     # an estimate whose predictor is unstable is refused whatever its convergence
     monkeypatch.setattr(
         P,

@@ -23,7 +23,7 @@ with the VARX's own covariance ``(Z_P Z_P^T)^{-1} (x) Re`` as weight (P12).
 With ``W`` the innovation covariance's inverse this is the prediction-error
 criterion of the truncated predictor (Ljung 1999, eq. (7.12)), asymptotically
 efficient for this model set when ``|lambda(Abar)|^P`` is negligible;
-``W`` is re-estimated from the structured residuals once (P13). The state at
+``W`` is the start's prediction errors' inverse covariance (P13). The state at
 the window's start is not left at 0: ``C Abar^P x_hat(t-P)`` is added, with
 ``x_hat`` the plant's least-squares state from the window's first
 ``START_SAMPLES`` samples (P14) -- on a high-SNR record the truncation term
@@ -57,11 +57,6 @@ START_SAMPLES = 8
 #: converged to a gain of 1e-5, on the bench records at 1e4 and 1e5. (Judging a step
 #: after taking it cost one Jacobian more per round; docs/subspace.md, "eighth session".)
 _GAIN_TOL = 1e-2
-#: The same for the first weighting round (P13), which only supplies ``W`` for the
-#: second: stopped within about a standard error of its optimum (a gain below one unit
-#: of ``j J``), ``W`` changes at second order (docs/subspace.md, "seventh session":
-#: 1-3 Jacobians fewer on the bench records, v within 1.3e-3 of a standard error).
-_GAIN_TOL_FIRST = 1.0
 #: The last round ends with the step of a point that predicts a gain below this (of ``j J``,
 #: at or above ``_GAIN_TOL``): the step is taken, checked to lower the cost, and no point
 #: is built after it (its Jacobian would only confirm convergence); the estimate is then
@@ -78,7 +73,7 @@ _TRUST = (0.5, 2.0)
 _N_THETA = 21
 #: Floor of the weighting's innovation covariance (channels scaled to unit RMS).
 _RE_FLOOR = 1e-12
-#: Gauss-Newton steps per weighting round at most (6-16 in all are taken on the
+#: Gauss-Newton steps at most (6-16 in all are taken on the
 #: bench's records since the start term's Jacobian is analytic; its forward
 #: differences made the steps crawl on high-SNR records, 40 at N = 1e5).
 _MAX_ITER = 20
@@ -612,15 +607,14 @@ def fit_bearing_structure(
     su, sy = scale[:2], scale[2:]
     theta = np.concatenate([np.zeros(9), (K0 * sy[None, :]).ravel()])
     crit = _Criterion(gram, v0, dt, su, sy, initial_state)
-    # (P13): W from the start's prediction errors, fit, W again, refit; each round
-    # starts where the last one ended (its W-free parts reused: one Jacobian fewer)
+    # (P13): W from the start's prediction errors, one round (a consistent start's W;
+    # the second round of the seventh to twenty-eighth sessions, W re-estimated at the
+    # first round's end, moved v by <= 0.2 standard errors and cost 2-5 % of the fit:
+    # docs/subspace.md, "twenty-ninth session")
     p = crit.point(theta)
-    iterations = 0
-    for tol, final in ((_GAIN_TOL_FIRST, False), (_GAIN_TOL, True)):
-        p, it, (theta, Re_s), remaining = _gauss_newton(
-            crit, p, _weight(p.Re), j, max_iter, tol, final
-        )
-        iterations += it
+    p, iterations, (theta, Re_s), remaining = _gauss_newton(
+        crit, p, _weight(p.Re), j, max_iter, _GAIN_TOL, final=True
+    )
     _, _, _, _, _, v, Ad, Bd, Ks = _model(theta, v0, dt, sy, su)
     Re = Re_s * np.outer(sy, sy)
     cov = _covariance(p, Re_s, j) * np.outer(v0, v0)

@@ -905,7 +905,7 @@ def _structured(
     notes.append(
         f"v1..v9 by the structured weighted least-squares fit over a window of {P} lags "
         f"({'chosen from the data, (P16) and (P23)' if opt.structure_auto else 'given'}; "
-        f"docs/subspace.md (P11)-(P16); {sf.iterations} Gauss-Newton steps, window-start "
+        f"docs/subspace.md (P11)-(P16); {_steps(sf.iterations)}, window-start "
         f"state from {sf.start_samples} samples), started from the transform to "
         "physical coordinates"
     )
@@ -935,17 +935,22 @@ def _check_structure(sf: StructuredFit, rho: float, notes: list[str]) -> None:
         raise IdentificationError(_structure_failure(why, rho))
     if sf.remaining > _STRUCTURE_LEFT:
         why = (
-            f"stopped after {sf.iterations} Gauss-Newton steps "
+            f"stopped after {_steps(sf.iterations)} "
             + ("without a descent" if np.isinf(sf.remaining) else
                f"with a gain of {sf.remaining:.3g} in N log det still predicted")
         )  # fmt: skip
         raise IdentificationError(_structure_failure(why, rho))
     if sf.remaining > 0.0:
         notes.append(
-            f"the structured fit stopped at its step limit ({sf.iterations} Gauss-Newton "
-            f"steps) with a gain of {sf.remaining:.2g} in N log det still predicted (below "
+            f"the structured fit stopped at its step limit ({_steps(sf.iterations)}) with "
+            f"a gain of {sf.remaining:.2g} in N log det still predicted (below "
             f"{_STRUCTURE_LEFT:g}: within about a standard error of its optimum)"
         )
+
+
+def _steps(n: int) -> str:
+    """``"1 Gauss-Newton step"``, ``"n Gauss-Newton steps"``."""
+    return f"{n} Gauss-Newton step" + ("" if n == 1 else "s")
 
 
 def _structure_failure(why: str, rho: float) -> str:
