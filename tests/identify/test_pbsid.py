@@ -443,6 +443,33 @@ def test_structured_covariance_matches_the_scatter():
     assert 0.4 < float(np.mean(np.square(z))) < 2.5
 
 
+def test_in_place_factor_is_the_lower_cholesky_factor_or_rebuilds_the_gram():
+    # _factor with a rebuild takes the Cholesky factor in the Gram's own memory (the
+    # upper factor of its Fortran-ordered transpose, read back in C order).
+    # Reference: LAPACK dpotrf's lower factor of a copy (measured equal to 1e-16 of
+    # the unit diagonal; asserted 1e-13). A rank-deficient Gram (a noise-free record's)
+    # is overwritten by the failed attempt: the pivoted factor is taken of the Gram
+    # built again, exact to rounding (F F^T = G).
+    from scipy.linalg import lapack
+
+    from maglevid.identify import pbsid as P
+
+    rng = np.random.default_rng(3)
+    X = rng.standard_normal((60, 400))
+    G = X @ X.T / 400
+    ref = lapack.dpotrf(G, lower=1, clean=1)[0]
+    calls = []
+    F, rank = P._factor(G.copy(), lambda: calls.append(1) or G.copy())
+    assert rank == 60 and not calls and not np.any(np.triu(F, 1))
+    np.testing.assert_allclose(F, ref, atol=1e-13)
+    Y = np.concatenate([X[:25], X[:5] + X[5:10]])  # 30 rows of rank 25
+    G0 = Y @ Y.T / 400
+    G0 /= np.sqrt(np.outer(np.diag(G0), np.diag(G0)))  # unit diagonal
+    F, rank = P._factor(G0.copy(), lambda: calls.append(1) or G0.copy())
+    assert calls == [1] and rank == 25
+    np.testing.assert_allclose(F @ F.T, G0, atol=1e-12)
+
+
 def test_unpivoted_factor_equals_the_pivoted_one(bearing, monkeypatch):
     # Reference: the pivoted-Cholesky data stage of 72d103a (factor_gram, all columns
     # kept). The plain Cholesky factor (_factor, on this noisy record) and the leading
