@@ -629,6 +629,30 @@ def test_structured_fit_through_the_gram_operator_equals_the_dense_gram(bearing,
     _assert_same_optimum(new, fit(bearing.y, bearing.u, **kw), 1e-4, "equal")
 
 
+def test_a_step_to_an_unstable_predictor_fails_without_its_cost(bearing, monkeypatch):
+    # From a stable predictor, a trial step whose Abar has a pole on or outside the
+    # unit circle is failed at once (cost change inf, the point's Re kept): its cost
+    # rises for certain through Abar^P and the fit would be refused there. Reference:
+    # the bearing's open-loop A_d (K = 0) is unstable (its pole e^{p dt} > 1, eq. (4));
+    # a step of 1e-6 in v1 from the start keeps the predictor stable and is costed.
+    from maglevid.identify import _structured as S
+
+    seen = {}
+
+    def spy(crit, p, W, j, max_iter, tol, final=False):
+        unstable = np.concatenate([p.theta[:9], np.zeros(12)])
+        seen["bad"] = crit.trial(p, unstable, W)
+        seen["ok"] = crit.trial(p, p.theta + 1e-6 * np.eye(p.theta.size)[0], W)
+        seen["rho"] = p.rho
+        return p, 0, (p.theta, p.Re), 0.0
+
+    monkeypatch.setattr(S, "_gauss_newton", spy)
+    fit_pbsid(bearing.y, bearing.u, order=4, dt=bearing.dt, coordinates="physical")
+    assert seen["rho"] < 1.0
+    assert seen["bad"][0] == np.inf
+    assert np.isfinite(seen["ok"][0]) and abs(seen["ok"][0]) < 1e-3
+
+
 @pytest.mark.parametrize("record", ["default", "paper-like"])
 def test_sequence_basis_products_equal_the_encoded_rows(bearing, record, monkeypatch):
     # (P22): the 63 derivative rows are sequences of one 4-state predictor and its

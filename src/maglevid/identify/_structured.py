@@ -171,6 +171,11 @@ def _blocks_of(Cs: np.ndarray, M: np.ndarray) -> np.ndarray:
     return (Cs @ M.reshape(n, -1)).reshape(-1, P, m)[:, ::-1].transpose(1, 0, 2)
 
 
+def _radius(A: np.ndarray) -> float:
+    """``max |lambda(A)|``, the spectral radius."""
+    return float(np.max(np.abs(np.linalg.eigvals(A))))
+
+
 def _model(theta: np.ndarray, v0: np.ndarray, dt: float, sy: np.ndarray, su: np.ndarray):  # type: ignore[no-untyped-def]
     """Scaled predictor ``(Abar, Btil, dAbar, dBtil)`` at ``theta = [dv/v0 (9), K_s (12)]``."""
     v = v0 * (1.0 + theta[:9])
@@ -339,6 +344,7 @@ class _Point:
     enc: Any  # the residual rows X = [-V, I], encoded for the Gram's products
     M: np.ndarray  # (3 + 3 n_th) squared: [X; dV] G [X; dV]^T
     dV: Any  # the derivative rows, as products with encoded rows read them (``products``)
+    rho: float = 0.0  # the predictor's spectral radius, max |lambda(Abar)|
 
     @property
     def Re(self) -> np.ndarray:
@@ -435,12 +441,25 @@ class _Criterion:
         S = (CAP @ M).reshape(3, k0, 5).transpose(1, 0, 2)
         return S, dS.reshape(-1, 3, k0, 5).transpose(2, 1, 3, 0)
 
-    def markov(self, th: np.ndarray) -> np.ndarray:
-        """``V(theta)`` (P, 3, 5), block-major, no derivatives (the trial steps)."""
+    def _predictor(self, th: np.ndarray) -> tuple[np.ndarray, ...]:
+        """``(A_d, B_s, K_s, Abar)`` at ``th`` (scaled units), no derivatives."""
         Ad, Bd = _plant(self.v0 * (1.0 + th[:9]), self.dt)
         Ks = th[9:].reshape(4, 3)
-        Bs = Bd * self.su[None, :]
-        Abar = Ad - Ks @ self.Cs
+        return Ad, Bd * self.su[None, :], Ks, Ad - Ks @ self.Cs
+
+    def leaves_stable(self, p: _Point, th: np.ndarray, pred=None) -> bool:  # type: ignore[no-untyped-def]
+        """Whether a step from ``p`` (a stable predictor) to ``th`` makes the predictor
+        unstable: its cost rises for certain (``Abar^P`` grows), and the fit would be
+        refused there; such a step is failed without its cost (twenty-ninth session:
+        37 of the 114 failed trials on 20 paper-like records at 1e4, none of the
+        accepted ones at or above 1)."""
+        Abar = (self._predictor(th) if pred is None else pred)[3]
+        return p.rho < 1.0 and not _radius(Abar) < 1.0
+
+    def markov(self, th: np.ndarray, pred=None) -> np.ndarray:  # type: ignore[no-untyped-def]
+        """``V(theta)`` (P, 3, 5), block-major, no derivatives (the trial steps);
+        ``pred``: :meth:`_predictor`'s at ``th`` when already at hand."""
+        Ad, Bs, Ks, Abar = self._predictor(th) if pred is None else pred
         V = _blocks_of(self.Cs, _markov(Abar, np.concatenate([Bs, Ks], axis=1), self.P))
         if self.k0:
             V[: self.k0] += self._start(Abar, Ad, Bs)
@@ -449,13 +468,17 @@ class _Criterion:
     def blocks(self, th: np.ndarray, out: np.ndarray | None = None):  # type: ignore[no-untyped-def]
         """``V`` (P, 3, 5) and ``dV`` (P, 3, 5, n_th) at ``th``, block-major, the start
         term (P14) included; ``dV`` written into ``out`` when given."""
+        return self._blocks(th, out)[:2]
+
+    def _blocks(self, th: np.ndarray, out: np.ndarray | None = None):  # type: ignore[no-untyped-def]
+        """:meth:`blocks` and the predictor's ``Abar``."""
         Abar, Btil, dAbar, dBtil, Cs, _, Ad, _, _ = _model(th, self.v0, self.dt, self.sy, self.su)
         V, dV = _predictor_blocks(Abar, Btil, dAbar, dBtil, Cs, self.P, out, self._work)
         if self.k0:  # the start term and its derivative, analytic (k0 blocks each)
             S, dS = self._start(Abar, Ad, Btil[:, :2], dAbar, dBtil)
             V[: self.k0] += S
             dV[: self.k0] += dS
-        return V, dV
+        return V, dV, Abar
 
     def point(self, th: np.ndarray) -> _Point:
         """``V``, ``dV`` and their Gram products.
@@ -470,7 +493,8 @@ class _Criterion:
         represented to ``_BASIS_TOL`` by the basis are encoded as they are, all 66.
         """
         P, g = self.P, self.gram
-        V, dV = self.blocks(th, out=self._dv)
+        V, dV, Abar = self._blocks(th, out=self._dv)
+        rho = _radius(Abar)
         dv = self._sequence_rows(dV) if self._sequences else None
         if dv is None:  # one encoding of the 66 rows [X; dV], X = [-V, I]
             rows = self._dense_rows()
@@ -478,7 +502,7 @@ class _Criterion:
             np.negative(V, out=rows[:P, 0])
             enc = g.encode_blocks(rows.reshape(rows.shape[0], -1, 5))
             M = g.inner(enc, enc)
-            return _Point(th, V, enc[:3], 0.5 * (M + M.T), _EncodedRows(enc[3:]))
+            return _Point(th, V, enc[:3], 0.5 * (M + M.T), _EncodedRows(enc[3:]), rho)
         np.negative(V, out=self._rows_v[:P])
         enc = g.encode_blocks(self._rows_v)
         XdV = dv.products(g, enc)  # X G dV^T (3, 3 n_th)
@@ -487,7 +511,7 @@ class _Criterion:
         M[:3, :3] = g.inner(enc, enc)
         M[:3, 3:], M[3:, :3] = XdV, XdV.T
         M[3:, 3:] = dv.gram(g)
-        return _Point(th, V, enc, 0.5 * (M + M.T), dv)
+        return _Point(th, V, enc, 0.5 * (M + M.T), dv, rho)
 
     def _dense_rows(self) -> np.ndarray:
         """The buffer of all 66 rows ``[X; dV]`` (n, 1 + n_th, 3, 5), made at first use."""
@@ -538,10 +562,14 @@ class _Criterion:
 
     def trial(self, p: _Point, th: np.ndarray, W: np.ndarray) -> tuple[float, np.ndarray]:
         """:meth:`delta` and the prediction errors' covariance at ``theta`` (what the final
-        step keeps): the rows ``dX = V(p) - V(theta)`` encoded once."""
+        step keeps): the rows ``dX = V(p) - V(theta)`` encoded once; ``inf`` without
+        them for a step that leaves the stable predictors (:meth:`leaves_stable`)."""
+        pred = self._predictor(th)
+        if self.leaves_stable(p, th, pred):
+            return float("inf"), p.Re
         rows = self._rows_x  # the last block (the current sample's) stays 0
         with np.errstate(over="ignore", invalid="ignore"):  # a step past the stable region
-            np.subtract(p.V, self.markov(th), out=rows[: self.P])
+            np.subtract(p.V, self.markov(th, pred), out=rows[: self.P])
             return self._change(p, self.gram.encode_blocks(rows), W)
 
     def change(self, p: _Point, q: _Point, W: np.ndarray) -> float:
@@ -745,7 +773,8 @@ def _undamped(crit, p, step, d, W, trusted, dc0=None):  # type: ignore[no-untype
             return step, dc0, None, 0
         step, h0 = 0.5 * step, 1
     elif trusted:
-        q = _finite_point(crit, p.theta + step / d)
+        th = p.theta + step / d
+        q = None if crit.leaves_stable(p, th) else _finite_point(crit, th)
         dc = float("inf") if q is None else crit.change(p, q, W)
         if dc <= 0.0:
             return step, dc, q, 0
