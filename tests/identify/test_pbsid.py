@@ -643,13 +643,15 @@ def test_a_step_to_an_unstable_predictor_fails_without_its_cost(bearing, monkeyp
         unstable = np.concatenate([p.theta[:9], np.zeros(12)])
         seen["bad"] = crit.trial(p, unstable, W)
         seen["ok"] = crit.trial(p, p.theta + 1e-6 * np.eye(p.theta.size)[0], W)
+        with np.errstate(all="ignore"):  # a step far past it: Abar not even finite
+            seen["far"] = crit.trial(p, p.theta * 1e300 * 1e300, W)
         seen["rho"] = p.rho
         return p, 0, (p.theta, p.Re), 0.0
 
     monkeypatch.setattr(S, "_gauss_newton", spy)
     fit_pbsid(bearing.y, bearing.u, order=4, dt=bearing.dt, coordinates="physical")
     assert seen["rho"] < 1.0
-    assert seen["bad"][0] == np.inf
+    assert seen["bad"][0] == np.inf and seen["far"][0] == np.inf
     assert np.isfinite(seen["ok"][0]) and abs(seen["ok"][0]) < 1e-3
 
 

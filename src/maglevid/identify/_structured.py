@@ -172,7 +172,10 @@ def _blocks_of(Cs: np.ndarray, M: np.ndarray) -> np.ndarray:
 
 
 def _radius(A: np.ndarray) -> float:
-    """``max |lambda(A)|``, the spectral radius."""
+    """``max |lambda(A)|``, the spectral radius (inf for a matrix with a non-finite
+    entry: a step far past the stable region)."""
+    if not np.all(np.isfinite(A)):
+        return float("inf")
     return float(np.max(np.abs(np.linalg.eigvals(A))))
 
 
