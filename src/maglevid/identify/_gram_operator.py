@@ -154,11 +154,7 @@ class GramOperator:
         ht = rot(sfft.rfft(head[: k - 1], n=n, axis=0))  # h(s) = z(s), s < k - 1
         gt = rot(sfft.rfft(tail[L - (w - 1) :], n=n, axis=0))  # g(s) = z(j + s), s <= w - 2
         self._hg = U @ np.stack([ht, gt], axis=-1)  # (nf, m, 2): X(f) U(f) [ht, gt]
-        self._ws: dict[
-            Any, tuple[np.ndarray, ...]
-        ] = {}  # by rows (encode_blocks), ("sequences", r)
-        self._weighted: dict[int, np.ndarray] = {}
-        self._products: dict[tuple[int, int], np.ndarray] = {}  # sequence_gram's
+        self._scratch_arrays: dict[tuple[Any, ...], np.ndarray] = {}  # _scratch's
         self._st = self._us = None
         if center:  # sum_t x(t) s(t) = sum_f (c_f / n) Re(X(f) conj(S(f)))
             sf = rot(sfft.rfft(_window_sums(acc, w, k).reshape(k, m), n=n, axis=0))
@@ -180,10 +176,12 @@ class GramOperator:
         n, k, w = self.n, self.k, self.w
         if Xb.shape[0] not in (k, n):
             raise ValueError(f"{Xb.shape[0]} blocks: need k = {k} or the padded n = {n}")
-        r = Xb.shape[1]
-        Xf, hg, yh, yt = self._workspace(r)
+        r, nf = Xb.shape[1], self._hg.shape[0]
+        Xf = self._scratch("spectra", (nf, r, self.m), complex)
+        hg = self._scratch("head and tail spectra", (nf, r, 2), complex)
+        yh, yt = self._scratch("head", (n, r)), self._scratch("tail", (n, r))
         _rfft(Xb, n, Xf)  # (nf, r, m)
-        flat = np.empty((r, Xf.shape[0], self.m), dtype=complex)
+        flat = np.empty((r, nf, self.m), dtype=complex)
         np.matmul(Xf, self._U, out=flat.transpose(1, 0, 2))  # X(f) U(f)
         # head: (X D Lh)(i) = sum_c x(c) h(c - i), i = 1..k-1 (a correlation); tail:
         # (X D Lt)(i) = sum_c x(c) g(c + i), i = 0..w-2: conj(X(f)) g(f), conjugated
@@ -194,27 +192,21 @@ class GramOperator:
         sp = None if self._st is None else flat @ self._st
         return Encoded(flat, yh[1:k].copy(), yt[: w - 1].copy(), sp)
 
-    def _workspace(self, r: int) -> tuple[np.ndarray, ...]:
-        """Buffers for encoding ``r`` rows, kept for the next encoding of as many (an
-        encoding keeps none of them): an encoding's temporaries are several MB, and with
-        fresh ones a loop of encodings of 66 rows took 7.2 ms each against 3.3 ms reused
-        (N = 1e4, the issue record's window; allocator and page-fault costs)."""
-        ws = self._ws.get(r)
-        if ws is None:
-            nf, n = self._hg.shape[0], self.n
-            ws = self._ws[r] = (
-                np.empty((nf, r, self.m), dtype=complex),
-                np.empty((nf, r, 2), dtype=complex),
-                np.empty((n, r)),
-                np.empty((n, r)),
-            )
-        return ws
+    def _scratch(self, name: str, shape: tuple[int, ...], dtype: Any = float) -> np.ndarray:
+        """A buffer kept for the next call asking for the same ``name`` and ``shape`` (no
+        caller keeps one past its return): the encodings' and products' temporaries are
+        up to several MB, and fresh ones are page-faulted in at every Gauss-Newton point
+        (a loop of encodings of 66 rows took 7.2 ms each against 3.3 ms reused, N = 1e4,
+        the issue record's window; ~2.8 us a 4 kB page on the benchmark's KVM guest)."""
+        key = (name, shape, np.dtype(dtype).char)
+        a = self._scratch_arrays.get(key)
+        if a is None:
+            a = self._scratch_arrays[key] = np.empty(shape, dtype=dtype)
+        return a
 
     def inner(self, A: Encoded, C: Encoded) -> np.ndarray:
         """``A G C^T`` (rA, rC), (P18)."""
-        Aw = self._weighted.get(A.flat.shape[0])  # A's rows times c_f lambda(f) / n
-        if Aw is None:
-            Aw = self._weighted[A.flat.shape[0]] = np.empty_like(A.flat)
+        Aw = self._scratch("weighted rows", A.flat.shape)  # A's rows times c_f lambda(f) / n
         np.multiply(A.flat, self._w2, out=Aw)
         out = Aw @ C.flat.T  # sum_f (c_f / n) Re(A(f) R(f) C(f)^H)
         return self._corrected(out, A, C)
@@ -241,7 +233,8 @@ class GramOperator:
             raise ValueError(f"{Q.shape[0]} blocks: need at most k = {k}")
         r = Q.shape[1]
         qf = np.ascontiguousarray(np.fft.rfft(Q.T, n=n, axis=-1))  # (r, nf), row-major
-        hq, y = self._sequence_workspace(r, qf.shape[1])  # head's; conjugated tail's
+        hq = self._scratch("sequence spectra", (2, r, m, qf.shape[1]), complex)  # head, tail
+        y = self._scratch("sequence transforms", (2, r, m, n))
         np.multiply(qf[:, None, :], self._hg[:, :, 0].T[None], out=hq[0])
         np.multiply(qf.conj()[:, None, :], self._hg[:, :, 1].T.conj()[None], out=hq[1])
         _irfft(hq, n, y, axis=-1)  # (2, r, m, n)
@@ -249,18 +242,6 @@ class GramOperator:
         yt = y[1, :, :, : w - 1].reshape(r * m, w - 1).copy().T
         sp = None if self._us is None else (qf @ self._us).real.reshape(-1)
         return Sequences(qf, yh, yt, sp)
-
-    def _sequence_workspace(self, r: int, nf: int) -> tuple[np.ndarray, np.ndarray]:
-        """:meth:`encode_sequences`' spectra and inverse transforms of ``r`` sequences,
-        kept for the next encoding of as many (fresh, they were page-faulted in at every
-        Gauss-Newton point: ~2.8 us a page on the benchmark's KVM guest)."""
-        ws = self._ws.get(("sequences", r))
-        if ws is None:
-            ws = self._ws["sequences", r] = (
-                np.empty((2, r, self.m, nf), dtype=complex),
-                np.empty((2, r, self.m, self.n)),
-            )
-        return ws
 
     def sequence_gram(self, S: Sequences, T: Sequences | None = None) -> np.ndarray:
         """``Phi G Psi^T`` (r m, r' m) of the rows of two :meth:`encode_sequences` (``Psi``
@@ -270,9 +251,7 @@ class GramOperator:
         arithmetic), then the corrections of (P18)."""
         T = S if T is None else T
         r, r2, m = S.qf.shape[0], T.qf.shape[0], self.m
-        A = self._products.get((r, r2))  # row-major, as view() needs; kept (page faults)
-        if A is None:
-            A = self._products[r, r2] = np.empty((r, r2, S.qf.shape[1]), dtype=complex)
+        A = self._scratch("sequence products", (r, r2, S.qf.shape[1]), complex)  # row-major
         np.multiply(S.qf[:, None, :], T.qf.conj()[None, :, :], out=A)
         out = A.view(float).reshape(r * r2, -1) @ self._Rs  # re/im interleaved per f
         out = np.ascontiguousarray(out.reshape(r, r2, m, m).transpose(0, 2, 1, 3))
