@@ -30,7 +30,7 @@ operator is the same ``G`` that stage factors, to rounding.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -46,15 +46,18 @@ _FFT_OUT = np.lib.NumpyVersion(np.__version__) >= "2.0.0"
 
 @dataclass(frozen=True)
 class Encoded:
-    """Rows ``X`` (r, k m) as :meth:`GramOperator.inner` reads them: their spectra in the
-    eigenbasis of the lag sums' spectrum ``R(f)``, their products with the head's and
-    the tail's columns of (P18) and with the window's sums. Linear in ``X``: the
-    difference of two encodings is the encoding of the rows' difference."""
+    """Rows ``X`` (r, k m) as :meth:`GramOperator.inner` reads them: their spectra, their
+    products with the head's and the tail's columns of (P18) and with the window's
+    sums. Linear in ``X``: the difference of two encodings is the encoding of the rows'
+    difference."""
 
-    flat: np.ndarray  # (r, 2 nf m) float: X(f) U(f), row-major over (f, m), re/im interleaved
+    flat: np.ndarray  # (r, 2 nf m) float: X(f), row-major over (f, m), re/im interleaved
     yh: np.ndarray  # (k - 1, r): (X D Lh)^T
     yt: np.ndarray  # (w - 1, r): (X D Lt)^T
     sp: np.ndarray | None  # (r,): X D s (centring), None when not centred
+    # the rows weighted, X(f) (c_f / n) D R(f) D (r, nf, m), made at the first product
+    # that reads them on the left (GramOperator._weighted) and kept for the next
+    weighted: list[Any] = field(default_factory=list, repr=False, compare=False)
 
     def __getitem__(self, rows: slice) -> Encoded:
         sp = None if self.sp is None else self.sp[rows]
@@ -102,15 +105,15 @@ class GramOperator:
     ``X T(St) Y^T = (1/n) sum_f X(f) R(f) Y(f)^H`` (Parseval, the linear convolution
     held without wrapping by ``n >= w + k``), summed over the half spectrum of the
     real sequences with weights ``c_f`` (1 at 0 and n/2, else 2). ``D R(f) D`` (``D``
-    the channel scaling) is Hermitian (``St_{-tau} = St_tau^T``) with
-    ``D R(f) D = U(f) diag(lambda(f)) U(f)^H`` (not definite: the lags are truncated at
-    ``k - 1``), so rows are stored rotated, ``X(f) U(f)``, and a product is one real
-    GEMM with the weights ``c_f lambda(f) / n`` on one side (eq. (P19) of
-    docs/subspace.md). The corrections are products of the short time-domain
-    sequences ``X Lh``, ``X Lt`` (one inverse FFT of ``r`` sequences each). Encoding
-    ``r`` rows costs one real FFT of ``r m`` sequences of length ``n`` and one
-    ``m x m`` rotation per frequency; a product of ``r1`` and ``r2`` rows
-    ``O(n m r1 r2)``. The rows come as ``(r, k m)`` (:meth:`encode`) or block-major
+    the channel scaling) is Hermitian (``St_{-tau} = St_tau^T``; not definite: the
+    lags are truncated at ``k - 1``). A product weights its left rows once,
+    ``X(f) (c_f / n) D R(f) D`` (one ``m x m`` product per frequency, kept with the
+    encoding), and is then one real GEMM against the right rows' real and imaginary
+    parts (docs/subspace.md, (P19) and "thirtieth session"). The corrections are
+    products of the short time-domain sequences ``X Lh``, ``X Lt`` (one inverse FFT
+    of ``r`` sequences each). Encoding ``r`` rows costs one real FFT of ``r m``
+    sequences of length ``n``; a product of ``r1`` and ``r2`` rows ``O(n m r1 (m +
+    r2))``. The rows come as ``(r, k m)`` (:meth:`encode`) or block-major
     ``(k, r, m)`` (:meth:`encode_blocks`, what the FFT along the blocks reads
     without a transposed copy).
     """
@@ -132,35 +135,29 @@ class GramOperator:
         R[:k] = St
         R[n - k + 1 :] = St[1:][::-1].transpose(0, 2, 1)
         d = 1.0 / np.asarray(scale, dtype=float)
-        # R(f) of the scaled channels, D R(f) D: the eigenbasis is then accurate for every
-        # channel (the raw channels' sizes may differ by many orders)
-        lam, U = np.linalg.eigh(sfft.rfft(R * np.outer(d, d), axis=0))  # (nf, m), (nf, m, m)
-        nf = lam.shape[0]
+        # R(f) of the scaled channels, D R(f) D, weighted (c_f / n): Hermitian (St_{-tau} =
+        # St_tau^T); every product reads it on one side (no eigenbasis: the batched
+        # Hermitian eigensolver was 1 ms of the operator's 1.6, thirtieth session)
+        nf = n // 2 + 1
         c = np.full(nf, 2.0)
         c[0] = 1.0
         if n % 2 == 0:
             c[-1] = 1.0
-        self._U = U  # X(f) -> X(f) U(f): the rows' spectra unscaled, R(f)'s scaled
-        lw = lam * (c / n)[:, None]  # (nf, m): the weights c_f lambda(f) / n
-        self._w2 = np.repeat(lw.reshape(-1), 2)  # re/im interleaved
-        self._lw, self._Uh = lw, U.conj().transpose(0, 2, 1)
-        self._Rw = np.matmul(U * lw[:, None, :], self._Uh)  # (c_f / n) D R(f) D
+        self._Rw = sfft.rfft(R * np.outer(d, d), axis=0) * (c / n)[:, None, None]
         # the same, real, frequency-major with re/im interleaved: [Re; -Im] per frequency
         # (what sequence_gram's real part of a complex product reads)
         self._Rs = np.stack([self._Rw.real, -self._Rw.imag], axis=1).reshape(2 * nf, m * m)
-        # (X D) conj(h) = (X D U) conj(U^T h): the head's, the tail's and the sums' spectra
-        # in the same basis
-        rot = lambda x: np.einsum("fab,fa->fb", U, x * d).conj()  # noqa: E731
-        ht = rot(sfft.rfft(head[: k - 1], n=n, axis=0))  # h(s) = z(s), s < k - 1
-        gt = rot(sfft.rfft(tail[L - (w - 1) :], n=n, axis=0))  # g(s) = z(j + s), s <= w - 2
-        self._hg = U @ np.stack([ht, gt], axis=-1)  # (nf, m, 2): X(f) U(f) [ht, gt]
+        # (X D) conj(h): the head's and the tail's spectra, scaled and conjugated
+        spec = lambda x: (sfft.rfft(x, n=n, axis=0) * d).conj()  # noqa: E731
+        ht = spec(head[: k - 1])  # h(s) = z(s), s < k - 1
+        gt = spec(tail[L - (w - 1) :])  # g(s) = z(j + s), s <= w - 2
+        self._hg = np.stack([ht, gt], axis=-1)  # (nf, m, 2)
         self._scratch_arrays: dict[tuple[Any, ...], np.ndarray] = {}  # _scratch's
         self._st = self._us = None
         if center:  # sum_t x(t) s(t) = sum_f (c_f / n) Re(X(f) conj(S(f)))
-            sf = rot(sfft.rfft(_window_sums(acc, w, k).reshape(k, m), n=n, axis=0))
-            sf *= (c / n)[:, None]
+            sf = spec(_window_sums(acc, w, k).reshape(k, m)) * (c / n)[:, None]
             self._st = np.stack([sf.real, -sf.imag], axis=-1).reshape(-1)
-            self._us = np.matmul(U, sf[:, :, None])[:, :, 0]  # (nf, m): e_c U(f) sf(f)
+            self._us = sf  # (nf, m)
 
     def encode(self, X: np.ndarray) -> Encoded:
         """Rows ``X`` (r, k m), time-domain blocks (oldest first), for :meth:`inner`."""
@@ -168,8 +165,8 @@ class GramOperator:
 
     def encode_blocks(self, Xb: np.ndarray) -> Encoded:
         """Rows as blocks ``Xb[c, row, :]`` (k, r, m), block-major: the FFT runs along the
-        leading axis and leaves the spectra frequency-major for the rotation ``U(f)``,
-        written straight into the row-major layout :meth:`inner` reads. ``Xb`` may also
+        leading axis and writes the spectra straight into the row-major layout
+        :meth:`inner` reads. ``Xb`` may also
         come zero-padded to the FFT's length (``n`` blocks, those from ``k`` on zero):
         numpy's FFT then reads it in place instead of padding a copy (0.61 -> 0.38 ms
         for the 66 rows of a Gauss-Newton point on the issue record at N = 1e4)."""
@@ -177,12 +174,11 @@ class GramOperator:
         if Xb.shape[0] not in (k, n):
             raise ValueError(f"{Xb.shape[0]} blocks: need k = {k} or the padded n = {n}")
         r, nf = Xb.shape[1], self._hg.shape[0]
-        Xf = self._scratch("spectra", (nf, r, self.m), complex)
         hg = self._scratch("head and tail spectra", (nf, r, 2), complex)
         yh, yt = self._scratch("head", (n, r)), self._scratch("tail", (n, r))
-        _rfft(Xb, n, Xf)  # (nf, r, m)
         flat = np.empty((r, nf, self.m), dtype=complex)
-        np.matmul(Xf, self._U, out=flat.transpose(1, 0, 2))  # X(f) U(f)
+        Xf = flat.transpose(1, 0, 2)  # (nf, r, m), written in the row-major layout
+        _rfft(Xb, n, Xf)
         # head: (X D Lh)(i) = sum_c x(c) h(c - i), i = 1..k-1 (a correlation); tail:
         # (X D Lt)(i) = sum_c x(c) g(c + i), i = 0..w-2: conj(X(f)) g(f), conjugated
         np.matmul(Xf, self._hg, out=hg)  # (nf, r, 2)
@@ -205,11 +201,27 @@ class GramOperator:
         return a
 
     def inner(self, A: Encoded, C: Encoded) -> np.ndarray:
-        """``A G C^T`` (rA, rC), (P18)."""
-        Aw = self._scratch("weighted rows", A.flat.shape)  # A's rows times c_f lambda(f) / n
-        np.multiply(A.flat, self._w2, out=Aw)
-        out = Aw @ C.flat.T  # sum_f (c_f / n) Re(A(f) R(f) C(f)^H)
+        """``A G C^T`` (rA, rC), (P18): ``sum_f Re(A(f) (c_f / n) D R(f) D C(f)^H)``, the
+        weighted ``A(f) R(f)`` (:meth:`_weighted`) against ``C(f)``'s real and imaginary
+        parts as one real product."""
+        out = self._weighted(A).reshape(A.flat.shape[0], -1).view(float) @ C.flat.T
         return self._corrected(out, A, C)
+
+    def _weighted(self, A: Encoded) -> np.ndarray:
+        """``A(f) (c_f / n) D R(f) D`` (rA, nf, m), complex: one batched ``m x m`` product
+        per frequency, made once per encoding (kept in ``A.weighted``): a point's
+        residual rows are read on the left by three products, a trial's by two."""
+        if A.weighted and A.weighted[0] is self:
+            return A.weighted[1]
+        rA, nf, m = A.flat.shape[0], self._Rw.shape[0], self.m
+        AR = np.empty((rA, nf, m), dtype=complex)
+        np.matmul(
+            A.flat.view(complex).reshape(rA, nf, m).transpose(1, 0, 2),
+            self._Rw,
+            out=AR.transpose(1, 0, 2),
+        )
+        A.weighted[:] = [self, AR]
+        return AR
 
     def _corrected(self, out: np.ndarray, A: Any, C: Any) -> np.ndarray:
         """The Toeplitz part's products ``out`` less the head's, the tail's and the
@@ -260,14 +272,12 @@ class GramOperator:
 
     def inner_sequences(self, A: Encoded, S: Sequences) -> np.ndarray:
         """``A G Phi^T`` (rA, r m) for encoded rows ``A`` and the rows ``Phi`` of
-        :meth:`encode_sequences`: ``A(f) U(f)`` weighted and rotated back to the
-        channels, ``A(f) (c_f / n) R(f)``, against ``conj(q_j(f))`` (one product
-        ``(rA m x nf) (nf x r)``), then the corrections."""
-        rA, m = A.flat.shape[0], self.m
-        r, nf = S.qf.shape
-        AU = A.flat.view(complex).reshape(rA, nf, m)
-        AR = np.matmul((AU * self._lw).transpose(1, 0, 2), self._Uh)  # (nf, rA, m)
-        out = (AR.reshape(nf, rA * m).T @ S.qf.conj().T).real  # (rA m, r)
+        :meth:`encode_sequences`: the weighted rows ``A(f) (c_f / n) D R(f) D``
+        (:meth:`_weighted`) against ``conj(q_j(f))``, the real part alone as one real
+        product ``(rA m x 2 nf) (2 nf x r)``, then the corrections."""
+        rA, m, r = A.flat.shape[0], self.m, S.qf.shape[0]
+        AR = self._weighted(A).transpose(0, 2, 1).reshape(rA * m, -1)  # (rA m, nf), a copy
+        out = AR.view(float) @ S.qf.view(float).T  # Re(AR conj(q)): (rA m, r)
         out = np.ascontiguousarray(out.reshape(rA, m, r).transpose(0, 2, 1)).reshape(rA, -1)
         return self._corrected(out, A, S)
 
