@@ -166,10 +166,10 @@ class GramOperator:
     def encode_blocks(self, Xb: np.ndarray) -> Encoded:
         """Rows as blocks ``Xb[c, row, :]`` (k, r, m), block-major: the FFT runs along the
         leading axis and writes the spectra straight into the row-major layout
-        :meth:`inner` reads. ``Xb`` may also
-        come zero-padded to the FFT's length (``n`` blocks, those from ``k`` on zero):
-        numpy's FFT then reads it in place instead of padding a copy (0.61 -> 0.38 ms
-        for the 66 rows of a Gauss-Newton point on the issue record at N = 1e4)."""
+        :meth:`inner` reads. ``Xb`` may also come zero-padded to the FFT's length (``n``
+        blocks, those from ``k`` on zero): numpy's FFT then reads it in place instead of
+        padding a copy (0.61 -> 0.38 ms for the 66 rows of a Gauss-Newton point on the
+        issue record at N = 1e4)."""
         n, k, w = self.n, self.k, self.w
         if Xb.shape[0] not in (k, n):
             raise ValueError(f"{Xb.shape[0]} blocks: need k = {k} or the padded n = {n}")

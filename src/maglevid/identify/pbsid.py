@@ -443,16 +443,16 @@ def _right_solve(Zp: np.ndarray, Y: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class _RightSolved:
-    """The state map ``P Zp^{-1}`` (rows x ``Zp``'s), left unformed: its rows are only
-    ever read through a few combinations (the ``n`` states' ``L``, :func:`_state_matrix`),
-    each one solve of ``n`` rows instead of one of all of ``P``'s."""
+    """The state map ``Y Zp^{-1}`` (``Y``'s rows x ``Zp``'s), left unformed: its rows are
+    only ever read through a few combinations (the ``n`` states' ``L``,
+    :func:`_state_matrix`), each one solve of ``n`` rows instead of one of all of ``Y``'s."""
 
-    P: np.ndarray
+    Y: np.ndarray
     Zp: np.ndarray
     __array_ufunc__ = None  # ``A @ self`` with an ndarray ``A`` comes here
 
     def __rmatmul__(self, A: np.ndarray) -> np.ndarray:
-        return _right_solve(self.Zp, A @ self.P)
+        return _right_solve(self.Zp, A @ self.Y)
 
 
 def _qr_solver(Zp: np.ndarray):  # type: ignore[no-untyped-def]
@@ -505,21 +505,20 @@ def _state_map_ssarx(
     """The weighted SVD of eq. (P8) (values; leading left vectors on demand) and ``W1 beta``
     (an array, or :class:`_RightSolved` unformed)."""
     _, _, beta, Yt = _ssarx_regression(st, p, f, feedthrough)  # ytil_f = Gamma_f K_p Z_p + e
-    W1 = None
+    T = None  # W1 = T^{-1}, or none
     if weighting == "cca":
         T = _lower(Yt)  # T T^T = ytil_f ytil_f^T / j
         dT = np.abs(np.diag(T)) if T.shape[1] == T.shape[0] else np.zeros(1)
-        if dT.min() > _CCA_FLOOR * dT.max():
-            W1 = lambda X: sla.solve_triangular(T, X, lower=True)  # noqa: E731
-        else:
+        if not dT.min() > _CCA_FLOOR * dT.max():
+            T = None
             notes.append(
                 "weighting='cca' needs the corrected future outputs to have a full-rank "
                 "covariance, which noise-free data lack; the SVD was not weighted"
             )
     if isinstance(beta, _RightSolved):  # W1 beta Z_p = W1 ytil_f,k
-        P = beta.P if W1 is None else W1(beta.P)
-        return _LeftSVD(P), _RightSolved(P, beta.Zp)
-    W1beta = beta if W1 is None else W1(beta)
+        Y = beta.Y if T is None else sla.solve_triangular(T, beta.Y, lower=True)
+        return _LeftSVD(Y), _RightSolved(Y, beta.Zp)
+    W1beta = beta if T is None else sla.solve_triangular(T, beta, lower=True)
     return _LeftSVD(W1beta @ _leading(st.F, p * st.m)), W1beta
 
 
