@@ -191,7 +191,6 @@ def _window_stats(
     N = acc.n
     j = N - w + 1
     k = w if blocks is None else blocks
-    G = acc.gram(w, k)
     mean = acc.moments.mean()
     var = acc.moments.sumsq / N - (mean**2 if center else 0.0)
     scale = np.sqrt(np.maximum(var, 0.0))
@@ -205,14 +204,13 @@ def _window_stats(
         )
     s = _window_sums(acc, w, k) if center else None  # s_a, a < k
     d = np.tile(1.0 / scale, k)
-    _normalise(G, s, d, j)
 
-    def rebuild() -> np.ndarray:  # G again, where its in-place Cholesky did not hold
+    def gram() -> np.ndarray:  # made again where the in-place Cholesky did not hold
         G = acc.gram(w, k)
         _normalise(G, s, d, j)
         return G
 
-    F, rank = _factor(G, rebuild)
+    F, rank = _factor(gram(), gram)
     return _Stats(
         F=F,
         nu=nu,
@@ -403,8 +401,9 @@ def _corrected_future(st: _Stats, V: np.ndarray, D: np.ndarray, p: int, f: int) 
     return Yf - H.reshape(f * ny, f * m) @ Zf
 
 
-def _cholesky_solver(Zp: np.ndarray):  # type: ignore[no-untyped-def]
+def _cholesky_solver(Zp: np.ndarray, triangular: bool | None = None):  # type: ignore[no-untyped-def]
     """``Y -> M`` of ``Y ~ M Zp`` by the normal equations; None if ``Zp Zp^T`` is ill-conditioned.
+    ``triangular``: :func:`_is_triangular` of ``Zp`` when already known.
 
     The normal equations square the condition number: used only while the
     Cholesky diagonal spans less than ``_CHOL_SPAN`` (condition below 1e12 on
@@ -416,7 +415,7 @@ def _cholesky_solver(Zp: np.ndarray):  # type: ignore[no-untyped-def]
     ``M`` to rounding).
     """
     k = Zp.shape[1]  # Y's columns past Zp's are multiplied by Zp's zeros (_leading)
-    if _is_triangular(Zp):
+    if _is_triangular(Zp) if triangular is None else triangular:
         d = np.abs(np.diag(Zp))
         if not d.size or d.min() <= d.max() / _CHOL_SPAN:
             return None
@@ -487,14 +486,15 @@ def _ssarx_regression(
     fit at N = 1e4).
     """
     Zp = _leading(st.F, p * st.m)  # rows of z(0..p-1)
-    chol = _cholesky_solver(Zp)
+    triangular = _is_triangular(Zp)  # one check of the ~1 MB upper triangle, for both
+    chol = _cholesky_solver(Zp, triangular)
     solve = chol or _qr_solver(Zp)
     if feedthrough:
         V, D = _varx(st, p, True)
     else:
         V, D = solve(st.F[st.y_rows(p, p + 1)]), np.zeros((st.ny, st.nu))
     Yt = _corrected_future(st, V, D, p, f)
-    if chol is not None and _is_triangular(Zp):
+    if chol is not None and triangular:
         return V, D, _RightSolved(Yt[:, : Zp.shape[1]], Zp), Yt
     return V, D, solve(Yt), Yt
 
