@@ -15,6 +15,7 @@ import json
 
 import numpy as np
 import pytest
+import scipy.linalg as sla
 
 from maglevid.cli.main import main
 from maglevid.data import ClosedLoopData
@@ -864,6 +865,37 @@ def test_left_svd_values_and_leading_vectors_equal_the_full_svd(gap):
     np.testing.assert_allclose(
         np.abs(tall.vectors(2)), np.abs(np.linalg.svd(P[:, :40].T @ P[:, :40])[0][:, :2])
     )
+
+
+def test_leading_eigenvectors_by_subspace_iteration_equal_syevr():
+    # The transform's leading vectors by subspace iteration where the values' gap makes
+    # it a few steps (thirty-first session). Reference: LAPACK's syevr (scipy's eigh) on
+    # R^T R. A clear gap (s_5 / s_4 = 1e-3): the same projector to 1e-13, each vector's
+    # largest entry positive; the UAQ rig's marginal gap (1.28) and a block as wide as R:
+    # None (syevr then). A rank-4 R (s_5 = 0): exact in one step.
+    from maglevid.identify.pbsid import _leading_eigenvectors
+
+    rng = np.random.default_rng(11)
+    r = 60
+
+    def case(s_true):
+        R = np.linalg.qr(
+            (np.linalg.qr(rng.standard_normal((r, r)))[0] * s_true) @ rng.standard_normal((r, r))
+        )[1]
+        return R, np.linalg.svd(R, compute_uv=False)
+
+    for tail in (1e-3, 0.0):
+        R, s = case(
+            np.concatenate([[1.0, 0.3, 0.05, 1e-2], tail * 1e-2 * np.logspace(0, -3, r - 4)])
+        )
+        U = _leading_eigenvectors(R, s, 4)
+        V = sla.eigh(R.T @ R, subset_by_index=[r - 4, r - 1])[1][:, ::-1]
+        assert np.max(np.abs(U @ U.T - V @ V.T)) < 1e-13
+        np.testing.assert_allclose(np.abs(U), np.abs(V), atol=1e-13)
+        assert np.all(U[np.argmax(np.abs(U), axis=0), np.arange(4)] > 0)
+    R, s = case(np.concatenate([[1.0, 0.3, 0.05, 1e-2], 1e-2 / 1.28 * np.logspace(0, -3, r - 4)]))
+    assert _leading_eigenvectors(R, s, 4) is None
+    assert _leading_eigenvectors(R[:6, :6], s[:6], 4) is None
 
 
 def test_characteristic_polynomial_covariance_equals_central_differences(bearing):
