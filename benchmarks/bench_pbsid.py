@@ -273,6 +273,13 @@ def bench_bearing(sizes: tuple[int, ...], cases: tuple[str, ...]) -> list[dict[s
 
 
 MOESP_TOOL = "maglevid moesp + physical coordinates"
+PARSIM_K_TOOL = "SIPPY PARSIM-K"
+#: PARSIM-K joins the interleaved rounds (:func:`_interleaved_times`) where one call takes
+#: less than this (1e4: 2-2.8 s, ~12 s more a record). Its ratio to MOESP carries the
+#: ">= 50x faster" target, and had been two medians of three consecutive calls taken a
+#: minute apart: 82-113x from run to run on the paper-like record (thirtieth session),
+#: with the machine's speed drifting by tens of percent within seconds (thirty-first).
+PEER_ROUNDS_S = 5.0
 #: Samples of the untimed PARSIM-K fit that warms the peer up (:func:`_warm_up_parsim_k`).
 PARSIM_K_WARM_UP_N = 2_000
 
@@ -297,7 +304,8 @@ def _warm_up_parsim_k() -> None:
 
 
 def _interleaved_times(rows: list[dict[str, Any]], data: Any) -> None:
-    """Re-time the maglevid fits interleaved: rounds of one call each (module notes).
+    """Re-time the maglevid fits (and PARSIM-K where short) interleaved: rounds of one
+    call each (module notes).
 
     A shared core's speed drifts by tens of percent within seconds, so each
     fit's ratio to MOESP is the median over rounds of its time over MOESP's in
@@ -306,8 +314,17 @@ def _interleaved_times(rows: list[dict[str, Any]], data: Any) -> None:
     """
     tools = _bearing_tools()
     # The structured fits are timed here too since the seventh session (0.1-0.5 s;
-    # they took 1-70 s before, and were timed by _median_time alone).
-    timed = [r for r in rows if "error" not in r and r["tool"].startswith("maglevid")]
+    # they took 1-70 s before, and were timed by _median_time alone). PARSIM-K too
+    # where a call is short (1e4): its ratio to MOESP carries the 50x target.
+    timed = [
+        r
+        for r in rows
+        if "error" not in r
+        and (
+            r["tool"].startswith("maglevid")
+            or (r["tool"] == PARSIM_K_TOOL and r["time_s"] <= PEER_ROUNDS_S)
+        )
+    ]
     if not any(r["tool"] == MOESP_TOOL for r in timed):
         return
     rounds = 5 if data.n_samples <= 100_000 else 3
@@ -565,8 +582,9 @@ def markdown_section(results: dict[str, Any]) -> list[str]:
         "",
         f"`python -m benchmarks.bench_pbsid`; one BLAS thread; load average at the end "
         f"{results['load'][0]:.1f} (2 shared cores). Errors relative. Bearing: maglevid "
-        "fits timed interleaved (3-5 rounds, one call of each per round; time / MOESP's "
-        f"is the median of the per-round ratios), peers median of 3 (1 above {SINGLE_RUN_S:g} s; "
+        f"fits, and PARSIM-K where a call takes under {PEER_ROUNDS_S:g} s, timed interleaved "
+        "(3-5 rounds, one call of each per round; time / MOESP's is the median of the "
+        f"per-round ratios), other peers median of 3 (1 above {SINGLE_RUN_S:g} s; "
         "PARSIM-K warmed up by an untimed short fit first); "
         "other tables median of 3.",
         "",
@@ -725,7 +743,7 @@ def _time_checks(
     unmeasured: list[str] = []  # PARSIM-K not run (its footprint: parsim_k_verdict)
     for r in (r for r in rows if r["tool"] == tool):
         where = f"{r['case']} {r['N']:.0e}"
-        pk, mo = get(r["case"], r["N"], "SIPPY PARSIM-K"), get(r["case"], r["N"], MOESP_TOOL)
+        pk, mo = get(r["case"], r["N"], PARSIM_K_TOOL), get(r["case"], r["N"], MOESP_TOOL)
         ratio = r.get("moesp_ratio")
         if ratio is None:
             ratio = r["time_s"] / mo["time_s"] if mo is not None else None
@@ -734,10 +752,12 @@ def _time_checks(
             speed = pk["time_s"] / r["time_s"]
             text = f"{where}: {speed:.0f}x"
             if spread is not None and mo is not None:  # PARSIM-K / MOESP over the median
-                one, speed = speed, pk["time_s"] / mo["time_s"] / spread[1]["median"]
+                pk_mo = pk.get("moesp_ratio") or pk["time_s"] / mo["time_s"]
+                how = "interleaved" if pk.get("moesp_ratio") else "medians of 3"
+                one, speed = speed, pk_mo / spread[1]["median"]
                 text = (
-                    f"{where}: {speed:.0f}x (PARSIM-K {pk['time_s'] / mo['time_s']:.0f}x "
-                    f"MOESP's time over the Monte Carlo's median; the timed record {one:.0f}x)"
+                    f"{where}: {speed:.0f}x (PARSIM-K {pk_mo:.0f}x MOESP's time ({how}) "
+                    f"over the Monte Carlo's median; the timed record {one:.0f}x)"
                 )
             checks["peer"].append((text, speed >= 50.0))
         elif r["N"] > PEER_MAX_N:
@@ -818,7 +838,7 @@ def _v_checks(
             v_checks.append((text, bool(ratio.max() <= 2.0) and not n_ref))
         elif one is not None:
             v_checks.append((f"{where}: {one:.2g}x (one record)", one <= 2.0))
-        pk = get(r["case"], r["N"], "SIPPY PARSIM-K")
+        pk = get(r["case"], r["N"], PARSIM_K_TOOL)
         if pk is not None:
             ok = r["pole_error"] <= pk["pole_error"]
             pole_checks.append((f"{where}: {r['pole_error']:.1e} vs {pk['pole_error']:.1e}", ok))
