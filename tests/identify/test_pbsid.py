@@ -867,6 +867,32 @@ def test_left_svd_values_and_leading_vectors_equal_the_full_svd(gap):
     )
 
 
+def test_bounded_values_from_the_gram_equal_the_svd():
+    # SSARX's CCA-weighted state map: values that whitening bounds (canonical
+    # correlations) from the eigenvalues of P P^T (thirty-first session). Reference:
+    # numpy's SVD. Values spanning 1 to 0.09 (the bench records'): values to 1e-13
+    # relative, the leading vectors' projector to 1e-13. Values spanning 1e-6 (past
+    # _GRAM_SVD_SPAN): the QR route, values to 1e-12 relative or 1e-15 of s_1, as before.
+    from maglevid.identify.pbsid import _LeftSVD
+
+    rng = np.random.default_rng(7)
+    r, c = 40, 150
+
+    def wide(s_true):
+        Ul = np.linalg.qr(rng.standard_normal((r, r)))[0]
+        return (Ul * s_true) @ np.linalg.qr(rng.standard_normal((c, r)))[0].T
+
+    for low, via_gram in ((0.09, True), (1e-6, False)):
+        s_true = np.concatenate([[1.0, 0.99, 0.97, 0.95], np.geomspace(0.3, low, r - 4)])
+        P = wide(s_true)
+        U, s, _ = np.linalg.svd(P, full_matrices=False)
+        svd = _LeftSVD(P, bounded=True)
+        assert (svd._R is None) == via_gram
+        np.testing.assert_allclose(svd.s, s, rtol=1e-13 if via_gram else 1e-12, atol=1e-15)
+        V = svd.vectors(4)
+        assert np.max(np.abs(V @ V.T - U[:, :4] @ U[:, :4].T)) < 1e-13
+
+
 def test_leading_eigenvectors_by_subspace_iteration_equal_syevr():
     # The transform's leading vectors by subspace iteration where the values' gap makes
     # it a few steps (thirty-first session). Reference: LAPACK's syevr (scipy's eigh) on

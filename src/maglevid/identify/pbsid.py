@@ -157,6 +157,9 @@ _CCA_FLOOR = 1e-8
 #: ``syevr`` ~1.5-2 ms there).
 _SUBSPACE_EXTRA = 4
 _SUBSPACE_STEPS = 8
+#: Smallest ``(s_r / s_1)^2`` for which :class:`_LeftSVD` takes a bounded matrix's values
+#: from the eigenvalues of ``P P^T`` (``s_r / s_1 >= 1e-3``).
+_GRAM_SVD_SPAN = 1e-6
 #: Samples per chunk of the in-memory pass over the lagged products (rounded to a
 #: whole number of the accumulator's groups); docs/subspace.md, "Speed of the
 #: transform path".
@@ -371,17 +374,35 @@ class _LeftSVD:
     error is ~``eps s_1^2 / (s_n^2 - s_{n+1}^2)``: ~3e-10 at the UAQ rig's marginal
     gap of 1.28 with ``s_1 / s_n`` 1e3. The full SVD with both vector sets was 6.4-10
     ms of the transform's ~12 (1e4, 198 rows), this 2.7-3.3 (docs/subspace.md,
-    "eighth session"). A tall ``P`` takes the SVD.
+    "eighth session"). A tall ``P`` takes the SVD. ``bounded`` (values known to lie
+    within a few decades, SSARX's canonical correlations): values and vectors from
+    the eigenvalues of ``P P^T`` where they do span less than 1e3 (:meth:`_from_gram`).
     """
 
-    def __init__(self, P: np.ndarray) -> None:
+    def __init__(self, P: np.ndarray, bounded: bool = False) -> None:
         self._U: np.ndarray | None = None
+        self._R: np.ndarray | None = None
         if P.shape[0] >= P.shape[1]:
             self._U, self.s, _ = np.linalg.svd(P, full_matrices=False)
-            self._R = None
+            return
+        if bounded and self._from_gram(P):
             return
         self._R = sla.qr(P.T, mode="r", check_finite=False)[0][: P.shape[0]]
         self.s = sla.svd(self._R, compute_uv=False, check_finite=False)
+
+    def _from_gram(self, P: np.ndarray) -> bool:
+        """Values and left vectors from the eigenvalues of ``P P^T`` (one ``syevd``), where
+        they span less than ``_GRAM_SVD_SPAN``: the squared values lose ``eps / (s_i /
+        s_1)^2`` of their digits, 1e-10 at most then. For values that whitening bounds
+        (SSARX's CCA weighting: canonical correlations, 1 down to ~0.09 on the bench
+        records) this is 1.2 ms against 2.7 for the QR, the SVD and the vectors (120 x
+        365, paper-like record at 1e4; values equal to 3e-15 relative, projectors to
+        1e-15; thirty-first session). False, and nothing kept, where they span more."""
+        lam, U = sla.eigh(P @ P.T, driver="evd", check_finite=False)
+        if not lam[-1] > 0.0 or lam[0] < _GRAM_SVD_SPAN * lam[-1]:
+            return False
+        self.s, self._U = np.sqrt(lam[::-1]), U[:, ::-1]
+        return True
 
     def vectors(self, n: int) -> np.ndarray:
         """The ``n`` leading left singular vectors (columns), largest first.
@@ -565,11 +586,12 @@ def _state_map_ssarx(
                 "weighting='cca' needs the corrected future outputs to have a full-rank "
                 "covariance, which noise-free data lack; the SVD was not weighted"
             )
+    # with the CCA weighting the values are canonical correlations, at most 1
     if isinstance(beta, _RightSolved):  # W1 beta Z_p = W1 ytil_f,k
         Y = beta.Y if T is None else sla.solve_triangular(T, beta.Y, lower=True)
-        return _LeftSVD(Y), _RightSolved(Y, beta.Zp)
+        return _LeftSVD(Y, bounded=T is not None), _RightSolved(Y, beta.Zp)
     W1beta = beta if T is None else sla.solve_triangular(T, beta, lower=True)
-    return _LeftSVD(W1beta @ _leading(st.F, p * st.m)), W1beta
+    return _LeftSVD(W1beta @ _leading(st.F, p * st.m), bounded=T is not None), W1beta
 
 
 def _order(s: np.ndarray, order: int | None, n_max: int, rank_tol: float) -> tuple[int, float]:
