@@ -392,10 +392,10 @@ class _LeftSVD:
 
     def _from_gram(self, P: np.ndarray) -> bool:
         """Values and left vectors from the eigenvalues of ``P P^T`` (one ``syevd``), where
-        they span less than ``_GRAM_SVD_SPAN``: the squared values lose ``eps / (s_i /
-        s_1)^2`` of their digits, 1e-10 at most then. For values that whitening bounds
-        (SSARX's CCA weighting: canonical correlations, 1 down to ~0.09 on the bench
-        records) this is 1.2 ms against 2.7 for the QR, the SVD and the vectors (120 x
+        the squared values span less than ``1 / _GRAM_SVD_SPAN`` (the values 1e3): they
+        lose ``eps / (s_i / s_1)^2`` of their digits, 1e-10 at most then. For values that
+        whitening bounds (SSARX's CCA weighting: canonical correlations, 1 down to ~0.09 on
+        the bench records) this is 1.2 ms against 2.7 for the QR, the SVD and the vectors (120 x
         365, paper-like record at 1e4; values equal to 3e-15 relative, projectors to
         1e-15; thirty-first session). False, and nothing kept, where they span more."""
         lam, U = sla.eigh(P @ P.T, driver="evd", check_finite=False)
@@ -413,10 +413,12 @@ class _LeftSVD:
         """
         if self._U is not None:
             return self._U[:, :n]
-        U = _leading_eigenvectors(self._R, self.s, n)
+        R = self._R
+        assert R is not None  # the QR route: no vectors yet
+        U = _leading_eigenvectors(R, self.s, n)
         if U is not None:
             return U
-        G = self._R.T @ self._R
+        G = R.T @ R
         r = G.shape[0]
         _, V = sla.eigh(G, subset_by_index=[r - n, r - 1], check_finite=False)
         return V[:, ::-1]
