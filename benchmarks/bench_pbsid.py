@@ -240,7 +240,7 @@ def _bearing_tools() -> dict[str, Callable[[Any], tuple[Any, Any] | str]]:
         "maglevid n4sid + physical coordinates": subspace(fit_n4sid),
         "maglevid physical (IV)": physical_iv,
         "maglevid ml": ml,
-        "SIPPY PARSIM-K": parsim_k,
+        PARSIM_K_TOOL: parsim_k,
     }
 
 
@@ -274,12 +274,6 @@ def bench_bearing(sizes: tuple[int, ...], cases: tuple[str, ...]) -> list[dict[s
 
 MOESP_TOOL = "maglevid moesp + physical coordinates"
 PARSIM_K_TOOL = "SIPPY PARSIM-K"
-#: PARSIM-K joins the interleaved rounds (:func:`_interleaved_times`) where one call takes
-#: less than this (1e4: 2-2.8 s, ~12 s more a record). Its ratio to MOESP carries the
-#: ">= 50x faster" target, and had been two medians of three consecutive calls taken a
-#: minute apart: 82-113x from run to run on the paper-like record (thirtieth session),
-#: with the machine's speed drifting by tens of percent within seconds (thirty-first).
-PEER_ROUNDS_S = 5.0
 #: Samples of the untimed PARSIM-K fit that warms the peer up (:func:`_warm_up_parsim_k`).
 PARSIM_K_WARM_UP_N = 2_000
 
@@ -315,14 +309,17 @@ def _interleaved_times(rows: list[dict[str, Any]], data: Any) -> None:
     tools = _bearing_tools()
     # The structured fits are timed here too since the seventh session (0.1-0.5 s;
     # they took 1-70 s before, and were timed by _median_time alone). PARSIM-K too
-    # where a call is short (1e4): its ratio to MOESP carries the 50x target.
+    # where a call is short enough to repeat (under SINGLE_RUN_S: 1e4, 2-2.8 s, ~12 s
+    # more a record): its ratio to MOESP carries the 50x target, and had been two
+    # medians of three calls a minute apart, 82-113x from run to run on the paper-like
+    # record (thirtieth session), the machine's speed drifting by tens of percent.
     timed = [
         r
         for r in rows
         if "error" not in r
         and (
             r["tool"].startswith("maglevid")
-            or (r["tool"] == PARSIM_K_TOOL and r["time_s"] <= PEER_ROUNDS_S)
+            or (r["tool"] == PARSIM_K_TOOL and r["time_s"] < SINGLE_RUN_S)
         )
     ]
     if not any(r["tool"] == MOESP_TOOL for r in timed):
@@ -582,7 +579,7 @@ def markdown_section(results: dict[str, Any]) -> list[str]:
         "",
         f"`python -m benchmarks.bench_pbsid`; one BLAS thread; load average at the end "
         f"{results['load'][0]:.1f} (2 shared cores). Errors relative. Bearing: maglevid "
-        f"fits, and PARSIM-K where a call takes under {PEER_ROUNDS_S:g} s, timed interleaved "
+        f"fits, and PARSIM-K where a call takes under {SINGLE_RUN_S:g} s, timed interleaved "
         "(3-5 rounds, one call of each per round; time / MOESP's is the median of the "
         f"per-round ratios), other peers median of 3 (1 above {SINGLE_RUN_S:g} s; "
         "PARSIM-K warmed up by an untimed short fit first); "
@@ -752,8 +749,9 @@ def _time_checks(
             speed = pk["time_s"] / r["time_s"]
             text = f"{where}: {speed:.0f}x"
             if spread is not None and mo is not None:  # PARSIM-K / MOESP over the median
-                pk_mo = pk.get("moesp_ratio") or pk["time_s"] / mo["time_s"]
-                how = "interleaved" if pk.get("moesp_ratio") else "medians of 3"
+                interleaved = pk.get("moesp_ratio")
+                pk_mo = interleaved or pk["time_s"] / mo["time_s"]
+                how = "interleaved" if interleaved else "medians of 3"
                 one, speed = speed, pk_mo / spread[1]["median"]
                 text = (
                     f"{where}: {speed:.0f}x (PARSIM-K {pk_mo:.0f}x MOESP's time ({how}) "

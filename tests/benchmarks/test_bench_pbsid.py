@@ -17,7 +17,7 @@ from benchmarks.bench_pbsid import (
     PARSIM_K_TOOL,
     PEER_MAX_N,
     PEER_MEMORY_GB,
-    PEER_ROUNDS_S,
+    SINGLE_RUN_S,
     STRUCTURED,
     TRANSFORM,
     _interleaved_times,
@@ -91,7 +91,7 @@ def test_parsim_k_joins_the_interleaved_rounds_where_short(monkeypatch):
     calls.clear()
     rows = [
         {"case": "issue", "N": 10_000, "tool": MOESP_TOOL, "time_s": 0.05},
-        {"case": "issue", "N": 10_000, "tool": PARSIM_K_TOOL, "time_s": PEER_ROUNDS_S * 2},
+        {"case": "issue", "N": 10_000, "tool": PARSIM_K_TOOL, "time_s": SINGLE_RUN_S * 2},
     ]
     _interleaved_times(rows, Data())  # a long call (1e5): its median of 3 stands
     assert PARSIM_K_TOOL not in calls and "moesp_ratio" not in rows[1]

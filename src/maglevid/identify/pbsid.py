@@ -588,12 +588,12 @@ def _state_map_ssarx(
                 "weighting='cca' needs the corrected future outputs to have a full-rank "
                 "covariance, which noise-free data lack; the SVD was not weighted"
             )
-    # with the CCA weighting the values are canonical correlations, at most 1
+    bounded = T is not None  # CCA-weighted values are canonical correlations, at most 1
     if isinstance(beta, _RightSolved):  # W1 beta Z_p = W1 ytil_f,k
         Y = beta.Y if T is None else sla.solve_triangular(T, beta.Y, lower=True)
-        return _LeftSVD(Y, bounded=T is not None), _RightSolved(Y, beta.Zp)
+        return _LeftSVD(Y, bounded=bounded), _RightSolved(Y, beta.Zp)
     W1beta = beta if T is None else sla.solve_triangular(T, beta, lower=True)
-    return _LeftSVD(W1beta @ _leading(st.F, p * st.m), bounded=T is not None), W1beta
+    return _LeftSVD(W1beta @ _leading(st.F, p * st.m), bounded=bounded), W1beta
 
 
 def _order(s: np.ndarray, order: int | None, n_max: int, rank_tol: float) -> tuple[int, float]:
